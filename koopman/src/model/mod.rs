@@ -1,0 +1,20 @@
+//! Models with linear latent dynamics `z⁺ = A z + B u` and a lifting `z = Φ(x)`: the neural Koopman
+//! model, EDMD with control, and the NNDM baseline; save/load.
+
+use faer::Mat;
+
+/// A model whose latent dynamics are linear: what the MPC needs to know about it.
+pub trait LiftedModel: Send + Sync {
+    /// State dimension nx.
+    fn nx(&self) -> usize;
+    /// Input dimension nu.
+    fn nu(&self) -> usize;
+    /// Latent dimension N (the first `nx` latent coordinates are x itself: `x = P z`).
+    fn latent_dim(&self) -> usize;
+    /// The latent transition matrix A (N × N), in f64.
+    fn a(&self) -> Mat<f64>;
+    /// The latent input matrix B (N × nu), in f64.
+    fn b(&self) -> Mat<f64>;
+    /// Lifts a state: `z = Φ(x)`, `N` values.
+    fn lift(&self, x: &[f64]) -> Vec<f64>;
+}

@@ -1,0 +1,17 @@
+//! Subcommands of the `koopbridge` binary, one file each.
+
+pub mod bench;
+pub mod control;
+pub mod data;
+pub mod eval;
+pub mod run;
+pub mod serve;
+pub mod sim;
+pub mod train;
+
+/// Logs to stderr; `RUST_LOG` selects the level (default `info` for koopbridge, `warn` for others).
+pub fn init_tracing() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn,koopbridge=info,bridge=info"));
+    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).try_init();
+}
