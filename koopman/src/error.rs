@@ -62,17 +62,27 @@ pub type Result<T> = std::result::Result<T, Error>;
 impl Error {
     /// Wraps an I/O error with the path it concerns.
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
-        Error::Io { path: path.into(), source }
+        Error::Io {
+            path: path.into(),
+            source,
+        }
     }
 
     /// A format error for `path` with a message.
     pub fn format(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
-        Error::Format { path: path.into(), message: message.into() }
+        Error::Format {
+            path: path.into(),
+            message: message.into(),
+        }
     }
 
     /// A dimension mismatch.
     pub fn dimension(what: impl Into<String>, expected: usize, got: usize) -> Self {
-        Error::Dimension { what: what.into(), expected, got }
+        Error::Dimension {
+            what: what.into(),
+            expected,
+            got,
+        }
     }
 }
 

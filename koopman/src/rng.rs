@@ -19,7 +19,10 @@ impl Rng {
             z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
             z ^ (z >> 31)
         };
-        Rng { s: [next(), next(), next(), next()], spare_normal: None }
+        Rng {
+            s: [next(), next(), next(), next()],
+            spare_normal: None,
+        }
     }
 
     /// An independent stream derived from this seed and `index` (e.g. one per worker or window).

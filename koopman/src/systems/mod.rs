@@ -28,7 +28,10 @@ pub trait System: Send + Sync {
     /// Draws one input from the data-collection distribution (uniform within the bounds).
     fn sample_input(&self, rng: &mut crate::rng::Rng) -> Vec<f64> {
         let (lo, hi) = self.input_bounds();
-        lo.iter().zip(&hi).map(|(&l, &h)| rng.uniform(l, h)).collect()
+        lo.iter()
+            .zip(&hi)
+            .map(|(&l, &h)| rng.uniform(l, h))
+            .collect()
     }
     /// Advances the state by one step `dt` with `u` held constant; writes `x_next`.
     fn step(&self, x: &[f64], u: &[f64], x_next: &mut [f64]);
