@@ -1,0 +1,360 @@
+//! The receding-horizon Koopman MPC controller: lifts the state, forms `q = M1 z_0 + M2 r`,
+//! solves the QP warm-started from the shifted previous plan, and falls back safely on failure.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use serde::{Deserialize, Serialize};
+
+use super::boxqp::BoxQp;
+use super::clarabel_qp::ClarabelQp;
+use super::closed_form::ClampedClosedForm;
+use super::condensed::{Condensed, Weights};
+use super::config::{MpcConfig, SolverKind};
+use super::constraints::{input_box, LinearConstraints};
+use super::qp::{QpSolver, QpStatus};
+use crate::error::{ensure_finite, Error, Result};
+use crate::model::LiftedModel;
+
+/// Why the controller returned its fallback plan instead of a solver's answer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum FallbackReason {
+    /// The constraints (rate or state bounds) admit no solution at this state.
+    Infeasible,
+    /// The solver hit its iteration limit without a usable point.
+    MaxIterations,
+    /// The solver hit its time limit without a usable point.
+    TimeLimit,
+    /// The solver failed numerically or produced non-finite inputs.
+    Numerical,
+}
+
+/// How the plan of one [`MpcController::solve`] was obtained.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SolveStatus {
+    /// Optimal within the solver's tolerances.
+    Solved,
+    /// Optimal to reduced accuracy (Clarabel's `AlmostSolved`).
+    Inaccurate,
+    /// The dedicated solver stopped at its iteration or time limit; its plan is feasible
+    /// (within the input bounds) and better than the warm start, but not proven optimal.
+    Suboptimal,
+    /// The solver failed; the plan is the previous plan shifted by one step (last input
+    /// repeated), clamped to the input bounds — or the input closest to zero within the bounds
+    /// when there is no previous plan.
+    Fallback(FallbackReason),
+}
+
+/// One solve's result.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MpcSolution {
+    /// The input plan, H·nu values, first input first (always finite).
+    pub u: Vec<f64>,
+    /// How it was obtained.
+    pub status: SolveStatus,
+    /// Wall time of the solve (lifting, linear term and QP).
+    pub solve_time: Duration,
+    /// Solver iterations.
+    pub iterations: usize,
+}
+
+impl MpcSolution {
+    /// The first input of the plan (what a receding-horizon loop applies).
+    pub fn first(&self, nu: usize) -> &[f64] {
+        &self.u[..nu]
+    }
+}
+
+/// The lifting Φ, borrowed or shared.
+enum ModelRef<'m> {
+    Borrowed(&'m dyn LiftedModel),
+    Shared(Arc<dyn LiftedModel>),
+}
+
+impl ModelRef<'_> {
+    fn get(&self) -> &dyn LiftedModel {
+        match self {
+            ModelRef::Borrowed(m) => *m,
+            ModelRef::Shared(m) => m.as_ref(),
+        }
+    }
+}
+
+/// Linear MPC on a lifted model (SPEC.md, "Control"). Every matrix that depends on the model
+/// alone is built once in [`MpcController::new`]; each [`MpcController::solve`] costs one lift,
+/// one product `q = M1 z_0 + M2 r` and the QP.
+pub struct MpcController<'m> {
+    model: ModelRef<'m>,
+    cfg: MpcConfig,
+    condensed: Condensed,
+    constraints: Option<LinearConstraints>,
+    solver: Box<dyn QpSolver>,
+    lo: Vec<f64>,
+    hi: Vec<f64>,
+    plan: Option<Vec<f64>>,
+    u_prev: Vec<f64>,
+    // Workspace.
+    r: Vec<f64>,
+    q: Vec<f64>,
+    h: Vec<f64>,
+}
+
+impl<'m> MpcController<'m> {
+    /// Builds the controller for `model` (borrowed for the controller's lifetime).
+    pub fn new(model: &'m dyn LiftedModel, cfg: &MpcConfig) -> Result<Self> {
+        Self::build(ModelRef::Borrowed(model), cfg)
+    }
+}
+
+impl MpcController<'static> {
+    /// Builds a controller that shares ownership of `model` (for services that keep it).
+    pub fn from_shared(model: Arc<dyn LiftedModel>, cfg: &MpcConfig) -> Result<Self> {
+        Self::build(ModelRef::Shared(model), cfg)
+    }
+}
+
+impl<'m> MpcController<'m> {
+    fn build(model: ModelRef<'m>, cfg: &MpcConfig) -> Result<Self> {
+        let m = model.get();
+        let (nx, nu, latent) = (m.nx(), m.nu(), m.latent_dim());
+        let a = m.a();
+        let b = m.b();
+        if a.nrows() != latent || a.ncols() != latent {
+            return Err(Error::dimension(
+                "A rows (latent dimension)",
+                latent,
+                a.nrows(),
+            ));
+        }
+        if b.nrows() != latent || b.ncols() != nu {
+            return Err(Error::dimension("B columns (inputs)", nu, b.ncols()));
+        }
+        let q = cfg.q.clone().unwrap_or_else(|| vec![1.0; nx]);
+        let terminal = cfg.terminal.clone().unwrap_or_else(|| q.clone());
+        let r = cfg.r.clone().unwrap_or_else(|| vec![0.0; nu]);
+        let w = Weights {
+            q: &q,
+            terminal: &terminal,
+            r: &r,
+            regularization: cfg.regularization,
+        };
+        let condensed = Condensed::build(a.as_ref(), b.as_ref(), nx, cfg.horizon, &w)?;
+        let (lo, hi) = input_box(cfg, nu, cfg.horizon)?;
+        if let Some(t) = cfg.time_limit {
+            if t.is_nan() || t <= 0.0 {
+                return Err(Error::InvalidArgument(format!(
+                    "time_limit must be > 0 s, got {t}"
+                )));
+            }
+        }
+        let (solver, constraints): (Box<dyn QpSolver>, Option<LinearConstraints>) = match cfg.solver
+        {
+            SolverKind::Dedicated => {
+                if cfg.has_general_constraints() {
+                    return Err(Error::InvalidArgument(
+                        "the dedicated solver handles input bounds only; use the clarabel solver for input-rate or state bounds".into(),
+                    ));
+                }
+                let s = BoxQp::new(
+                    condensed.hessian.as_ref(),
+                    &lo,
+                    &hi,
+                    cfg.max_iterations,
+                    cfg.time_limit,
+                )?;
+                (Box::new(s), None)
+            }
+            SolverKind::Clarabel => {
+                let c = LinearConstraints::build(cfg, &condensed)?;
+                let s = ClarabelQp::new(
+                    condensed.hessian.as_ref(),
+                    c.g.as_ref(),
+                    cfg.max_iterations,
+                    cfg.time_limit,
+                )?;
+                (Box::new(s), Some(c))
+            }
+            SolverKind::ClosedForm => {
+                let s = ClampedClosedForm::new(condensed.hessian.as_ref(), &lo, &hi)?;
+                (Box::new(s), None)
+            }
+        };
+        let n = condensed.n_vars();
+        Ok(MpcController {
+            model,
+            cfg: cfg.clone(),
+            constraints,
+            solver,
+            lo,
+            hi,
+            plan: None,
+            u_prev: vec![0.0; nu],
+            r: vec![0.0; cfg.horizon * nx],
+            q: vec![0.0; n],
+            h: Vec::new(),
+            condensed,
+        })
+    }
+
+    /// State dimension nx.
+    pub fn nx(&self) -> usize {
+        self.condensed.nx
+    }
+
+    /// Input dimension nu.
+    pub fn nu(&self) -> usize {
+        self.condensed.nu
+    }
+
+    /// Horizon H.
+    pub fn horizon(&self) -> usize {
+        self.condensed.horizon
+    }
+
+    /// The configuration the controller was built with.
+    pub fn config(&self) -> &MpcConfig {
+        &self.cfg
+    }
+
+    /// The condensed matrices (Hessian, M1, M2, Φ, Γ).
+    pub fn condensed(&self) -> &Condensed {
+        &self.condensed
+    }
+
+    /// Forgets the warm start and the previous input (e.g. at the start of an episode).
+    pub fn reset(&mut self) {
+        self.plan = None;
+        self.u_prev.fill(0.0);
+    }
+
+    /// Sets the input applied at the previous step (`u_{−1}` of the rate bounds). `solve` sets
+    /// it to the first input of its plan; call this if something else was applied.
+    pub fn set_previous_input(&mut self, u: &[f64]) -> Result<()> {
+        if u.len() != self.nu() {
+            return Err(Error::dimension("previous input", self.nu(), u.len()));
+        }
+        ensure_finite("previous input", u)?;
+        self.u_prev.copy_from_slice(u);
+        Ok(())
+    }
+
+    /// Expands a reference of nx values (held over the horizon) or H·nx values (stacked).
+    fn set_reference(&mut self, reference: &[f64]) -> Result<()> {
+        let (nx, hz) = (self.nx(), self.horizon());
+        if reference.len() == nx {
+            for t in 0..hz {
+                self.r[t * nx..(t + 1) * nx].copy_from_slice(reference);
+            }
+        } else if reference.len() == hz * nx {
+            self.r.copy_from_slice(reference);
+        } else {
+            return Err(Error::InvalidArgument(format!(
+                "reference has {} values; expected nx = {nx} (held) or H·nx = {} (stacked)",
+                reference.len(),
+                hz * nx
+            )));
+        }
+        ensure_finite("reference", &self.r)
+    }
+
+    /// Plans from state `x` (nx values) towards `reference` (nx values held over the horizon,
+    /// or the stacked H·nx values of `x_1..x_H`).
+    ///
+    /// Errors: wrong lengths or non-finite state/reference (`Dimension`, `InvalidArgument`,
+    /// `NonFinite`); a solver failure is an error only when `fallback` is off.
+    pub fn solve(&mut self, x: &[f64], reference: &[f64]) -> Result<MpcSolution> {
+        let start = Instant::now();
+        if x.len() != self.nx() {
+            return Err(Error::dimension("state", self.nx(), x.len()));
+        }
+        ensure_finite("state", x)?;
+        let z0 = self.model.get().lift(x);
+        if z0.len() != self.condensed.latent {
+            return Err(Error::dimension(
+                "lifted state",
+                self.condensed.latent,
+                z0.len(),
+            ));
+        }
+        ensure_finite("lifted state", &z0)?;
+        self.solve_lifted_from(start, &z0, reference)
+    }
+
+    /// Like [`MpcController::solve`] but from an already lifted state `z_0` (N values).
+    pub fn solve_lifted(&mut self, z0: &[f64], reference: &[f64]) -> Result<MpcSolution> {
+        let start = Instant::now();
+        if z0.len() != self.condensed.latent {
+            return Err(Error::dimension(
+                "lifted state",
+                self.condensed.latent,
+                z0.len(),
+            ));
+        }
+        ensure_finite("lifted state", z0)?;
+        self.solve_lifted_from(start, z0, reference)
+    }
+
+    fn solve_lifted_from(
+        &mut self,
+        start: Instant,
+        z0: &[f64],
+        reference: &[f64],
+    ) -> Result<MpcSolution> {
+        self.set_reference(reference)?;
+        self.condensed.linear_term(z0, &self.r, &mut self.q);
+        if let Some(c) = &self.constraints {
+            let mut free = vec![0.0; self.condensed.horizon * self.condensed.nx];
+            super::condensed::gemv_acc(self.condensed.phi.as_ref(), z0, &mut free);
+            c.rhs(&free, &self.u_prev, &mut self.h);
+        }
+        let mut u = self.shifted_plan();
+        let outcome = self.solver.solve(&self.q, &self.h, &mut u);
+        let finite = u.iter().all(|v| v.is_finite());
+        let status = match outcome.status {
+            QpStatus::Solved if finite => SolveStatus::Solved,
+            QpStatus::Inaccurate if finite => SolveStatus::Inaccurate,
+            QpStatus::MaxIterations | QpStatus::TimeLimit if finite && outcome.feasible_iterate => {
+                SolveStatus::Suboptimal
+            }
+            QpStatus::Infeasible => SolveStatus::Fallback(FallbackReason::Infeasible),
+            QpStatus::MaxIterations => SolveStatus::Fallback(FallbackReason::MaxIterations),
+            QpStatus::TimeLimit => SolveStatus::Fallback(FallbackReason::TimeLimit),
+            _ => SolveStatus::Fallback(FallbackReason::Numerical),
+        };
+        if let SolveStatus::Fallback(reason) = status {
+            if !self.cfg.fallback {
+                return Err(Error::Numerical(format!(
+                    "{} solver failed ({reason:?}) and fallback is off",
+                    self.solver.name()
+                )));
+            }
+            u = self.shifted_plan();
+        }
+        let nu = self.nu();
+        self.u_prev.copy_from_slice(&u[..nu]);
+        self.plan = Some(u.clone());
+        Ok(MpcSolution {
+            u,
+            status,
+            solve_time: start.elapsed(),
+            iterations: outcome.iterations,
+        })
+    }
+
+    /// The previous plan shifted by one step (last input repeated) and clamped to the input
+    /// bounds; without a previous plan, the input closest to zero within the bounds.
+    fn shifted_plan(&self) -> Vec<f64> {
+        let (nu, n) = (self.nu(), self.condensed.n_vars());
+        let mut u = vec![0.0; n];
+        if let Some(p) = &self.plan {
+            u[..n - nu].copy_from_slice(&p[nu..]);
+            u[n - nu..].copy_from_slice(&p[n - nu..]);
+        }
+        for (i, v) in u.iter_mut().enumerate() {
+            *v = v.clamp(self.lo[i], self.hi[i]);
+        }
+        u
+    }
+}
