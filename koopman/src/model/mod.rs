@@ -18,3 +18,26 @@ pub trait LiftedModel: Send + Sync {
     /// Lifts a state: `z = Φ(x)`, `N` values.
     fn lift(&self, x: &[f64]) -> Vec<f64>;
 }
+
+pub mod arch;
+pub mod encoder;
+pub mod init;
+pub mod koopman;
+pub mod scalar;
+pub mod store;
+
+use crate::{Error, Result};
+use std::path::Path;
+
+/// Loads any saved lifted model from `dir`, dispatching on `config.json`'s `"kind"`
+/// (`koopman`; `edmd` once that model exists).
+pub fn load_lifted(dir: &Path) -> Result<Box<dyn LiftedModel>> {
+    match store::read_kind(dir)?.as_str() {
+        "koopman" => Ok(Box::new(koopman::KoopmanModel::load(dir)?)),
+        other => Err(Error::UnknownName {
+            kind: "lifted model kind",
+            name: other.to_string(),
+            known: "koopman".into(),
+        }),
+    }
+}

@@ -1,0 +1,305 @@
+//! The neural Koopman model for inference: f64 weights, lifting, A and B, save and load.
+
+use super::arch::Arch;
+use super::encoder::EncoderWs;
+use super::init::init_params;
+use super::store::{self, Tensor};
+use super::LiftedModel;
+use crate::rng::Rng;
+use crate::{Error, Result};
+use faer::{Mat, MatRef, Par};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Version of the on-disk format written by [`KoopmanModel::save`].
+pub const FORMAT_VERSION: u32 = 1;
+
+/// A neural Koopman model `z = [x, ψ(x)]`, `z⁺ = A z + B u`, with f64 weights.
+#[derive(Clone, Debug, PartialEq)]
+pub struct KoopmanModel {
+    arch: Arch,
+    params: Vec<f64>,
+    /// Free-form metadata saved in `config.json` (training configuration, metrics, data).
+    pub metadata: serde_json::Value,
+}
+
+/// The `config.json` of a saved Koopman model.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct ConfigFile {
+    kind: String,
+    format_version: u32,
+    nx: usize,
+    nu: usize,
+    n_enc: usize,
+    latent_dim: usize,
+    widths: Vec<usize>,
+    /// Always `null`: states are in raw units (no normalisation layer).
+    normalisation: Option<serde_json::Value>,
+    block: String,
+    #[serde(default)]
+    metadata: serde_json::Value,
+}
+
+impl KoopmanModel {
+    /// A model from flat parameters in [`Arch::layout`] order.
+    pub fn from_params(arch: Arch, params: Vec<f64>) -> Result<Self> {
+        arch.check()?;
+        let len = arch.num_params();
+        if params.len() != len {
+            return Err(Error::dimension(
+                "Koopman model parameters",
+                len,
+                params.len(),
+            ));
+        }
+        crate::error::ensure_finite("Koopman model parameters", &params)?;
+        Ok(KoopmanModel {
+            arch,
+            params,
+            metadata: serde_json::Value::Null,
+        })
+    }
+
+    /// A freshly initialised model (SPEC initialisation) from `seed`.
+    pub fn init(arch: Arch, seed: u64) -> Result<Self> {
+        let params = init_params(&arch, &mut Rng::new(seed))?;
+        Self::from_params(arch, params)
+    }
+
+    /// The architecture.
+    pub fn arch(&self) -> &Arch {
+        &self.arch
+    }
+
+    /// The flat parameters.
+    pub fn params(&self) -> &[f64] {
+        &self.params
+    }
+
+    /// A as a view (N × N).
+    pub fn a_ref(&self) -> MatRef<'_, f64> {
+        let lay = self.arch.layout();
+        let n = self.arch.latent_dim();
+        MatRef::from_row_major_slice(&self.params[lay.a..lay.a + n * n], n, n)
+    }
+
+    /// B as a view (N × nu).
+    pub fn b_ref(&self) -> MatRef<'_, f64> {
+        let lay = self.arch.layout();
+        let n = self.arch.latent_dim();
+        MatRef::from_row_major_slice(
+            &self.params[lay.b..lay.b + n * self.arch.nu],
+            n,
+            self.arch.nu,
+        )
+    }
+
+    /// Lifts every row of `x` (rows × nx): returns `Z = [x, ψ(x)]` (rows × N).
+    pub fn lift_rows(&self, x: MatRef<'_, f64>) -> Result<Mat<f64>> {
+        let nx = self.arch.nx;
+        if x.ncols() != nx {
+            return Err(Error::dimension("state dimension", nx, x.ncols()));
+        }
+        let rows = x.nrows();
+        let mut z = Mat::zeros(rows, self.arch.latent_dim());
+        let chunk = rows.clamp(1, 4096);
+        let mut ws = EncoderWs::<f64>::new(&self.arch, chunk, Par::Seq);
+        let mut start = 0;
+        while start < rows {
+            let r = chunk.min(rows - start);
+            let inp = ws.input_mut(r);
+            for j in 0..nx {
+                for i in 0..r {
+                    inp[j * r + i] = x[(start + i, j)];
+                }
+            }
+            ws.forward(&self.params);
+            let psi = ws.output();
+            for i in 0..r {
+                for j in 0..nx {
+                    z[(start + i, j)] = x[(start + i, j)];
+                }
+                for j in 0..psi.ncols() {
+                    z[(start + i, nx + j)] = psi[(i, j)];
+                }
+            }
+            start += r;
+        }
+        Ok(z)
+    }
+
+    /// Saves `model.safetensors` and `config.json` (with `"kind": "koopman"`) into `dir`,
+    /// creating it if needed; each file is written atomically.
+    pub fn save(&self, dir: &Path) -> Result<()> {
+        store::ensure_dir(dir)?;
+        let lay = self.arch.layout();
+        let mut tensors = Vec::new();
+        for (l, blk) in lay.blocks.iter().enumerate() {
+            let (o, i) = (blk.out, blk.fan_in);
+            let w = &self.params[blk.w..blk.w + blk.rows() * i];
+            let b = &self.params[blk.b..blk.b + blk.rows()];
+            tensors.push(Tensor {
+                name: format!("encoder.{l}.weight"),
+                shape: vec![o, i],
+                data: w[..o * i].to_vec(),
+            });
+            tensors.push(Tensor {
+                name: format!("encoder.{l}.bias"),
+                shape: vec![o],
+                data: b[..o].to_vec(),
+            });
+            if blk.linear_residual {
+                tensors.push(Tensor {
+                    name: format!("encoder.{l}.residual.weight"),
+                    shape: vec![o, i],
+                    data: w[o * i..].to_vec(),
+                });
+                tensors.push(Tensor {
+                    name: format!("encoder.{l}.residual.bias"),
+                    shape: vec![o],
+                    data: b[o..].to_vec(),
+                });
+            }
+        }
+        let n = self.arch.latent_dim();
+        tensors.push(Tensor {
+            name: "A".into(),
+            shape: vec![n, n],
+            data: self.params[lay.a..lay.a + n * n].to_vec(),
+        });
+        if self.arch.nu > 0 {
+            tensors.push(Tensor {
+                name: "B".into(),
+                shape: vec![n, self.arch.nu],
+                data: self.params[lay.b..lay.len].to_vec(),
+            });
+        }
+        store::write_atomic(
+            &dir.join("model.safetensors"),
+            &store::to_safetensors(&tensors)?,
+        )?;
+        let cfg = ConfigFile {
+            kind: "koopman".into(),
+            format_version: FORMAT_VERSION,
+            nx: self.arch.nx,
+            nu: self.arch.nu,
+            n_enc: self.arch.n_enc(),
+            latent_dim: n,
+            widths: self.arch.widths.clone(),
+            normalisation: None,
+            block: "y = relu(W x + b) + R(x); R linear with bias if widths differ, identity otherwise; \
+                    z = [x, psi(x)]; z+ = A z + B u; tensors row-major [out, in]"
+                .into(),
+            metadata: self.metadata.clone(),
+        };
+        let json =
+            serde_json::to_vec_pretty(&cfg).map_err(|e| Error::InvalidArgument(e.to_string()))?;
+        store::write_atomic(&dir.join("config.json"), &json)
+    }
+
+    /// Loads a model saved by [`KoopmanModel::save`] (F32 or F64 tensors).
+    pub fn load(dir: &Path) -> Result<Self> {
+        let cfg_path = dir.join("config.json");
+        let value = store::read_config(dir)?;
+        let cfg: ConfigFile = serde_json::from_value(value)
+            .map_err(|e| Error::format(&cfg_path, format!("not a Koopman model config: {e}")))?;
+        if cfg.kind != "koopman" {
+            return Err(Error::format(
+                &cfg_path,
+                format!("kind is '{}', expected 'koopman'", cfg.kind),
+            ));
+        }
+        if cfg.format_version > FORMAT_VERSION {
+            return Err(Error::format(
+                &cfg_path,
+                format!(
+                    "format_version {} is newer than this build",
+                    cfg.format_version
+                ),
+            ));
+        }
+        if cfg.normalisation.is_some() {
+            return Err(Error::format(
+                &cfg_path,
+                "normalised models are not supported",
+            ));
+        }
+        let arch = Arch {
+            nx: cfg.nx,
+            nu: cfg.nu,
+            widths: cfg.widths,
+        };
+        arch.check()
+            .map_err(|e| Error::format(&cfg_path, e.to_string()))?;
+        if arch.latent_dim() != cfg.latent_dim || arch.n_enc() != cfg.n_enc {
+            return Err(Error::format(
+                &cfg_path,
+                "latent_dim/n_enc disagree with widths",
+            ));
+        }
+        let st_path = dir.join("model.safetensors");
+        let bytes = store::read_file(&st_path)?;
+        let st = safetensors::SafeTensors::deserialize(&bytes)
+            .map_err(|e| Error::format(&st_path, format!("not a safetensors file: {e}")))?;
+        let lay = arch.layout();
+        let mut params = vec![0.0; lay.len];
+        for (l, blk) in lay.blocks.iter().enumerate() {
+            let (o, i) = (blk.out, blk.fan_in);
+            let w = store::read_tensor(&st, &st_path, &format!("encoder.{l}.weight"), &[o, i])?;
+            params[blk.w..blk.w + o * i].copy_from_slice(&w);
+            let b = store::read_tensor(&st, &st_path, &format!("encoder.{l}.bias"), &[o])?;
+            params[blk.b..blk.b + o].copy_from_slice(&b);
+            if blk.linear_residual {
+                let w = store::read_tensor(
+                    &st,
+                    &st_path,
+                    &format!("encoder.{l}.residual.weight"),
+                    &[o, i],
+                )?;
+                params[blk.w + o * i..blk.w + 2 * o * i].copy_from_slice(&w);
+                let b =
+                    store::read_tensor(&st, &st_path, &format!("encoder.{l}.residual.bias"), &[o])?;
+                params[blk.b + o..blk.b + 2 * o].copy_from_slice(&b);
+            }
+        }
+        let n = arch.latent_dim();
+        let a = store::read_tensor(&st, &st_path, "A", &[n, n])?;
+        params[lay.a..lay.a + n * n].copy_from_slice(&a);
+        if arch.nu > 0 {
+            let b = store::read_tensor(&st, &st_path, "B", &[n, arch.nu])?;
+            params[lay.b..lay.len].copy_from_slice(&b);
+        }
+        let mut model = Self::from_params(arch, params)?;
+        model.metadata = cfg.metadata;
+        Ok(model)
+    }
+}
+
+impl LiftedModel for KoopmanModel {
+    fn nx(&self) -> usize {
+        self.arch.nx
+    }
+    fn nu(&self) -> usize {
+        self.arch.nu
+    }
+    fn latent_dim(&self) -> usize {
+        self.arch.latent_dim()
+    }
+    fn a(&self) -> Mat<f64> {
+        self.a_ref().to_owned()
+    }
+    fn b(&self) -> Mat<f64> {
+        self.b_ref().to_owned()
+    }
+    /// Panics if `x.len() != nx` (use [`KoopmanModel::lift_rows`] for a checked version).
+    fn lift(&self, x: &[f64]) -> Vec<f64> {
+        assert_eq!(x.len(), self.arch.nx, "lift: state of the wrong length");
+        let mut ws = EncoderWs::<f64>::new(&self.arch, 1, Par::Seq);
+        ws.input_mut(1).copy_from_slice(x);
+        ws.forward(&self.params);
+        let psi = ws.output();
+        let mut z = x.to_vec();
+        z.extend((0..psi.ncols()).map(|j| psi[(0, j)]));
+        z
+    }
+}

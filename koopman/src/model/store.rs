@@ -1,0 +1,125 @@
+//! Atomic file writes and the safetensors + `config.json` files that models are saved as.
+
+use crate::{Error, Result};
+use safetensors::tensor::{Dtype, SafeTensors, TensorView};
+use std::path::Path;
+
+/// Writes `bytes` to `path` atomically: a temporary file in the same folder, then a rename, so a
+/// crash never leaves a half-written file under the real name.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .ok_or_else(|| Error::InvalidArgument(format!("{} is not a file path", path.display())))?;
+    let tmp = dir.join(format!(
+        ".{}.tmp-{}",
+        name.to_string_lossy(),
+        std::process::id()
+    ));
+    std::fs::write(&tmp, bytes).map_err(|e| Error::io(&tmp, e))?;
+    std::fs::rename(&tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        Error::io(path, e)
+    })
+}
+
+/// Creates `dir` (and its parents) if needed.
+pub fn ensure_dir(dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))
+}
+
+/// A named f64 tensor to save.
+pub struct Tensor {
+    /// Name in the file.
+    pub name: String,
+    /// Shape (row-major).
+    pub shape: Vec<usize>,
+    /// Values, row-major.
+    pub data: Vec<f64>,
+}
+
+/// Serialises f64 tensors into safetensors bytes.
+pub fn to_safetensors(tensors: &[Tensor]) -> Result<Vec<u8>> {
+    let bytes: Vec<Vec<u8>> = tensors
+        .iter()
+        .map(|t| t.data.iter().flat_map(|v| v.to_le_bytes()).collect())
+        .collect();
+    let mut views = Vec::with_capacity(tensors.len());
+    for (t, b) in tensors.iter().zip(&bytes) {
+        let view = TensorView::new(Dtype::F64, t.shape.clone(), b)
+            .map_err(|e| Error::InvalidArgument(format!("tensor {}: {e}", t.name)))?;
+        views.push((t.name.clone(), view));
+    }
+    safetensors::serialize(views, None)
+        .map_err(|e| Error::InvalidArgument(format!("safetensors serialisation: {e}")))
+}
+
+/// Reads one tensor (F32 or F64) of the expected shape from parsed safetensors, as f64.
+pub fn read_tensor(
+    st: &SafeTensors<'_>,
+    path: &Path,
+    name: &str,
+    shape: &[usize],
+) -> Result<Vec<f64>> {
+    let t = st
+        .tensor(name)
+        .map_err(|e| Error::format(path, format!("tensor '{name}': {e}")))?;
+    if t.shape() != shape {
+        return Err(Error::format(
+            path,
+            format!(
+                "tensor '{name}' has shape {:?}, expected {:?}",
+                t.shape(),
+                shape
+            ),
+        ));
+    }
+    let data = t.data();
+    let values: Vec<f64> = match t.dtype() {
+        Dtype::F64 => data
+            .chunks_exact(8)
+            .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
+            .collect(),
+        Dtype::F32 => data
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")) as f64)
+            .collect(),
+        other => {
+            return Err(Error::format(
+                path,
+                format!("tensor '{name}' has dtype {other:?}, expected F32 or F64"),
+            ))
+        }
+    };
+    if values.iter().any(|v| !v.is_finite()) {
+        return Err(Error::NonFinite(format!(
+            "{}: tensor '{name}'",
+            path.display()
+        )));
+    }
+    Ok(values)
+}
+
+/// Reads a whole file.
+pub fn read_file(path: &Path) -> Result<Vec<u8>> {
+    std::fs::read(path).map_err(|e| Error::io(path, e))
+}
+
+/// Reads and parses `config.json` in `dir`.
+pub fn read_config(dir: &Path) -> Result<serde_json::Value> {
+    let path = dir.join("config.json");
+    let bytes = read_file(&path)?;
+    serde_json::from_slice(&bytes).map_err(|e| Error::format(&path, format!("invalid JSON: {e}")))
+}
+
+/// The `"kind"` field of `dir/config.json`.
+pub fn read_kind(dir: &Path) -> Result<String> {
+    let cfg = read_config(dir)?;
+    cfg.get("kind")
+        .and_then(|k| k.as_str())
+        .map(str::to_string)
+        .ok_or_else(|| Error::format(dir.join("config.json"), "no string field \"kind\""))
+}

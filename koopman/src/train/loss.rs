@@ -1,0 +1,521 @@
+//! The three training losses of SPEC.md and their hand-written gradients, sharing one encoding
+//! of every state of the batch.
+//!
+//! Rows of every batch matrix are time-major: state `t` of window `i` is row `t·b + i`, so the
+//! states at one time form a contiguous block of `b` rows and "all current / all next states" are
+//! two overlapping row ranges of one matrix.
+
+use crate::model::arch::{Arch, Layout};
+use crate::model::encoder::{view, view_mut, EncoderWs};
+use crate::model::scalar::Real;
+use crate::{Error, Result};
+use faer::linalg::matmul::matmul;
+use faer::reborrow::{Reborrow, ReborrowMut};
+use faer::{Accum, MatMut, MatRef, Par};
+
+/// Which loss terms are on, and the discount.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LossOptions {
+    /// Discount γ of the multi-step losses.
+    pub gamma: f64,
+    /// Inverse-control loss on (ignored when nu = 0).
+    pub ctrl: bool,
+    /// Covariance loss on (ignored when n_enc = 1).
+    pub cov: bool,
+}
+
+/// Values of the loss terms of one batch (terms that are off are 0).
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct LossParts {
+    /// Multi-step discounted prediction loss.
+    pub pred: f64,
+    /// Inverse-control loss.
+    pub ctrl: f64,
+    /// Covariance loss.
+    pub cov: f64,
+    /// Their sum.
+    pub total: f64,
+}
+
+/// Every buffer one loss-and-gradient evaluation needs, allocated once for a batch shape.
+pub struct LossWs<T: Real> {
+    arch: Arch,
+    layout: Layout,
+    /// Windows per batch.
+    pub b: usize,
+    /// Transitions per window.
+    pub steps: usize,
+    enc: EncoderWs<T>,
+    u: Vec<T>,
+    z: Vec<T>,
+    dz: Vec<T>,
+    zhat: Vec<T>,
+    g: Vec<T>,
+    uhat: Vec<T>,
+    p: Vec<T>,
+    pa: Vec<T>,
+    q: Vec<T>,
+    cen: Vec<T>,
+    cmat: Vec<T>,
+}
+
+impl<T: Real> LossWs<T> {
+    /// Buffers for batches of `b` windows of `steps` transitions; `par` for the encoder GEMMs.
+    pub fn new(arch: &Arch, b: usize, steps: usize, par: Par) -> Self {
+        let n = (steps + 1) * b;
+        let nn = arch.latent_dim();
+        let nu = arch.nu;
+        let d = arch.n_enc();
+        LossWs {
+            arch: arch.clone(),
+            layout: arch.layout(),
+            b,
+            steps,
+            enc: EncoderWs::new(arch, n, par),
+            u: vec![T::default(); steps * b * nu],
+            z: vec![T::default(); n * nn],
+            dz: vec![T::default(); n * nn],
+            zhat: vec![T::default(); n * nn],
+            g: vec![T::default(); steps * b * nn],
+            uhat: vec![T::default(); steps * b * nu],
+            p: vec![T::default(); nu * nn],
+            pa: vec![T::default(); nu * nn],
+            q: vec![T::default(); 2 * nu * nn],
+            cen: vec![T::default(); b * d],
+            cmat: vec![T::default(); d * d],
+        }
+    }
+
+    /// The state buffer to fill: column-major `((T+1)·b) × nx`, row `t·b + i` = state t of
+    /// window i.
+    pub fn states_mut(&mut self) -> &mut [T] {
+        let n = (self.steps + 1) * self.b;
+        self.enc.input_mut(n)
+    }
+
+    /// The input buffer to fill: column-major `(T·b) × nu`, row `t·b + i` = input t of window i.
+    pub fn inputs_mut(&mut self) -> &mut [T] {
+        &mut self.u
+    }
+
+    /// Evaluates the loss of the batch in the buffers and writes its gradient w.r.t. every
+    /// parameter into `grad` (overwritten; same layout as `params`).
+    pub fn loss_and_grad(
+        &mut self,
+        params: &[T],
+        grad: &mut [T],
+        opts: &LossOptions,
+    ) -> Result<LossParts> {
+        let (b, steps) = (self.b, self.steps);
+        let nx = self.arch.nx;
+        let nu = self.arch.nu;
+        let nn = self.arch.latent_dim();
+        let d = self.arch.n_enc();
+        let n = (steps + 1) * b;
+        let tb = steps * b;
+        let lay = &self.layout;
+        if params.len() != lay.len || grad.len() != lay.len {
+            return Err(Error::dimension(
+                "parameter vector",
+                lay.len,
+                params.len().min(grad.len()),
+            ));
+        }
+        let one = T::one();
+        let zero = T::default();
+
+        // ψ(x) once for every state of the batch; Z = [x, ψ].
+        self.enc.forward(params);
+        {
+            let x = self.enc.input();
+            let psi = self.enc.output();
+            let mut z = view_mut(&mut self.z, n, nn);
+            z.rb_mut().subcols_mut(0, nx).copy_from(x);
+            z.subcols_mut(nx, d).copy_from(psi);
+        }
+        self.dz.fill(zero);
+        for v in &mut grad[lay.a..lay.len] {
+            *v = zero;
+        }
+        let (gp, ga_gb) = grad.split_at_mut(lay.a);
+        let _ = gp;
+        let (ga, gb) = ga_gb.split_at_mut(nn * nn);
+        let a = MatRef::from_row_major_slice(&params[lay.a..lay.a + nn * nn], nn, nn);
+        let bm = MatRef::from_row_major_slice(&params[lay.b..lay.len], nn, nu);
+        let weights: Vec<f64> = (0..steps).map(|k| opts.gamma.powi(k as i32)).collect();
+        let wsum: f64 = weights.iter().sum();
+        let z = view(&self.z, n, nn);
+        let u = view(&self.u, tb, nu);
+        let x = self.enc.input();
+        let mut parts = LossParts::default();
+
+        // Prediction: ẑ_0 = Φ(x_0), ẑ_{k+1} = A ẑ_k + B u_k.
+        {
+            let mut zhat = view_mut(&mut self.zhat, n, nn);
+            zhat.rb_mut().subrows_mut(0, b).copy_from(z.subrows(0, b));
+            for k in 0..steps {
+                let (cur, mut next) = zhat.rb_mut().split_at_row_mut((k + 1) * b);
+                let cur = cur.rb().subrows(k * b, b);
+                let mut next = next.rb_mut().subrows_mut(0, b);
+                matmul(
+                    next.rb_mut(),
+                    Accum::Replace,
+                    cur,
+                    a.transpose(),
+                    one,
+                    Par::Seq,
+                );
+                if nu > 0 {
+                    matmul(
+                        next,
+                        Accum::Add,
+                        u.subrows(k * b, b),
+                        bm.transpose(),
+                        one,
+                        Par::Seq,
+                    );
+                }
+            }
+        }
+        let zhat = view(&self.zhat, n, nn);
+        {
+            let mut g = view_mut(&mut self.g, tb, nn);
+            g.fill(zero);
+            let mut loss = 0.0;
+            for k in 0..steps {
+                let coef = weights[k] / (wsum * (b * nx) as f64);
+                let c2 = T::from_f64(2.0 * coef);
+                for j in 0..nx {
+                    let mut s = 0.0;
+                    for i in 0..b {
+                        let r = (k + 1) * b + i;
+                        let diff = zhat[(r, j)] - x[(r, j)];
+                        s += diff.to_f64() * diff.to_f64();
+                        g[(k * b + i, j)] = c2 * diff;
+                    }
+                    loss += coef * s;
+                }
+            }
+            parts.pred = loss;
+            // Adjoint: g_{k+1} += g_{k+2} A, then g_0 = g_1 A feeds Φ(x_0).
+            for k in (0..steps.saturating_sub(1)).rev() {
+                let (head, tail) = g.rb_mut().split_at_row_mut((k + 1) * b);
+                let nextg = tail.rb().subrows(0, b);
+                matmul(
+                    head.subrows_mut(k * b, b),
+                    Accum::Add,
+                    nextg,
+                    a,
+                    one,
+                    Par::Seq,
+                );
+            }
+            let g = view(&self.g, tb, nn);
+            let mut dz = view_mut(&mut self.dz, n, nn);
+            matmul(
+                dz.rb_mut().subrows_mut(0, b),
+                Accum::Add,
+                g.subrows(0, b),
+                a,
+                one,
+                Par::Seq,
+            );
+            let ga_m = MatMut::from_row_major_slice_mut(&mut *ga, nn, nn);
+            matmul(
+                ga_m,
+                Accum::Add,
+                g.transpose(),
+                zhat.subrows(0, tb),
+                one,
+                Par::Seq,
+            );
+            if nu > 0 {
+                let gb_m = MatMut::from_row_major_slice_mut(&mut *gb, nn, nu);
+                matmul(gb_m, Accum::Add, g.transpose(), u, one, Par::Seq);
+            }
+        }
+
+        // Inverse control: û = pinv(B) (Φ(x_{t+1}) − A Φ(x_t)).
+        if opts.ctrl && nu > 0 {
+            // M = BᵀB and its inverse (f64, nu × nu, Cholesky).
+            let mut mmat = vec![0.0; nu * nu];
+            for r in 0..nu {
+                for c in 0..nu {
+                    let mut s = 0.0;
+                    for k in 0..nn {
+                        s += bm[(k, r)].to_f64() * bm[(k, c)].to_f64();
+                    }
+                    mmat[r * nu + c] = s;
+                }
+            }
+            let minv = spd_inverse(&mmat, nu).ok_or_else(|| {
+                Error::Numerical(
+                    "BᵀB is not positive definite: B lost full column rank, pinv(B) is undefined"
+                        .into(),
+                )
+            })?;
+            // P = M⁻¹ Bᵀ (nu × N, row-major), PA = P A.
+            for r in 0..nu {
+                for c in 0..nn {
+                    let mut s = 0.0;
+                    for k in 0..nu {
+                        s += minv[r * nu + k] * bm[(c, k)].to_f64();
+                    }
+                    self.p[r * nn + c] = T::from_f64(s);
+                }
+            }
+            let p = MatRef::from_row_major_slice(&self.p, nu, nn);
+            matmul(
+                MatMut::from_row_major_slice_mut(&mut self.pa, nu, nn),
+                Accum::Replace,
+                p,
+                a,
+                one,
+                Par::Seq,
+            );
+            let pa = MatRef::from_row_major_slice(&self.pa, nu, nn);
+            let z_next = z.subrows(b, tb);
+            let z_cur = z.subrows(0, tb);
+            {
+                let mut uhat = view_mut(&mut self.uhat, tb, nu);
+                matmul(
+                    uhat.rb_mut(),
+                    Accum::Replace,
+                    z_next,
+                    p.transpose(),
+                    one,
+                    Par::Seq,
+                );
+                matmul(uhat, Accum::Add, z_cur, pa.transpose(), -one, Par::Seq);
+            }
+            // E = dL/dû in place of û.
+            let mut loss = 0.0;
+            for k in 0..steps {
+                let coef = weights[k] / (wsum * (b * nu) as f64);
+                let c2 = T::from_f64(2.0 * coef);
+                for j in 0..nu {
+                    let mut s = 0.0;
+                    for i in 0..b {
+                        let r = k * b + i;
+                        let diff = self.uhat[j * tb + r] - self.u[j * tb + r];
+                        s += diff.to_f64() * diff.to_f64();
+                        self.uhat[j * tb + r] = c2 * diff;
+                    }
+                    loss += coef * s;
+                }
+            }
+            parts.ctrl = loss;
+            let e = view(&self.uhat, tb, nu);
+            // Q1 = Eᵀ Z_next, Q2 = Eᵀ Z_cur (nu × N each, row-major).
+            let (q1, q2) = self.q.split_at_mut(nu * nn);
+            matmul(
+                MatMut::from_row_major_slice_mut(&mut *q1, nu, nn),
+                Accum::Replace,
+                e.transpose(),
+                z_next,
+                one,
+                Par::Seq,
+            );
+            matmul(
+                MatMut::from_row_major_slice_mut(&mut *q2, nu, nn),
+                Accum::Replace,
+                e.transpose(),
+                z_cur,
+                one,
+                Par::Seq,
+            );
+            let q2m = MatRef::from_row_major_slice(&*q2, nu, nn);
+            // dZ_next += E P, dZ_cur −= E PA, dA −= Pᵀ Q2.
+            let mut dz = view_mut(&mut self.dz, n, nn);
+            matmul(
+                dz.rb_mut().subrows_mut(b, tb),
+                Accum::Add,
+                e,
+                p,
+                one,
+                Par::Seq,
+            );
+            matmul(dz.subrows_mut(0, tb), Accum::Add, e, pa, -one, Par::Seq);
+            matmul(
+                MatMut::from_row_major_slice_mut(&mut *ga, nn, nn),
+                Accum::Add,
+                p.transpose(),
+                q2m,
+                -one,
+                Par::Seq,
+            );
+            // G_P = dL/dP = Q1 − Q2 Aᵀ; dL/dB = (I − B P) G_Pᵀ M⁻¹ − Pᵀ G_P Pᵀ.
+            let mut gpv = vec![0.0; nu * nn];
+            for r in 0..nu {
+                for c in 0..nn {
+                    let mut s = q1[r * nn + c].to_f64();
+                    for k in 0..nn {
+                        s -= q2[r * nn + k].to_f64() * a[(c, k)].to_f64();
+                    }
+                    gpv[r * nn + c] = s;
+                }
+            }
+            pinv_backward(&gpv, &self.p, bm, &minv, nu, nn, gb);
+        }
+
+        // Covariance of ψ(x_0) over the batch.
+        if opts.cov && d > 1 {
+            if b < 2 {
+                return Err(Error::InvalidArgument(
+                    "the covariance loss needs a batch of at least 2".into(),
+                ));
+            }
+            let mut cen = view_mut(&mut self.cen, b, d);
+            for j in 0..d {
+                let mut mean = 0.0;
+                for i in 0..b {
+                    mean += z[(i, nx + j)].to_f64();
+                }
+                let mean = T::from_f64(mean / b as f64);
+                for i in 0..b {
+                    cen[(i, j)] = z[(i, nx + j)] - mean;
+                }
+            }
+            let cen = view(&self.cen, b, d);
+            let mut cm = view_mut(&mut self.cmat, d, d);
+            let inv_b1 = T::from_f64(1.0 / (b - 1) as f64);
+            matmul(
+                cm.rb_mut(),
+                Accum::Replace,
+                cen.transpose(),
+                cen,
+                inv_b1,
+                Par::Seq,
+            );
+            let norm = (d * (d - 1)) as f64;
+            let mut loss = 0.0;
+            let s_scale = T::from_f64(2.0 / norm);
+            for j in 0..d {
+                for i in 0..d {
+                    if i == j {
+                        cm[(i, j)] = zero;
+                    } else {
+                        let c = cm[(i, j)];
+                        loss += c.to_f64() * c.to_f64();
+                        cm[(i, j)] = s_scale * c;
+                    }
+                }
+            }
+            parts.cov = loss / norm;
+            let s = view(&self.cmat, d, d);
+            let dz = view_mut(&mut self.dz, n, nn);
+            let alpha = T::from_f64(2.0 / (b - 1) as f64);
+            matmul(
+                dz.submatrix_mut(0, nx, b, d),
+                Accum::Add,
+                cen,
+                s,
+                alpha,
+                Par::Seq,
+            );
+        }
+        parts.total = parts.pred + parts.ctrl + parts.cov;
+
+        // Back through the encoder with the gradient w.r.t. ψ of every state.
+        {
+            let dz = view(&self.dz, n, nn);
+            let mut top = self.enc.output_grad_mut();
+            top.copy_from(dz.subcols(nx, d));
+        }
+        let (genc, _) = grad.split_at_mut(lay.a);
+        self.enc.backward(params, genc);
+        Ok(parts)
+    }
+}
+
+/// Adds the gradient of the loss w.r.t. B that flows through `P = pinv(B) = (BᵀB)⁻¹Bᵀ`:
+/// `dL/dB = (I − B P) G_Pᵀ M⁻¹ − Pᵀ G_P Pᵀ`, with `G_P = dL/dP` (nu × N, row-major, f64),
+/// `M⁻¹ = (BᵀB)⁻¹` (nu × nu, f64); `gb` is dL/dB (N × nu, row-major).
+fn pinv_backward<T: Real>(
+    gp: &[f64],
+    p: &[T],
+    bm: MatRef<'_, T>,
+    minv: &[f64],
+    nu: usize,
+    nn: usize,
+    gb: &mut [T],
+) {
+    // X1 = G_Pᵀ M⁻¹ (N × nu).
+    let mut x1 = vec![0.0; nn * nu];
+    for c in 0..nn {
+        for r in 0..nu {
+            let mut s = 0.0;
+            for k in 0..nu {
+                s += gp[k * nn + c] * minv[k * nu + r];
+            }
+            x1[c * nu + r] = s;
+        }
+    }
+    // PX1 = P X1 (nu × nu); GPPt = G_P Pᵀ (nu × nu).
+    let mut px1 = vec![0.0; nu * nu];
+    let mut gppt = vec![0.0; nu * nu];
+    for r in 0..nu {
+        for c in 0..nu {
+            let (mut s1, mut s2) = (0.0, 0.0);
+            for k in 0..nn {
+                s1 += p[r * nn + k].to_f64() * x1[k * nu + c];
+                s2 += gp[r * nn + k] * p[c * nn + k].to_f64();
+            }
+            px1[r * nu + c] = s1;
+            gppt[r * nu + c] = s2;
+        }
+    }
+    for c in 0..nn {
+        for r in 0..nu {
+            let mut s = x1[c * nu + r];
+            for k in 0..nu {
+                s -= bm[(c, k)].to_f64() * px1[k * nu + r];
+                s -= p[k * nn + c].to_f64() * gppt[k * nu + r];
+            }
+            gb[c * nu + r] += T::from_f64(s);
+        }
+    }
+}
+
+/// Inverse of a small symmetric positive definite matrix (row-major, f64) by Cholesky; `None`
+/// if it is not numerically positive definite.
+pub fn spd_inverse(m: &[f64], n: usize) -> Option<Vec<f64>> {
+    let mut l = vec![0.0; n * n];
+    let scale = (0..n).map(|i| m[i * n + i].abs()).fold(0.0, f64::max);
+    for i in 0..n {
+        for j in 0..=i {
+            let mut s = m[i * n + j];
+            for k in 0..j {
+                s -= l[i * n + k] * l[j * n + k];
+            }
+            if i == j {
+                if !(s > 1e-13 * scale) || !s.is_finite() {
+                    return None;
+                }
+                l[i * n + i] = s.sqrt();
+            } else {
+                l[i * n + j] = s / l[j * n + j];
+            }
+        }
+    }
+    // inv = L⁻ᵀ L⁻¹, column by column.
+    let mut inv = vec![0.0; n * n];
+    for col in 0..n {
+        let mut y = vec![0.0; n];
+        for i in 0..n {
+            let mut s = if i == col { 1.0 } else { 0.0 };
+            for k in 0..i {
+                s -= l[i * n + k] * y[k];
+            }
+            y[i] = s / l[i * n + i];
+        }
+        for i in (0..n).rev() {
+            let mut s = y[i];
+            for k in i + 1..n {
+                s -= l[k * n + i] * inv[k * n + col];
+            }
+            inv[i * n + col] = s / l[i * n + i];
+        }
+    }
+    Some(inv)
+}

@@ -1,0 +1,225 @@
+//! The training loop: sampling, loss and gradient, clipping, Adam, validation, checkpoints.
+
+use super::adam::{clip_grad_norm, step_lr, Adam};
+use super::eval::{check_dataset, PredEval};
+use super::loss::{LossOptions, LossParts, LossWs};
+use super::{Precision, Progress, TrainConfig, TrainMetrics, TrainOutcome};
+use crate::data::Dataset;
+use crate::model::arch::Arch;
+use crate::model::init::init_params;
+use crate::model::koopman::KoopmanModel;
+use crate::model::scalar::Real;
+use crate::rng::Rng;
+use crate::{Error, Result};
+use faer::Par;
+use std::ops::ControlFlow;
+use std::time::Instant;
+
+/// Trains a neural Koopman model on the first `cfg.train_samples` windows of `train`, validating
+/// on `val` and reporting the best checkpoint's prediction error on `test`. `observer` sees
+/// every iteration; returning `Break` stops the run with [`Error::Cancelled`].
+pub fn train(
+    cfg: &TrainConfig,
+    train: &Dataset,
+    val: &Dataset,
+    test: Option<&Dataset>,
+    observer: &mut dyn FnMut(&Progress) -> ControlFlow<()>,
+) -> Result<TrainOutcome> {
+    check_config(cfg)?;
+    let (nx, nu) = (train.nx, train.nu);
+    check_dataset(train, nx, nu)?;
+    check_dataset(val, nx, nu)?;
+    if val.steps != train.steps {
+        return Err(Error::dimension(
+            "validation steps per window",
+            train.steps,
+            val.steps,
+        ));
+    }
+    if let Some(t) = test {
+        check_dataset(t, nx, nu)?;
+        if t.steps != train.steps {
+            return Err(Error::dimension(
+                "test steps per window",
+                train.steps,
+                t.steps,
+            ));
+        }
+    }
+    let m = cfg.train_samples.unwrap_or(train.n);
+    if m == 0 || m > train.n {
+        return Err(Error::InvalidArgument(format!(
+            "train_samples m = {m} must be between 1 and the training pool size {}",
+            train.n
+        )));
+    }
+    let arch = Arch::new(nx, nu, &cfg.hidden, cfg.n_mult)?;
+    let start = Instant::now();
+    let (best, best_val, best_it, its, last) = match cfg.precision {
+        Precision::F32 => run_loop::<f32>(cfg, &arch, train, m, val, observer)?,
+        Precision::F64 => run_loop::<f64>(cfg, &arch, train, m, val, observer)?,
+    };
+    let train_secs = its;
+    let mut model = KoopmanModel::from_params(arch.clone(), best)?;
+    let test_err = match test {
+        Some(t) => Some(super::prediction_error(&model, t, cfg.gamma)?),
+        None => None,
+    };
+    let metrics = TrainMetrics {
+        test_prediction_error: test_err,
+        best_validation_prediction_error: best_val,
+        best_iteration: best_it,
+        iterations: cfg.iterations,
+        iterations_per_second: cfg.iterations as f64 / train_secs,
+        wall_seconds: start.elapsed().as_secs_f64(),
+        train_samples: m,
+        num_params: arch.num_params(),
+        final_loss: last,
+        pairing: train.meta.pairing,
+        env: train.meta.env.clone(),
+        config: cfg.clone(),
+    };
+    model.metadata = serde_json::json!({
+        "trainer": "koopbridge",
+        "metrics": metrics,
+        "dataset": train.meta,
+    });
+    Ok(TrainOutcome { model, metrics })
+}
+
+fn check_config(cfg: &TrainConfig) -> Result<()> {
+    let bad = |m: &str| Err(Error::InvalidArgument(m.to_string()));
+    if cfg.n_mult == 0 {
+        return bad("n_mult must be ≥ 1");
+    }
+    if cfg.iterations == 0 {
+        return bad("iterations must be ≥ 1");
+    }
+    if cfg.batch == 0 {
+        return bad("batch must be ≥ 1");
+    }
+    if cfg.cov && cfg.batch < 2 {
+        return bad("the covariance loss needs batch ≥ 2 (or --no-cov)");
+    }
+    if !(cfg.lr > 0.0 && cfg.lr.is_finite()) {
+        return bad("lr must be a positive number");
+    }
+    if !(cfg.gamma > 0.0 && cfg.gamma.is_finite()) {
+        return bad("gamma must be a positive number");
+    }
+    if !(cfg.clip > 0.0) || !(cfg.lr_decay > 0.0) || cfg.lr_step == 0 || cfg.validate_every == 0 {
+        return bad("clip and lr_decay must be > 0, lr_step and validate_every ≥ 1");
+    }
+    Ok(())
+}
+
+/// (best parameters in f64, best validation error, its iteration, seconds spent iterating,
+/// last batch's losses)
+type LoopResult = (Vec<f64>, f64, usize, f64, LossParts);
+
+fn run_loop<T: Real>(
+    cfg: &TrainConfig,
+    arch: &Arch,
+    train: &Dataset,
+    m: usize,
+    val: &Dataset,
+    observer: &mut dyn FnMut(&Progress) -> ControlFlow<()>,
+) -> Result<LoopResult> {
+    let par = Par::rayon(cfg.threads);
+    let init = init_params(arch, &mut Rng::new(cfg.seed))?;
+    let mut params: Vec<T> = init.iter().map(|&v| T::from_f64(v)).collect();
+    let mut grad = vec![T::default(); params.len()];
+    let mut best: Vec<T> = params.clone();
+    let mut adam = Adam::<T>::new(params.len());
+    let (b, steps, nx, nu) = (cfg.batch, train.steps, arch.nx, arch.nu);
+    let mut ws = LossWs::<T>::new(arch, b, steps, par);
+    let mut eval = PredEval::<T>::new(arch, 2048, par);
+    let mut rng = Rng::derive(cfg.seed, 1);
+    let mut idx = vec![0usize; b];
+    let opts = LossOptions {
+        gamma: cfg.gamma,
+        ctrl: cfg.ctrl,
+        cov: cfg.cov,
+    };
+    let (mut best_val, mut best_it) = (f64::INFINITY, 0);
+    let mut iter_secs = 0.0;
+    let mut last = LossParts::default();
+    let n = (steps + 1) * b;
+    for it in 0..cfg.iterations {
+        let t0 = Instant::now();
+        for v in idx.iter_mut() {
+            *v = rng.below(m);
+        }
+        {
+            let xs = ws.states_mut();
+            for (i, &w) in idx.iter().enumerate() {
+                for t in 0..=steps {
+                    let s = train.state(w, t);
+                    for j in 0..nx {
+                        xs[j * n + t * b + i] = T::from_f64(s[j]);
+                    }
+                }
+            }
+            let us = ws.inputs_mut();
+            for (i, &w) in idx.iter().enumerate() {
+                for t in 0..steps {
+                    let u = train.input(w, t);
+                    for j in 0..nu {
+                        us[j * steps * b + t * b + i] = T::from_f64(u[j]);
+                    }
+                }
+            }
+        }
+        let parts = ws.loss_and_grad(&params, &mut grad, &opts)?;
+        if !parts.total.is_finite() {
+            return Err(Error::Numerical(format!(
+                "training diverged at iteration {} (loss {:?})",
+                it + 1,
+                parts
+            )));
+        }
+        clip_grad_norm(&mut grad, cfg.clip);
+        let lr = step_lr(cfg.lr, cfg.lr_decay, cfg.lr_step, it);
+        adam.step(&mut params, &grad, lr);
+        iter_secs += t0.elapsed().as_secs_f64();
+        last = parts;
+        let done = it + 1;
+        let validation = if done % cfg.validate_every == 0 || done == cfg.iterations {
+            let v = eval
+                .pred_loss(&params, val, cfg.gamma)
+                .unwrap_or(f64::INFINITY);
+            if v < best_val || best_it == 0 {
+                best_val = v;
+                best_it = done;
+                best.copy_from_slice(&params);
+            }
+            Some(v)
+        } else {
+            None
+        };
+        let progress = Progress {
+            iteration: done,
+            total: cfg.iterations,
+            loss: parts,
+            lr,
+            validation,
+            best_validation: best_val.is_finite().then_some(best_val),
+            iterations_per_second: done as f64 / iter_secs.max(1e-12),
+        };
+        if observer(&progress).is_break() {
+            return Err(Error::Cancelled);
+        }
+    }
+    if !best_val.is_finite() {
+        return Err(Error::Numerical(
+            "the validation prediction error is not finite at any checkpoint".into(),
+        ));
+    }
+    Ok((
+        best.iter().map(|v| v.to_f64()).collect(),
+        best_val,
+        best_it,
+        iter_secs,
+        last,
+    ))
+}
