@@ -1,0 +1,408 @@
+//! The querying side: one-reply queries with typed errors and deadlines, liveliness tracking of
+//! the session's participants, and a lockstep simulator client with idempotent retries.
+
+use std::collections::HashSet;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use zenoh::handlers::FifoChannelHandler;
+use zenoh::query::{ConsolidationMode, Reply};
+use zenoh::sample::SampleKind;
+use zenoh::{Session, Wait};
+
+use crate::codec::{StepReply, StepRequest, PROTOCOL_VERSION};
+use crate::error::{Error, ErrorCode, ErrorReply, Result};
+use crate::keyexpr::{Keys, Role, SimLeaf};
+use crate::messages::{InfoReply, ResetRequest};
+
+/// A Zenoh session together with the key expressions of one koopbridge session.
+#[derive(Clone)]
+pub struct Client {
+    /// The Zenoh session.
+    pub session: Session,
+    /// Key expressions of the koopbridge session.
+    pub keys: Keys,
+}
+
+/// A query in flight; [`PendingQuery::wait`] returns its one reply.
+pub struct PendingQuery {
+    rx: FifoChannelHandler<Reply>,
+    who: String,
+    what: String,
+    started: Instant,
+    deadline: Instant,
+}
+
+impl Client {
+    /// Wraps a session.
+    pub fn new(session: Session, keys: Keys) -> Self {
+        Client { session, keys }
+    }
+
+    /// Sends a query to `key` (no consolidation: the reply is delivered as soon as it arrives).
+    /// `who` names the participant in errors.
+    pub fn start(
+        &self,
+        key: &str,
+        payload: Vec<u8>,
+        timeout: Duration,
+        who: &str,
+    ) -> Result<PendingQuery> {
+        let mut g = self
+            .session
+            .get(key)
+            .consolidation(ConsolidationMode::None)
+            .timeout(timeout);
+        if !payload.is_empty() {
+            g = g.payload(payload);
+        }
+        let rx = g.wait().map_err(Error::zenoh)?;
+        let started = Instant::now();
+        Ok(PendingQuery {
+            rx,
+            who: who.to_string(),
+            what: key.rsplit('/').next().unwrap_or(key).to_string(),
+            started,
+            deadline: started + timeout,
+        })
+    }
+
+    /// Sends a query and waits for its reply.
+    pub fn query(
+        &self,
+        key: &str,
+        payload: Vec<u8>,
+        timeout: Duration,
+        who: &str,
+    ) -> Result<Vec<u8>> {
+        self.start(key, payload, timeout, who)?.wait(None)
+    }
+}
+
+impl PendingQuery {
+    /// Waits for the first reply: its payload, or the typed error it carries. With `watch`, fails
+    /// early with [`Error::Gone`] when participant `(role, id)` loses its liveliness token.
+    pub fn wait(self, watch: Option<(&Liveliness, Role, &str)>) -> Result<Vec<u8>> {
+        loop {
+            let now = Instant::now();
+            let slice_end =
+                (now + Duration::from_millis(25)).min(self.deadline + Duration::from_millis(500));
+            match self.rx.recv_deadline(slice_end) {
+                Ok(Some(reply)) => {
+                    return match reply.result() {
+                        Ok(sample) => Ok(sample.payload().to_bytes().into_owned()),
+                        Err(e) => Err(Error::Remote {
+                            who: self.who.clone(),
+                            reply: ErrorReply::from_json(&e.payload().to_bytes()),
+                        }),
+                    }
+                }
+                Ok(None) => {}
+                Err(_) => {
+                    // Channel closed: the query finished without any reply. If the participant
+                    // is watched, give its liveliness token a moment to be withdrawn (a process
+                    // that died takes its queryable and its token down at about the same time).
+                    if let Some((l, role, id)) = watch {
+                        let until = Instant::now() + Duration::from_millis(500);
+                        while Instant::now() < until {
+                            if l.is_gone(role, id) {
+                                return Err(Error::Gone(self.who.clone()));
+                            }
+                            std::thread::sleep(Duration::from_millis(10));
+                        }
+                    }
+                    return Err(Error::Timeout {
+                        who: self.who.clone(),
+                        what: format!("{} (no reply)", self.what),
+                        after_ms: self.started.elapsed().as_millis() as u64,
+                    });
+                }
+            }
+            if let Some((l, role, id)) = watch {
+                if l.is_gone(role, id) {
+                    return Err(Error::Gone(self.who.clone()));
+                }
+            }
+            if Instant::now() > self.deadline + Duration::from_millis(500) {
+                return Err(Error::Timeout {
+                    who: self.who.clone(),
+                    what: self.what.clone(),
+                    after_ms: self.started.elapsed().as_millis() as u64,
+                });
+            }
+        }
+    }
+}
+
+/// Tracks the liveliness tokens of a koopbridge session (`…/alive/{role}/{id}`).
+pub struct Liveliness {
+    state: Arc<Mutex<LiveState>>,
+    _sub: zenoh::pubsub::Subscriber<()>,
+}
+
+#[derive(Default)]
+struct LiveState {
+    alive: HashSet<String>,
+    gone: HashSet<String>,
+}
+
+impl Liveliness {
+    /// Starts tracking (asks for the tokens already alive, then follows changes).
+    pub fn new(client: &Client) -> Result<Self> {
+        let state = Arc::new(Mutex::new(LiveState::default()));
+        let st = state.clone();
+        let keys = client.keys.clone();
+        let sub = client
+            .session
+            .liveliness()
+            .declare_subscriber(keys.alive_all())
+            .history(true)
+            .callback(move |s| {
+                if let Some((role, id)) = keys.parse_alive(s.key_expr().as_str()) {
+                    let name = format!("{role}/{id}");
+                    let mut st = st.lock().unwrap_or_else(|e| e.into_inner());
+                    match s.kind() {
+                        SampleKind::Put => {
+                            st.gone.remove(&name);
+                            st.alive.insert(name);
+                        }
+                        SampleKind::Delete => {
+                            st.alive.remove(&name);
+                            st.gone.insert(name);
+                        }
+                    }
+                }
+            })
+            .wait()
+            .map_err(Error::zenoh)?;
+        Ok(Liveliness { state, _sub: sub })
+    }
+
+    fn name(role: Role, id: &str) -> String {
+        format!("{}/{id}", role.as_str())
+    }
+
+    /// Whether `(role, id)` currently holds a token.
+    pub fn is_alive(&self, role: Role, id: &str) -> bool {
+        self.state
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .alive
+            .contains(&Self::name(role, id))
+    }
+
+    /// Whether `(role, id)` held a token that has since disappeared.
+    pub fn is_gone(&self, role: Role, id: &str) -> bool {
+        self.state
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .gone
+            .contains(&Self::name(role, id))
+    }
+
+    /// Waits until every participant in `who` is alive; the error names those still missing.
+    pub fn wait_for(&self, who: &[(Role, String)], timeout: Duration) -> Result<()> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            let missing: Vec<String> = who
+                .iter()
+                .filter(|(r, id)| !self.is_alive(*r, id))
+                .map(|(r, id)| Self::name(*r, id))
+                .collect();
+            if missing.is_empty() {
+                return Ok(());
+            }
+            if Instant::now() > deadline {
+                return Err(Error::Timeout {
+                    who: missing.join(", "),
+                    what: "liveliness token".into(),
+                    after_ms: timeout.as_millis() as u64,
+                });
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
+
+/// A lockstep client of one simulator: `info`, `reset`, `step` with idempotent retries.
+pub struct SimClient {
+    client: Client,
+    /// The simulator id.
+    pub id: String,
+    /// Its `info` reply (from [`SimClient::connect`]).
+    pub info: InfoReply,
+    /// The step index of its current state.
+    pub k: u64,
+    /// Timeout of one step attempt.
+    pub timeout: Duration,
+    /// How many times a timed-out step is re-sent (the adapter answers retries from its cache).
+    pub retries: usize,
+    step_key: String,
+}
+
+impl SimClient {
+    /// The readiness barrier for one simulator: `info` is queried until it answers (a `get` sent
+    /// before the queryable is routed gets no reply) or `timeout` passes. Checks the version.
+    pub fn connect(client: &Client, id: &str, timeout: Duration) -> Result<Self> {
+        let key = client.keys.sim(id, SimLeaf::Info)?;
+        let who = format!("simulator '{id}'");
+        let deadline = Instant::now() + timeout;
+        let bytes = loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match client.query(&key, Vec::new(), left.min(Duration::from_secs(2)), &who) {
+                Ok(b) => break b,
+                Err(Error::Timeout { .. }) if Instant::now() < deadline => {
+                    std::thread::sleep(Duration::from_millis(50))
+                }
+                Err(e) => return Err(e),
+            }
+        };
+        let info: InfoReply = serde_json::from_slice(&bytes).map_err(|e| {
+            Error::protocol(
+                ErrorCode::BadRequest,
+                format!("{who}: info reply is not valid: {e}"),
+            )
+        })?;
+        if info.protocol_version != PROTOCOL_VERSION {
+            return Err(Error::protocol(
+                ErrorCode::VersionMismatch,
+                format!(
+                    "{who} speaks protocol version {}, this orchestrator speaks {PROTOCOL_VERSION}",
+                    info.protocol_version
+                ),
+            ));
+        }
+        Ok(SimClient {
+            client: client.clone(),
+            id: id.to_string(),
+            k: info.k,
+            info,
+            timeout: Duration::from_secs(10),
+            retries: 2,
+            step_key: client.keys.sim(id, SimLeaf::Step)?,
+        })
+    }
+
+    fn who(&self) -> String {
+        format!("simulator '{}'", self.id)
+    }
+
+    /// Re-reads `info` (e.g. for the adapter's counters).
+    pub fn refresh_info(&mut self) -> Result<&InfoReply> {
+        let key = self.client.keys.sim(&self.id, SimLeaf::Info)?;
+        let b = self
+            .client
+            .query(&key, Vec::new(), self.timeout, &self.who())?;
+        self.info = serde_json::from_slice(&b)
+            .map_err(|e| Error::protocol(ErrorCode::BadRequest, format!("info reply: {e}")))?;
+        Ok(&self.info)
+    }
+
+    /// Resets; returns the first state.
+    pub fn reset(&mut self, req: &ResetRequest) -> Result<StepReply> {
+        let key = self.client.keys.sim(&self.id, SimLeaf::Reset)?;
+        let body = serde_json::to_vec(req).map_err(|e| Error::Config(e.to_string()))?;
+        let b = self.client.query(&key, body, self.timeout, &self.who())?;
+        let r = StepReply::decode(&b)?;
+        self.k = r.k;
+        Ok(r)
+    }
+
+    /// Sends the step request for the current `k` without waiting.
+    pub fn start_step(&self, u: &[f64]) -> Result<PendingQuery> {
+        let body = StepRequest {
+            k: self.k,
+            u: u.to_vec(),
+        }
+        .encode();
+        self.client
+            .start(&self.step_key, body, self.timeout, &self.who())
+    }
+
+    /// Waits for a step started by [`SimClient::start_step`]; on timeout, re-sends the same
+    /// request up to `retries` times; checks that the reply's k is k + 1.
+    pub fn finish_step(
+        &mut self,
+        pending: PendingQuery,
+        u: &[f64],
+        live: Option<&Liveliness>,
+    ) -> Result<StepReply> {
+        let mut pending = pending;
+        let mut attempt = 0;
+        loop {
+            let watch = live.map(|l| (l, Role::Sim, self.id.as_str()));
+            match pending.wait(watch) {
+                Ok(b) => {
+                    let r = StepReply::decode(&b)?;
+                    if r.k != self.k + 1 {
+                        return Err(Error::protocol(
+                            ErrorCode::OutOfOrder,
+                            format!(
+                                "{} answered step {} with k = {}, expected {}",
+                                self.who(),
+                                self.k,
+                                r.k,
+                                self.k + 1
+                            ),
+                        ));
+                    }
+                    if r.x.len() != self.info.sim.nx() {
+                        return Err(Error::protocol(
+                            ErrorCode::Dimension,
+                            format!(
+                                "{} returned {} state values, info says {}",
+                                self.who(),
+                                r.x.len(),
+                                self.info.sim.nx()
+                            ),
+                        ));
+                    }
+                    self.k = r.k;
+                    return Ok(r);
+                }
+                Err(Error::Timeout { .. }) if attempt < self.retries => {
+                    attempt += 1;
+                    tracing::warn!(
+                        "{} did not answer step {}; retry {attempt}",
+                        self.who(),
+                        self.k
+                    );
+                    pending = self.start_step(u)?;
+                }
+                Err(e) => return Err(e),
+            }
+        }
+    }
+
+    /// One step: send `u_k`, wait for `x_{k+1}`.
+    pub fn step(&mut self, u: &[f64], live: Option<&Liveliness>) -> Result<StepReply> {
+        let p = self.start_step(u)?;
+        self.finish_step(p, u, live)
+    }
+}
+
+/// Steps every simulator concurrently (all requests first, then all replies) with its own input.
+/// The first failure is returned, naming its simulator.
+pub fn step_all(
+    sims: &mut [SimClient],
+    inputs: &[Vec<f64>],
+    live: Option<&Liveliness>,
+) -> Result<Vec<StepReply>> {
+    if sims.len() != inputs.len() {
+        return Err(Error::Config(format!(
+            "{} simulators but {} inputs",
+            sims.len(),
+            inputs.len()
+        )));
+    }
+    let pending: Vec<PendingQuery> = sims
+        .iter()
+        .zip(inputs)
+        .map(|(s, u)| s.start_step(u))
+        .collect::<Result<_>>()?;
+    sims.iter_mut()
+        .zip(pending)
+        .zip(inputs)
+        .map(|((s, p), u)| s.finish_step(p, u, live))
+        .collect()
+}

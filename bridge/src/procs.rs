@@ -1,0 +1,82 @@
+//! Child processes of the orchestrator: started from the current executable with a stdin
+//! "lifeline" (they exit when it closes), logs to files, killed when dropped.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+
+use crate::error::{Error, Result};
+
+/// One child process.
+pub struct ChildProc {
+    /// A name for messages (e.g. `simulator 'pend'`).
+    pub name: String,
+    /// Its log file (stderr and stdout).
+    pub log: PathBuf,
+    child: Child,
+}
+
+impl ChildProc {
+    /// Starts `exe args…` with stdin piped (the lifeline) and output to `log`.
+    pub fn spawn(name: &str, exe: &Path, args: &[String], log: &Path) -> Result<Self> {
+        let io = |p: &Path, e| Error::Io {
+            path: p.to_path_buf(),
+            source: e,
+        };
+        if let Some(d) = log.parent() {
+            std::fs::create_dir_all(d).map_err(|e| io(d, e))?;
+        }
+        let out = std::fs::File::create(log).map_err(|e| io(log, e))?;
+        let err = out.try_clone().map_err(|e| io(log, e))?;
+        let child = Command::new(exe)
+            .args(args)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::from(out))
+            .stderr(Stdio::from(err))
+            .spawn()
+            .map_err(|e| io(exe, e))?;
+        Ok(ChildProc {
+            name: name.to_string(),
+            log: log.to_path_buf(),
+            child,
+        })
+    }
+
+    /// The OS process id.
+    pub fn id(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// `Some(message)` if the process has exited (with the end of its log).
+    pub fn exited(&mut self) -> Option<String> {
+        match self.child.try_wait() {
+            Ok(Some(status)) => Some(format!(
+                "{} exited ({status}); end of {}:\n{}",
+                self.name,
+                self.log.display(),
+                tail(&self.log, 1500)
+            )),
+            _ => None,
+        }
+    }
+
+    /// Kills the process (if still running) and reaps it.
+    pub fn kill(&mut self) {
+        drop(self.child.stdin.take());
+        if let Ok(None) = self.child.try_wait() {
+            let _ = self.child.kill();
+        }
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for ChildProc {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}
+
+/// The last `n` bytes of a text file (lossy).
+pub fn tail(path: &Path, n: usize) -> String {
+    let b = std::fs::read(path).unwrap_or_default();
+    String::from_utf8_lossy(&b[b.len().saturating_sub(n)..]).into_owned()
+}

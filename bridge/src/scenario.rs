@@ -1,0 +1,256 @@
+//! Scenario files (`scenarios/*.toml`): which simulators, how data is collected, how the model
+//! is trained and how it is used for control.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::keyexpr::validate_chunk;
+
+/// A whole scenario.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scenario {
+    /// Scenario name (results go to `results/{name}/`); `[a-z0-9_-]`.
+    pub name: String,
+    /// One-line description.
+    #[serde(default)]
+    pub description: String,
+    /// Simulators to start (each with `koopbridge sim`).
+    pub sims: Vec<SimSpec>,
+    /// Data collection.
+    pub collect: CollectSpec,
+    /// Training (through the trainer service); absent = no training, no control.
+    #[serde(default)]
+    pub train: Option<TrainSpec>,
+    /// Closed-loop control (through the MPC service).
+    #[serde(default)]
+    pub control: Option<ControlSpec>,
+    /// Overrides applied with `koopbridge run --full` (the SPEC budget).
+    #[serde(default)]
+    pub full: Option<FullSpec>,
+}
+
+/// A simulator to start.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimSpec {
+    /// Its id (`[a-z0-9_-]`).
+    pub id: String,
+    /// The built-in system (`koopbridge sim --env`).
+    pub env: String,
+}
+
+/// How inputs are chosen during collection.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Policy {
+    /// A fresh uniform random input within the simulator's bounds every step (SPEC.md).
+    Uniform,
+    /// A fixed input sequence (each entry `nu` values), cycled.
+    Scripted {
+        /// The inputs.
+        inputs: Vec<Vec<f64>>,
+    },
+}
+
+/// Data collection by lockstep stepping.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CollectSpec {
+    /// Input policy.
+    pub policy: Policy,
+    /// Training windows (per simulator).
+    pub train_windows: usize,
+    /// Validation windows (per simulator).
+    pub val_windows: usize,
+    /// Test windows (per simulator).
+    pub test_windows: usize,
+    /// Transitions per window T (default: 15).
+    #[serde(default = "default_steps")]
+    pub steps: usize,
+    /// Data seed (initial states and random inputs).
+    #[serde(default = "default_seed")]
+    pub seed: u64,
+}
+
+fn default_steps() -> usize {
+    15
+}
+fn default_seed() -> u64 {
+    42
+}
+
+/// Training through the trainer service.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainSpec {
+    /// `koopman::train::TrainConfig` fields to override (JSON object; the rest = SPEC defaults).
+    #[serde(default)]
+    pub config: serde_json::Map<String, serde_json::Value>,
+}
+
+/// Closed-loop regulation of each simulator with the MPC service.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ControlSpec {
+    /// Initial state (`nx` values) of the controlled simulator.
+    pub x0: Vec<f64>,
+    /// Reference state (`nx` values).
+    pub reference: Vec<f64>,
+    /// Closed-loop steps.
+    pub steps: usize,
+    /// `koopman::mpc::MpcConfig` fields to override (JSON object).
+    #[serde(default)]
+    pub mpc: serde_json::Map<String, serde_json::Value>,
+    /// Which simulator to control (default: the first).
+    #[serde(default)]
+    pub sim: Option<String>,
+}
+
+/// Overrides for `--full`.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FullSpec {
+    /// Training windows.
+    pub train_windows: Option<usize>,
+    /// Validation windows.
+    pub val_windows: Option<usize>,
+    /// Test windows.
+    pub test_windows: Option<usize>,
+    /// Training config overrides (merged over `[train.config]`).
+    #[serde(default)]
+    pub train_config: serde_json::Map<String, serde_json::Value>,
+}
+
+impl Scenario {
+    /// Reads and validates a scenario file.
+    pub fn load(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::Io {
+            path: path.to_path_buf(),
+            source: e,
+        })?;
+        Self::parse(&text).map_err(|e| Error::Config(format!("{}: {e}", path.display())))
+    }
+
+    /// Parses and validates scenario text.
+    pub fn parse(text: &str) -> Result<Self> {
+        let s: Scenario = toml::from_str(text).map_err(|e| Error::Config(e.to_string()))?;
+        s.validate()?;
+        Ok(s)
+    }
+
+    /// Checks names, counts and references.
+    pub fn validate(&self) -> Result<()> {
+        validate_chunk("scenario name", &self.name)?;
+        if self.sims.is_empty() {
+            return Err(Error::Config(
+                "a scenario needs at least one [[sims]] entry".into(),
+            ));
+        }
+        for (i, s) in self.sims.iter().enumerate() {
+            validate_chunk("sim id", &s.id)?;
+            if self.sims[..i].iter().any(|o| o.id == s.id) {
+                return Err(Error::Config(format!("sim id '{}' appears twice", s.id)));
+            }
+        }
+        let c = &self.collect;
+        if c.train_windows == 0 || c.steps == 0 {
+            return Err(Error::Config(
+                "collect.train_windows and collect.steps must be positive".into(),
+            ));
+        }
+        if let Policy::Scripted { inputs } = &c.policy {
+            if inputs.is_empty() {
+                return Err(Error::Config(
+                    "a scripted policy needs at least one input".into(),
+                ));
+            }
+        }
+        if let Some(ctrl) = &self.control {
+            if self.train.is_none() {
+                return Err(Error::Config(
+                    "[control] needs [train] (the model comes from training)".into(),
+                ));
+            }
+            if let Some(id) = &ctrl.sim {
+                if !self.sims.iter().any(|s| &s.id == id) {
+                    return Err(Error::Config(format!(
+                        "control.sim '{id}' is not among [[sims]]"
+                    )));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Applies the `[full]` overrides.
+    pub fn apply_full(&mut self) {
+        if let Some(f) = self.full.clone() {
+            if let Some(n) = f.train_windows {
+                self.collect.train_windows = n;
+            }
+            if let Some(n) = f.val_windows {
+                self.collect.val_windows = n;
+            }
+            if let Some(n) = f.test_windows {
+                self.collect.test_windows = n;
+            }
+            if let Some(t) = &mut self.train {
+                for (k, v) in f.train_config {
+                    t.config.insert(k, v);
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOOD: &str = r#"
+name = "demo"
+[[sims]]
+id = "pend"
+env = "damped-pendulum"
+[collect]
+policy = { kind = "scripted", inputs = [[1.0], [-1.0]] }
+train_windows = 10
+val_windows = 2
+test_windows = 2
+[train]
+config = { iterations = 5 }
+[control]
+x0 = [-2.5, 0.1]
+reference = [0.0, 0.0]
+steps = 20
+[full]
+train_windows = 1000
+train_config = { iterations = 60000 }
+"#;
+
+    #[test]
+    fn parses_validates_and_applies_full() {
+        let mut s = Scenario::parse(GOOD).unwrap();
+        assert_eq!(s.collect.steps, 15);
+        assert_eq!(
+            s.collect.policy,
+            Policy::Scripted {
+                inputs: vec![vec![1.0], vec![-1.0]]
+            }
+        );
+        s.apply_full();
+        assert_eq!(s.collect.train_windows, 1000);
+        assert_eq!(s.train.unwrap().config["iterations"], 60000);
+        assert!(Scenario::parse(&GOOD.replace("\"demo\"", "\"De mo\"")).is_err());
+        assert!(Scenario::parse(&GOOD.replace("train_windows = 10", "train_windows = 0")).is_err());
+        assert!(Scenario::parse(&GOOD.replace("steps = 20", "steps = 20\nbogus = 1")).is_err());
+        assert!(Scenario::parse(&GOOD.replace(
+            "[[sims]]\nid = \"pend\"",
+            "[[sims]]\nid = \"pend\"\n[[sims]]\nid = \"pend\""
+        ))
+        .is_err());
+    }
+}

@@ -1,0 +1,222 @@
+//! The model store: serves every model directory under a store folder at `…/models/{name}` as a
+//! small archive (JSON header + the files), and unpacks such archives on the client side.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+use zenoh::Session;
+
+use super::{respond, Inbox};
+use crate::client::Client;
+use crate::error::{Error, ErrorCode, ErrorReply, Result};
+use crate::keyexpr::{validate_chunk, Keys, Role};
+
+/// Magic bytes of a model archive.
+pub const ARCHIVE_MAGIC: [u8; 4] = *b"KBM1";
+/// Largest model archive served or accepted (256 MiB).
+pub const MAX_ARCHIVE: usize = 256 << 20;
+
+/// One file of an archive.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ArchiveFile {
+    /// File name inside the model directory (no path separators).
+    pub name: String,
+    /// Size in bytes.
+    pub size: u64,
+}
+
+/// The JSON header of a model archive.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ArchiveHeader {
+    /// Model name.
+    pub name: String,
+    /// The model's `config.json` (kind, dims, training metadata).
+    pub config: serde_json::Value,
+    /// The files that follow the header, in order.
+    pub files: Vec<ArchiveFile>,
+}
+
+fn safe_file_name(n: &str) -> bool {
+    !n.is_empty() && n != "." && n != ".." && !n.contains(['/', '\\']) && !n.starts_with('.')
+}
+
+/// Packs the regular files of `dir` (not hidden ones) into an archive:
+/// `KBM1`, `u32` LE header length, JSON header, then the files' bytes in header order.
+pub fn pack(name: &str, dir: &Path) -> Result<Vec<u8>> {
+    let io = |p: &Path, e| Error::Io {
+        path: p.to_path_buf(),
+        source: e,
+    };
+    let config_path = dir.join("config.json");
+    let config: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&config_path).map_err(|e| io(&config_path, e))?)
+            .map_err(|e| Error::Config(format!("{}: {e}", config_path.display())))?;
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .map_err(|e| io(dir, e))?
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_type().map(|t| t.is_file()).unwrap_or(false))
+        .filter_map(|e| e.file_name().into_string().ok())
+        .filter(|n| safe_file_name(n))
+        .collect();
+    names.sort();
+    let mut files = Vec::new();
+    let mut body = Vec::new();
+    for n in &names {
+        let p = dir.join(n);
+        let b = std::fs::read(&p).map_err(|e| io(&p, e))?;
+        files.push(ArchiveFile {
+            name: n.clone(),
+            size: b.len() as u64,
+        });
+        body.extend_from_slice(&b);
+    }
+    let header = serde_json::to_vec(&ArchiveHeader {
+        name: name.to_string(),
+        config,
+        files,
+    })
+    .map_err(|e| Error::Config(e.to_string()))?;
+    let mut out = Vec::with_capacity(8 + header.len() + body.len());
+    out.extend_from_slice(&ARCHIVE_MAGIC);
+    out.extend_from_slice(&(header.len() as u32).to_le_bytes());
+    out.extend_from_slice(&header);
+    out.extend_from_slice(&body);
+    if out.len() > MAX_ARCHIVE {
+        return Err(Error::protocol(
+            ErrorCode::TooLarge,
+            format!("model '{name}' is {} bytes", out.len()),
+        ));
+    }
+    Ok(out)
+}
+
+/// Unpacks an archive into `dir/{name}` (written to a temporary folder, then renamed).
+pub fn unpack(bytes: &[u8], dir: &Path) -> Result<(ArchiveHeader, PathBuf)> {
+    let bad = |m: &str| Error::protocol(ErrorCode::BadRequest, format!("model archive: {m}"));
+    if bytes.len() < 8 || bytes[..4] != ARCHIVE_MAGIC {
+        return Err(bad("missing KBM1 magic"));
+    }
+    let hl = u32::from_le_bytes([bytes[4], bytes[5], bytes[6], bytes[7]]) as usize;
+    let rest = &bytes[8..];
+    if rest.len() < hl {
+        return Err(bad("truncated header"));
+    }
+    let header: ArchiveHeader =
+        serde_json::from_slice(&rest[..hl]).map_err(|e| bad(&format!("header: {e}")))?;
+    validate_chunk("model name", &header.name)?;
+    let mut body = &rest[hl..];
+    let final_dir = dir.join(&header.name);
+    let tmp = dir.join(format!(".{}.tmp-{}", header.name, std::process::id()));
+    let io = |p: &Path, e| Error::Io {
+        path: p.to_path_buf(),
+        source: e,
+    };
+    let _ = std::fs::remove_dir_all(&tmp);
+    std::fs::create_dir_all(&tmp).map_err(|e| io(&tmp, e))?;
+    for f in &header.files {
+        if !safe_file_name(&f.name) {
+            return Err(bad(&format!("unsafe file name {:?}", f.name)));
+        }
+        let n = f.size as usize;
+        if body.len() < n {
+            return Err(bad("truncated body"));
+        }
+        let p = tmp.join(&f.name);
+        std::fs::write(&p, &body[..n]).map_err(|e| io(&p, e))?;
+        body = &body[n..];
+    }
+    if !body.is_empty() {
+        return Err(bad("trailing bytes"));
+    }
+    let _ = std::fs::remove_dir_all(&final_dir);
+    std::fs::rename(&tmp, &final_dir).map_err(|e| io(&final_dir, e))?;
+    Ok((header, final_dir))
+}
+
+/// Fetches model `name` from the session's model store into `dir/{name}`.
+pub fn fetch(client: &Client, name: &str, dir: &Path, timeout: Duration) -> Result<PathBuf> {
+    let key = client.keys.model(name)?;
+    let bytes = client.query(&key, Vec::new(), timeout, &format!("model store ({name})"))?;
+    std::fs::create_dir_all(dir).map_err(|e| Error::Io {
+        path: dir.to_path_buf(),
+        source: e,
+    })?;
+    Ok(unpack(&bytes, dir)?.1)
+}
+
+/// Serves `store/{name}` at `…/models/{name}` until `stop` is set.
+pub fn serve(
+    session: &Session,
+    keys: &Keys,
+    id: &str,
+    store: &Path,
+    stop: &AtomicBool,
+) -> Result<()> {
+    let mut inbox = Inbox::new();
+    inbox.declare(session, &keys.under(&["models", "*"]), ())?;
+    let _token = zenoh::Wait::wait(
+        session
+            .liveliness()
+            .declare_token(keys.alive(Role::Models, id)?),
+    )
+    .map_err(Error::zenoh)?;
+    tracing::info!("model store '{id}' serving {}", store.display());
+    while !stop.load(Ordering::Relaxed) {
+        let Some(((), q)) = inbox.next(Duration::from_millis(100)) else {
+            continue;
+        };
+        let name = q
+            .key_expr()
+            .as_str()
+            .rsplit('/')
+            .next()
+            .unwrap_or("")
+            .to_string();
+        let result = match validate_chunk("model name", &name) {
+            Err(e) => Err(e.to_reply()),
+            Ok(()) => {
+                let dir = store.join(&name);
+                if !dir.join("config.json").is_file() {
+                    Err(ErrorReply::new(
+                        ErrorCode::NotFound,
+                        format!("no model '{name}' in this store"),
+                    ))
+                } else {
+                    pack(&name, &dir).map_err(|e| e.to_reply())
+                }
+            }
+        };
+        respond(&q, result);
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pack_unpack_round_trip_and_rejects_bad_archives() {
+        let root = std::env::temp_dir().join(format!("kb-models-{}", std::process::id()));
+        let src = root.join("src");
+        std::fs::create_dir_all(&src).unwrap();
+        std::fs::write(src.join("config.json"), br#"{"kind":"koopman","nx":2}"#).unwrap();
+        std::fs::write(src.join("model.safetensors"), [1u8, 2, 3, 4, 5]).unwrap();
+        let a = pack("m1", &src).unwrap();
+        let (h, dir) = unpack(&a, &root.join("dst")).unwrap();
+        assert_eq!(h.config["kind"], "koopman");
+        assert_eq!(
+            std::fs::read(dir.join("model.safetensors")).unwrap(),
+            vec![1, 2, 3, 4, 5]
+        );
+        assert!(unpack(&a[..a.len() - 1], &root.join("dst")).is_err());
+        assert!(unpack(b"nope", &root.join("dst")).is_err());
+        let mut evil = a.clone();
+        let s = String::from_utf8_lossy(&evil).replace("model.safetensors", "../../xxx.safeten");
+        evil = s.into_bytes();
+        assert!(unpack(&evil, &root.join("dst")).is_err());
+        let _ = std::fs::remove_dir_all(&root);
+    }
+}

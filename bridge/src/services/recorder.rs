@@ -1,0 +1,297 @@
+//! The recorder: turns a free-running simulator's `state` stream into a dataset file (windows of
+//! T transitions, exact input pairing from the state messages), detecting gaps by sequence
+//! number, and serves recorded datasets at `…/data/{name}`.
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use koopman::data::{Dataset, DatasetMeta, Pairing};
+use serde::{Deserialize, Serialize};
+use zenoh::{Session, Wait};
+
+use super::{parse_json, payload, respond, to_json, Inbox, DEFAULT_MAX_PAYLOAD};
+use crate::codec::StateMsg;
+use crate::error::{Error, ErrorCode, ErrorReply, Result};
+use crate::keyexpr::{validate_chunk, Keys, Role, SimLeaf};
+use crate::messages::InfoReply;
+
+/// `…/recorder/{id}/record` request.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RecordRequest {
+    /// `start` or `stop`.
+    pub action: String,
+    /// Simulator id.
+    pub sim: String,
+    /// Dataset name (`[a-z0-9_-]`), required for `stop`.
+    #[serde(default)]
+    pub name: String,
+    /// Transitions per window (default 15).
+    #[serde(default)]
+    pub window_steps: Option<usize>,
+}
+
+/// `stop` reply: what was recorded.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RecordSummary {
+    /// Dataset name.
+    pub name: String,
+    /// States received.
+    pub states: u64,
+    /// Sequence numbers missing from the stream.
+    pub gaps: u64,
+    /// States that arrived with a sequence number lower than an earlier one.
+    pub out_of_order: u64,
+    /// Windows written.
+    pub windows: usize,
+}
+
+/// The received states of one recording.
+#[derive(Default)]
+struct Recording {
+    states: Vec<StateMsg>,
+    bad: u64,
+}
+
+/// Turns a sequence of state messages into windows of `steps` transitions. Windows never span
+/// a sequence gap or a reset (k not increasing by one). Returns (x, u, windows, gaps, out_of_order).
+pub fn windows_from_stream(
+    states: &[StateMsg],
+    steps: usize,
+    nx: usize,
+    nu: usize,
+) -> (Vec<f64>, Vec<f64>, usize, u64, u64) {
+    let (mut x, mut u) = (Vec::new(), Vec::new());
+    let (mut n, mut gaps, mut ooo) = (0usize, 0u64, 0u64);
+    let mut run: Vec<&StateMsg> = Vec::new();
+    let mut last_seq: Option<u64> = None;
+    for s in states {
+        if let Some(l) = last_seq {
+            if s.seq <= l {
+                ooo += 1;
+                continue;
+            }
+            if s.seq > l + 1 {
+                gaps += s.seq - l - 1;
+                run.clear();
+            }
+        }
+        last_seq = Some(s.seq);
+        let continues = run
+            .last()
+            .is_some_and(|p| s.k == p.k + 1 && s.u.len() == nu);
+        if !continues {
+            run.clear();
+        }
+        if s.x.len() != nx {
+            run.clear();
+            continue;
+        }
+        run.push(s);
+        if run.len() == steps + 1 {
+            for (i, r) in run.iter().enumerate() {
+                x.extend_from_slice(&r.x);
+                if i > 0 {
+                    u.extend_from_slice(&r.u);
+                }
+            }
+            n += 1;
+            let last = run[steps];
+            run.clear();
+            run.push(last);
+        }
+    }
+    (x, u, n, gaps, ooo)
+}
+
+#[derive(Clone, Copy)]
+enum Op {
+    Record,
+    Data,
+}
+
+/// Serves the recorder `id` (recordings written to `data_dir/{name}.npz`) until `stop` is set.
+pub fn serve(
+    session: &Session,
+    keys: &Keys,
+    id: &str,
+    data_dir: &Path,
+    stop: &AtomicBool,
+) -> Result<()> {
+    std::fs::create_dir_all(data_dir).map_err(|e| Error::Io {
+        path: data_dir.to_path_buf(),
+        source: e,
+    })?;
+    let client = crate::client::Client::new(session.clone(), keys.clone());
+    let mut inbox = Inbox::new();
+    inbox.declare(session, &keys.recorder(id)?, Op::Record)?;
+    inbox.declare(session, &keys.under(&["data", "*"]), Op::Data)?;
+    let _token = session
+        .liveliness()
+        .declare_token(keys.alive(Role::Recorder, id)?)
+        .wait()
+        .map_err(Error::zenoh)?;
+    let mut active: HashMap<String, (Arc<Mutex<Recording>>, zenoh::pubsub::Subscriber<()>, usize)> =
+        HashMap::new();
+    while !stop.load(Ordering::Relaxed) {
+        let Some((op, q)) = inbox.next(Duration::from_millis(100)) else {
+            continue;
+        };
+        let result = (|| -> std::result::Result<Vec<u8>, ErrorReply> {
+            let body = payload(&q, DEFAULT_MAX_PAYLOAD)?;
+            match op {
+                Op::Data => {
+                    let name = q
+                        .key_expr()
+                        .as_str()
+                        .rsplit('/')
+                        .next()
+                        .unwrap_or("")
+                        .to_string();
+                    validate_chunk("dataset name", &name).map_err(|e| e.to_reply())?;
+                    let p = data_dir.join(format!("{name}.npz"));
+                    std::fs::read(&p).map_err(|_| {
+                        ErrorReply::new(ErrorCode::NotFound, format!("no dataset '{name}'"))
+                    })
+                }
+                Op::Record => {
+                    let req: RecordRequest = parse_json("record", &body)?;
+                    validate_chunk("sim id", &req.sim).map_err(|e| e.to_reply())?;
+                    match req.action.as_str() {
+                        "start" => {
+                            if active.contains_key(&req.sim) {
+                                return Err(ErrorReply::new(
+                                    ErrorCode::Busy,
+                                    format!("already recording '{}'", req.sim),
+                                ));
+                            }
+                            let rec = Arc::new(Mutex::new(Recording::default()));
+                            let r2 = rec.clone();
+                            let sub = session
+                                .declare_subscriber(
+                                    keys.sim(&req.sim, SimLeaf::State)
+                                        .map_err(|e| e.to_reply())?,
+                                )
+                                .callback(move |s| {
+                                    let mut r = r2.lock().unwrap_or_else(|e| e.into_inner());
+                                    match StateMsg::decode(&s.payload().to_bytes()) {
+                                        Ok(m) => r.states.push(m),
+                                        Err(_) => r.bad += 1,
+                                    }
+                                })
+                                .wait()
+                                .map_err(|e| Error::zenoh(e).to_reply())?;
+                            active.insert(
+                                req.sim.clone(),
+                                (rec, sub, req.window_steps.unwrap_or(15)),
+                            );
+                            to_json(&serde_json::json!({"recording": req.sim}))
+                        }
+                        "stop" => {
+                            validate_chunk("dataset name", &req.name).map_err(|e| e.to_reply())?;
+                            let (rec, sub, steps) = active.remove(&req.sim).ok_or_else(|| {
+                                ErrorReply::new(
+                                    ErrorCode::NotFound,
+                                    format!("not recording '{}'", req.sim),
+                                )
+                            })?;
+                            drop(sub);
+                            let info: InfoReply = {
+                                let key = keys
+                                    .sim(&req.sim, SimLeaf::Info)
+                                    .map_err(|e| e.to_reply())?;
+                                let b = client
+                                    .query(
+                                        &key,
+                                        Vec::new(),
+                                        Duration::from_secs(10),
+                                        &format!("simulator '{}'", req.sim),
+                                    )
+                                    .map_err(|e| e.to_reply())?;
+                                parse_json("info", &b)?
+                            };
+                            let rec = rec.lock().unwrap_or_else(|e| e.into_inner());
+                            let (nx, nu) = (info.sim.nx(), info.sim.nu());
+                            let (x, u, n, gaps, ooo) =
+                                windows_from_stream(&rec.states, steps, nx, nu);
+                            let d = Dataset {
+                                n,
+                                steps,
+                                nx,
+                                nu,
+                                x,
+                                u,
+                                meta: DatasetMeta {
+                                    env: info.sim.env.clone(),
+                                    dt: info.sim.dt,
+                                    state_names: info.sim.state_names.clone(),
+                                    input_names: info.sim.input_names.clone(),
+                                    pairing: Pairing::Aligned,
+                                    seed: 0,
+                                    source: format!("zenoh:sim/{} (free-run recording)", req.sim),
+                                    policy: "recorded".into(),
+                                },
+                            };
+                            if n > 0 {
+                                d.save_npz(&data_dir.join(format!("{}.npz", req.name)))
+                                    .map_err(|e| Error::from(e).to_reply())?;
+                            }
+                            to_json(&RecordSummary {
+                                name: req.name.clone(),
+                                states: rec.states.len() as u64,
+                                gaps,
+                                out_of_order: ooo,
+                                windows: n,
+                            })
+                        }
+                        other => Err(ErrorReply::new(
+                            ErrorCode::BadRequest,
+                            format!("action '{other}': expected start or stop"),
+                        )),
+                    }
+                }
+            }
+        })();
+        respond(&q, result);
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn st(seq: u64, k: u64, x: f64, u: f64) -> StateMsg {
+        StateMsg {
+            seq,
+            k,
+            t: k as f64,
+            x: vec![x],
+            u: if k == 0 { vec![] } else { vec![u] },
+        }
+    }
+
+    #[test]
+    fn windows_skip_gaps_and_pair_inputs_exactly() {
+        // seq 0..=4 contiguous (k 0..4), then seq 6 missing 5, then 6..=8.
+        let mut s: Vec<StateMsg> = (0..5)
+            .map(|i| st(i, i, i as f64, 10.0 + i as f64))
+            .collect();
+        s.extend((6..9).map(|i| st(i, i, i as f64, 10.0 + i as f64)));
+        let (x, u, n, gaps, ooo) = windows_from_stream(&s, 2, 1, 1);
+        assert_eq!(gaps, 1);
+        assert_eq!(ooo, 0);
+        // windows: [0,1,2], [2,3,4], after the gap [6,7,8].
+        assert_eq!(n, 3);
+        assert_eq!(x, vec![0.0, 1.0, 2.0, 2.0, 3.0, 4.0, 6.0, 7.0, 8.0]);
+        // the input of window [0,1,2] is (u that led to 1, u that led to 2).
+        assert_eq!(u, vec![11.0, 12.0, 13.0, 14.0, 17.0, 18.0]);
+        let mut dup = s.clone();
+        dup.insert(3, st(1, 1, 1.0, 11.0));
+        let (_, _, _, _, ooo) = windows_from_stream(&dup, 2, 1, 1);
+        assert_eq!(ooo, 1);
+    }
+}
