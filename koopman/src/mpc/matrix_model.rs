@@ -7,7 +7,17 @@ use crate::error::{Error, Result};
 use crate::model::LiftedModel;
 use crate::rng::Rng;
 
-/// `z = [x, tanh(F x + c)]`, `z⁺ = A z + B u`, with explicit A, B, F, c.
+/// The nonlinearity of the lifting features.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Activation {
+    /// `tanh(F x + c)`.
+    #[default]
+    Tanh,
+    /// `cos(F x + c)` (random Fourier features).
+    Cos,
+}
+
+/// `z = [x, σ(F x + c)]`, `z⁺ = A z + B u`, with explicit A, B, F, c and σ = tanh or cos.
 #[derive(Clone, Debug)]
 pub struct MatrixModel {
     /// Latent transition matrix (N × N).
@@ -18,6 +28,8 @@ pub struct MatrixModel {
     pub features: Mat<f64>,
     /// Feature offsets c (N − nx).
     pub offsets: Vec<f64>,
+    /// The feature nonlinearity σ.
+    pub activation: Activation,
     nx: usize,
 }
 
@@ -51,6 +63,7 @@ impl MatrixModel {
             b,
             features,
             offsets,
+            activation: Activation::Tanh,
             nx,
         })
     }
@@ -114,7 +127,10 @@ impl LiftedModel for MatrixModel {
             for (j, &xj) in x.iter().enumerate() {
                 s += self.features[(i, j)] * xj;
             }
-            z.push(s.tanh());
+            z.push(match self.activation {
+                Activation::Tanh => s.tanh(),
+                Activation::Cos => s.cos(),
+            });
         }
         z
     }

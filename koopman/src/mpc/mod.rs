@@ -8,23 +8,38 @@
 //! - R = 0 (the paper's setting) leaves the Hessian only positive semidefinite: a relative
 //!   Tikhonov term `MpcConfig::regularization · max_i H_ii` (default 1e-9) is added to its
 //!   diagonal, so the optimum is unique and the Cholesky factorisation stable.
+//! - Baselines: [`SolverKind::ClosedForm`] (unconstrained optimum, clamped), [`Lqr`] with
+//!   feed-forward on the lifted model, [`RandomShooting`] on any [`OneStepModel`]; every
+//!   controller is a [`Policy`] that [`run_closed_loop`] evaluates on a reference system.
 //! - On solver failure the controller returns the shifted previous plan clamped to the bounds
 //!   ([`SolveStatus::Fallback`]), never NaN; bad input is a typed [`crate::Error`].
 
 pub mod boxqp;
 pub mod clarabel_qp;
 pub mod closed_form;
+pub mod closed_loop;
 pub mod condensed;
 pub mod config;
 pub mod constraints;
 pub mod controller;
+pub mod fit;
+pub mod lqr;
 pub mod matrix_model;
+pub mod metrics;
+pub mod policy;
 pub mod qp;
+pub mod shooting;
 
+pub use closed_loop::{run_closed_loop, ClosedLoopMetrics, Task, TaskKind, Trajectory};
 pub use config::{MpcConfig, SolverKind};
 pub use controller::{FallbackReason, MpcController, MpcSolution, SolveStatus};
-pub use matrix_model::MatrixModel;
+pub use lqr::Lqr;
+pub use matrix_model::{Activation, MatrixModel};
+pub use policy::{Action, LqrPolicy, Policy, ShootingPolicy};
 pub use qp::{QpOutcome, QpSolver, QpStatus};
+pub use shooting::{OneStepModel, RandomShooting, SystemAsModel};
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_closed_loop;

@@ -1,0 +1,142 @@
+//! Controllers seen from the closed loop: one trait, [`Policy`], implemented by the Koopman MPC
+//! (any solver), LQR on the lifted model and random-shooting MPC.
+
+use std::time::{Duration, Instant};
+
+use super::controller::{MpcController, SolveStatus};
+use super::lqr::Lqr;
+use super::shooting::{OneStepModel, RandomShooting};
+use crate::error::{Error, Result};
+use crate::model::LiftedModel;
+
+/// One control decision.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Action {
+    /// The input to apply (nu values, finite).
+    pub u: Vec<f64>,
+    /// Time spent deciding.
+    pub solve_time: Duration,
+    /// True if the controller used its fallback.
+    pub fallback: bool,
+}
+
+/// A feedback controller: state and reference window in, input out.
+pub trait Policy {
+    /// Name for reports (`koopman-mpc/dedicated`, `lqr`, …).
+    fn name(&self) -> String;
+    /// How many future reference states it wants (`r_{k+1}..r_{k+H}`).
+    fn horizon(&self) -> usize;
+    /// Decides `u_k` from `x_k`, the current reference `r_k` and `future` = `r_{k+1}..r_{k+H}`.
+    fn act(&mut self, x: &[f64], current: &[f64], future: &[f64]) -> Result<Action>;
+}
+
+impl Policy for MpcController<'_> {
+    fn name(&self) -> String {
+        format!("koopman-mpc/{}", self.config().solver.name())
+    }
+    fn horizon(&self) -> usize {
+        MpcController::horizon(self)
+    }
+    fn act(&mut self, x: &[f64], _current: &[f64], future: &[f64]) -> Result<Action> {
+        let s = self.solve(x, future)?;
+        Ok(Action {
+            u: s.first(self.nu()).to_vec(),
+            solve_time: s.solve_time,
+            fallback: matches!(s.status, SolveStatus::Fallback(_)),
+        })
+    }
+}
+
+/// LQR with feed-forward on a lifted model, clamped to the input bounds.
+pub struct LqrPolicy<'m> {
+    /// The gain and feed-forward.
+    pub lqr: Lqr,
+    model: &'m dyn LiftedModel,
+    u_min: Vec<f64>,
+    u_max: Vec<f64>,
+}
+
+impl<'m> LqrPolicy<'m> {
+    /// Wraps a computed LQR with the model (for lifting) and clamping bounds (nu each).
+    pub fn new(
+        lqr: Lqr,
+        model: &'m dyn LiftedModel,
+        u_min: Vec<f64>,
+        u_max: Vec<f64>,
+    ) -> Result<Self> {
+        if u_min.len() != model.nu() || u_max.len() != model.nu() {
+            return Err(Error::dimension(
+                "LQR input bounds",
+                model.nu(),
+                u_min.len(),
+            ));
+        }
+        Ok(LqrPolicy {
+            lqr,
+            model,
+            u_min,
+            u_max,
+        })
+    }
+}
+
+impl Policy for LqrPolicy<'_> {
+    fn name(&self) -> String {
+        "lqr".into()
+    }
+    fn horizon(&self) -> usize {
+        1
+    }
+    fn act(&mut self, x: &[f64], current: &[f64], future: &[f64]) -> Result<Action> {
+        let t = Instant::now();
+        let z = self.model.lift(x);
+        let zr = self.model.lift(current);
+        let zn = self.model.lift(&future[..self.model.nx()]);
+        let mut u = self.lqr.control(&z, &zr, &zn)?;
+        for (i, v) in u.iter_mut().enumerate() {
+            *v = v.clamp(self.u_min[i], self.u_max[i]);
+        }
+        Ok(Action {
+            u,
+            solve_time: t.elapsed(),
+            fallback: false,
+        })
+    }
+}
+
+/// Random-shooting MPC on a one-step model.
+pub struct ShootingPolicy<'m> {
+    /// The planner.
+    pub planner: RandomShooting,
+    model: &'m dyn OneStepModel,
+    label: String,
+}
+
+impl<'m> ShootingPolicy<'m> {
+    /// `label` names the model in reports (e.g. `oracle`, `nndm`).
+    pub fn new(planner: RandomShooting, model: &'m dyn OneStepModel, label: &str) -> Self {
+        ShootingPolicy {
+            planner,
+            model,
+            label: label.to_string(),
+        }
+    }
+}
+
+impl Policy for ShootingPolicy<'_> {
+    fn name(&self) -> String {
+        format!("random-shooting/{}", self.label)
+    }
+    fn horizon(&self) -> usize {
+        self.planner.horizon
+    }
+    fn act(&mut self, x: &[f64], _current: &[f64], future: &[f64]) -> Result<Action> {
+        let t = Instant::now();
+        let (u, _) = self.planner.plan(self.model, x, future)?;
+        Ok(Action {
+            u,
+            solve_time: t.elapsed(),
+            fallback: false,
+        })
+    }
+}

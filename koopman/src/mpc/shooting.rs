@@ -1,0 +1,153 @@
+//! Random-shooting MPC for one-step models `x⁺ = f(x, u)` (the NNDM baseline of the paper):
+//! sample input sequences uniformly within the bounds, roll out, apply the best first input.
+
+use rayon::prelude::*;
+
+use crate::error::{ensure_finite, Error, Result};
+use crate::rng::Rng;
+use crate::systems::System;
+
+/// A model that predicts the next state from the state and the input.
+pub trait OneStepModel: Send + Sync {
+    /// State dimension.
+    fn nx(&self) -> usize;
+    /// Input dimension.
+    fn nu(&self) -> usize;
+    /// Writes `x⁺ = f(x, u)` into `next`.
+    fn predict(&self, x: &[f64], u: &[f64], next: &mut [f64]);
+}
+
+/// The true system used as its own one-step model (an oracle upper bound for the baseline).
+pub struct SystemAsModel<'s>(pub &'s dyn System);
+
+impl OneStepModel for SystemAsModel<'_> {
+    fn nx(&self) -> usize {
+        self.0.nx()
+    }
+    fn nu(&self) -> usize {
+        self.0.nu()
+    }
+    fn predict(&self, x: &[f64], u: &[f64], next: &mut [f64]) {
+        self.0.step(x, u, next);
+    }
+}
+
+/// Random-shooting MPC: `samples` sequences of `horizon` inputs, cost `Σ (x_τ − r_τ)ᵀQ(x_τ − r_τ)`.
+pub struct RandomShooting {
+    /// Number of sampled sequences (1000 in the paper).
+    pub samples: usize,
+    /// Horizon H.
+    pub horizon: usize,
+    /// Diagonal state weight (nx).
+    pub q: Vec<f64>,
+    /// Input bounds (nu each).
+    pub u_min: Vec<f64>,
+    /// Upper input bounds.
+    pub u_max: Vec<f64>,
+    rng: Rng,
+}
+
+impl RandomShooting {
+    /// A planner with the given sampling budget, horizon, weights and bounds.
+    pub fn new(
+        samples: usize,
+        horizon: usize,
+        q: Vec<f64>,
+        u_min: Vec<f64>,
+        u_max: Vec<f64>,
+        seed: u64,
+    ) -> Result<Self> {
+        if samples == 0 || horizon == 0 {
+            return Err(Error::InvalidArgument(
+                "random shooting needs samples ≥ 1 and horizon ≥ 1".into(),
+            ));
+        }
+        if u_min.len() != u_max.len() {
+            return Err(Error::dimension("input bounds", u_min.len(), u_max.len()));
+        }
+        if u_min.iter().chain(&u_max).any(|v| !v.is_finite())
+            || u_min.iter().zip(&u_max).any(|(l, h)| l > h)
+        {
+            return Err(Error::InvalidArgument(
+                "random shooting needs finite, non-empty input bounds".into(),
+            ));
+        }
+        Ok(RandomShooting {
+            samples,
+            horizon,
+            q,
+            u_min,
+            u_max,
+            rng: Rng::new(seed),
+        })
+    }
+
+    /// The best first input for state `x` and stacked reference `r` (horizon·nx values).
+    /// Returns the input and the best sequence's cost.
+    pub fn plan(
+        &mut self,
+        model: &dyn OneStepModel,
+        x: &[f64],
+        r: &[f64],
+    ) -> Result<(Vec<f64>, f64)> {
+        let (nx, nu) = (model.nx(), model.nu());
+        if x.len() != nx {
+            return Err(Error::dimension("state", nx, x.len()));
+        }
+        if r.len() != self.horizon * nx {
+            return Err(Error::dimension(
+                "stacked reference",
+                self.horizon * nx,
+                r.len(),
+            ));
+        }
+        if self.q.len() != nx || self.u_min.len() != nu {
+            return Err(Error::dimension(
+                "shooting weights/bounds",
+                nx,
+                self.q.len(),
+            ));
+        }
+        ensure_finite("state", x)?;
+        // Draw every sequence first (deterministic), then roll out in parallel.
+        let seqs: Vec<Vec<f64>> = (0..self.samples)
+            .map(|_| {
+                (0..self.horizon * nu)
+                    .map(|k| self.rng.uniform(self.u_min[k % nu], self.u_max[k % nu]))
+                    .collect()
+            })
+            .collect();
+        let (horizon, q) = (self.horizon, &self.q);
+        let costs: Vec<f64> = seqs
+            .par_iter()
+            .map(|seq| {
+                let (mut cur, mut next) = (x.to_vec(), vec![0.0; nx]);
+                let mut cost = 0.0;
+                for t in 0..horizon {
+                    model.predict(&cur, &seq[t * nu..(t + 1) * nu], &mut next);
+                    for i in 0..nx {
+                        cost += q[i] * (next[i] - r[t * nx + i]).powi(2);
+                    }
+                    std::mem::swap(&mut cur, &mut next);
+                }
+                if cost.is_nan() {
+                    f64::INFINITY
+                } else {
+                    cost
+                }
+            })
+            .collect();
+        let (i_best, &c_best) = costs
+            .iter()
+            .enumerate()
+            .min_by(|a, b| a.1.total_cmp(b.1))
+            .expect("samples ≥ 1");
+        let best = (seqs[i_best][..nu].to_vec(), c_best);
+        if !best.1.is_finite() {
+            return Err(Error::Numerical(
+                "random shooting: every rollout diverged".into(),
+            ));
+        }
+        Ok(best)
+    }
+}
