@@ -1,0 +1,327 @@
+//! `koopbridge.Adapter`: a simulator written in Python, served over Zenoh by `bridge::adapter`.
+//!
+//! The Python subclass implements `info()`, `reset(seed=None, x0=None)` and `step(u)`; `serve()`
+//! runs the one Rust implementation of the simulator side of the protocol on a worker thread.
+//! The GIL is released while that thread waits on Zenoh and taken only inside the callbacks; a
+//! Python exception becomes a typed error reply carrying its message and serving goes on.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{mpsc, Arc};
+use std::time::Duration;
+
+use bridge::adapter::{
+    AdapterOptions, FreeRunOptions, ResetRequest, SimBackend, SimError, SimInfo,
+};
+use bridge::session::{open_session, Mode, ZenohOptions};
+use bridge::zenoh::Wait;
+use pyo3::exceptions::{PyNotImplementedError, PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyTuple};
+
+use crate::convert::{array1, vec_f64};
+use crate::errors::{bridge_err, InvalidInput, Unsupported};
+
+/// Base class of simulators written in Python. Subclass it and implement:
+///
+/// - ``info(self) -> dict`` with keys ``env``, ``dt``, ``state_names``, ``input_names``,
+///   ``u_min``, ``u_max`` and optionally ``kind``, ``version``, ``angle_indices``;
+/// - ``reset(self, seed=None, x0=None) -> array`` returning the first state (``nx`` values);
+///   ``seed`` asks for a random initial state, ``x0`` for a given one, neither for the default;
+/// - ``step(self, u) -> array`` applying ``u`` (``nu`` values, held over one ``dt``) and
+///   returning the next state.
+///
+/// Then call ``serve(session=..., id=...)``: it blocks, answering the protocol's ``info``,
+/// ``reset`` and ``step`` queries (lockstep) or publishing states at a fixed rate (free-run)
+/// until ``stop()`` is called from another thread, Ctrl-C, or the free-run step limit.
+/// Raise ``koopbridge.InvalidInput`` or ``koopbridge.Unsupported`` for a ``bad_request`` or
+/// ``unsupported`` reply; any other exception gives a ``sim_failure`` reply with its message,
+/// its traceback is printed, and the adapter keeps serving.
+#[pyclass(subclass, module = "koopbridge._native")]
+pub struct Adapter {
+    stop: Arc<AtomicBool>,
+    serving: Arc<AtomicBool>,
+}
+
+#[pymethods]
+impl Adapter {
+    /// Accepts and ignores any arguments so that subclasses may define their own ``__init__``.
+    #[new]
+    #[pyo3(signature = (*_args, **_kwargs))]
+    fn new(_args: &Bound<'_, PyTuple>, _kwargs: Option<&Bound<'_, PyDict>>) -> Self {
+        Adapter {
+            stop: Arc::new(AtomicBool::new(false)),
+            serving: Arc::new(AtomicBool::new(false)),
+        }
+    }
+
+    /// What the simulator is (override): a dict, see the class documentation.
+    fn info(&self) -> PyResult<Py<PyAny>> {
+        Err(PyNotImplementedError::new_err(
+            "Adapter subclasses must implement info()",
+        ))
+    }
+
+    /// Resets the simulator and returns the first state (override).
+    #[pyo3(signature = (seed=None, x0=None))]
+    fn reset(&self, seed: Option<u64>, x0: Option<Py<PyAny>>) -> PyResult<Py<PyAny>> {
+        let _ = (seed, x0);
+        Err(PyNotImplementedError::new_err(
+            "Adapter subclasses must implement reset(seed=None, x0=None)",
+        ))
+    }
+
+    /// Applies ``u`` for one ``dt`` and returns the next state (override).
+    fn step(&self, u: Py<PyAny>) -> PyResult<Py<PyAny>> {
+        let _ = u;
+        Err(PyNotImplementedError::new_err(
+            "Adapter subclasses must implement step(u)",
+        ))
+    }
+
+    /// Serves this simulator over Zenoh until stopped; returns the adapter's counters as a dict.
+    ///
+    /// Arguments: ``session`` (koopbridge session id, the ``koopbridge/{session}/`` root),
+    /// ``id`` (simulator id), Zenoh ``connect``/``listen`` endpoint lists, ``mode`` (``peer``,
+    /// ``client`` or ``router``), ``zenoh_config`` (a JSON5 file); ``free_run=True`` with
+    /// ``rate_hz`` (default real time, ``1/dt``), ``steps`` (default unlimited) and the initial
+    /// ``seed``/``x0``.
+    #[pyo3(signature = (*, session="default", id="sim0", connect=Vec::new(), listen=Vec::new(), mode="peer",
+                        zenoh_config=None, free_run=false, rate_hz=None, steps=None, seed=None, x0=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn serve(
+        slf: &Bound<'_, Self>,
+        session: &str,
+        id: &str,
+        connect: Vec<String>,
+        listen: Vec<String>,
+        mode: &str,
+        zenoh_config: Option<std::path::PathBuf>,
+        free_run: bool,
+        rate_hz: Option<f64>,
+        steps: Option<u64>,
+        seed: Option<u64>,
+        x0: Option<Bound<'_, PyAny>>,
+    ) -> PyResult<Py<PyAny>> {
+        let py = slf.py();
+        let info = sim_info(&slf.call_method0("info")?)?;
+        let mode = match mode {
+            "peer" => Mode::Peer,
+            "client" => Mode::Client,
+            "router" => Mode::Router,
+            other => {
+                return Err(PyValueError::new_err(format!(
+                    "mode '{other}': expected peer, client or router"
+                )))
+            }
+        };
+        let zopts = ZenohOptions {
+            connect,
+            listen,
+            mode,
+            zenoh_config,
+        };
+        let mut opts = AdapterOptions::new(session, id).map_err(bridge_err)?;
+        if free_run {
+            let x0 = match x0 {
+                Some(x) => Some(vec_f64(&x, "x0")?),
+                None => None,
+            };
+            opts.free_run = Some(FreeRunOptions {
+                rate_hz,
+                steps,
+                reset: ResetRequest { seed, x0 },
+            });
+        } else if rate_hz.is_some() || steps.is_some() {
+            return Err(PyValueError::new_err(
+                "rate_hz and steps apply to free_run=True only",
+            ));
+        }
+        let (stop, serving) = {
+            let me = slf.borrow();
+            (me.stop.clone(), me.serving.clone())
+        };
+        if serving.swap(true, Ordering::SeqCst) {
+            return Err(PyRuntimeError::new_err("this adapter is already serving"));
+        }
+        stop.store(false, Ordering::SeqCst);
+        let backend = PyBackend {
+            obj: slf.clone().into_any().unbind(),
+            info,
+        };
+        let (tx, rx) = mpsc::channel();
+        // A Mutex makes the receiver Sync, as waiting with the GIL released requires.
+        let rx = std::sync::Mutex::new(rx);
+        let recv = |t: Option<Duration>| match rx.lock() {
+            Ok(rx) => match t {
+                Some(t) => rx.recv_timeout(t),
+                None => rx.recv().map_err(|_| mpsc::RecvTimeoutError::Disconnected),
+            },
+            Err(_) => Err(mpsc::RecvTimeoutError::Disconnected),
+        };
+        let worker_stop = stop.clone();
+        let spawned = std::thread::Builder::new()
+            .name(format!("koopbridge-adapter-{id}"))
+            .spawn(move || {
+                let mut backend = backend;
+                let result = open_session(&zopts).and_then(|s| {
+                    let r = bridge::adapter::serve(&s, &mut backend, &opts, &worker_stop);
+                    let _ = s.close().wait();
+                    r
+                });
+                // Drop the Python object reference with the GIL held.
+                Python::attach(|_| drop(backend));
+                let _ = tx.send(result);
+            });
+        let handle = match spawned {
+            Ok(h) => h,
+            Err(e) => {
+                serving.store(false, Ordering::SeqCst);
+                return Err(PyRuntimeError::new_err(format!(
+                    "cannot start the adapter thread: {e}"
+                )));
+            }
+        };
+        let outcome = loop {
+            match py.detach(|| recv(Some(Duration::from_millis(100)))) {
+                Ok(r) => break r.map_err(bridge_err),
+                Err(mpsc::RecvTimeoutError::Timeout) => {
+                    if let Err(e) = py.check_signals() {
+                        stop.store(true, Ordering::SeqCst);
+                        let r = py.detach(|| recv(None));
+                        drop(r);
+                        break Err(e);
+                    }
+                }
+                Err(mpsc::RecvTimeoutError::Disconnected) => {
+                    break Err(PyRuntimeError::new_err(
+                        "the adapter thread ended without a result",
+                    ))
+                }
+            }
+        };
+        let _ = py.detach(|| handle.join());
+        serving.store(false, Ordering::SeqCst);
+        let stats = outcome?;
+        let json =
+            serde_json::to_string(&stats).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+        Ok(py.import("json")?.call_method1("loads", (json,))?.unbind())
+    }
+
+    /// Asks a running ``serve()`` to return (within about 0.1 s). Safe from any thread.
+    fn stop(&self) {
+        self.stop.store(true, Ordering::SeqCst);
+    }
+
+    /// True while ``serve()`` runs.
+    #[getter]
+    fn serving(&self) -> bool {
+        self.serving.load(Ordering::SeqCst)
+    }
+}
+
+/// The Python object seen as a `SimBackend`: each call takes the GIL for the callback only.
+struct PyBackend {
+    obj: Py<PyAny>,
+    info: SimInfo,
+}
+
+impl SimBackend for PyBackend {
+    fn info(&self) -> SimInfo {
+        self.info.clone()
+    }
+
+    fn reset(&mut self, req: &ResetRequest) -> Result<Vec<f64>, SimError> {
+        Python::attach(|py| {
+            let kwargs = PyDict::new(py);
+            let set = |k: &str, v: Bound<'_, PyAny>| kwargs.set_item(k, v);
+            let r = (|| -> PyResult<Vec<f64>> {
+                set("seed", req.seed.into_pyobject(py)?.into_any())?;
+                match &req.x0 {
+                    Some(x0) => set("x0", array1(py, x0).into_any())?,
+                    None => set("x0", py.None().into_bound(py))?,
+                }
+                let x = self.obj.bind(py).call_method("reset", (), Some(&kwargs))?;
+                vec_f64(&x, "the state returned by reset()")
+            })();
+            r.map_err(|e| sim_error(py, e, "reset"))
+        })
+    }
+
+    fn step(&mut self, u: &[f64]) -> Result<Vec<f64>, SimError> {
+        Python::attach(|py| {
+            let r = (|| -> PyResult<Vec<f64>> {
+                let x = self.obj.bind(py).call_method1("step", (array1(py, u),))?;
+                vec_f64(&x, "the state returned by step()")
+            })();
+            r.map_err(|e| sim_error(py, e, "step"))
+        })
+    }
+}
+
+/// A Python exception raised by a callback as the backend error the protocol reports.
+fn sim_error(py: Python<'_>, e: PyErr, what: &str) -> SimError {
+    if e.is_instance_of::<InvalidInput>(py) {
+        return SimError::InvalidInput(e.value(py).to_string());
+    }
+    if e.is_instance_of::<Unsupported>(py) {
+        return SimError::Unsupported(e.value(py).to_string());
+    }
+    let ty = e
+        .get_type(py)
+        .name()
+        .map(|n| n.to_string())
+        .unwrap_or_else(|_| "Exception".into());
+    let msg = format!("{what}() raised {ty}: {}", e.value(py));
+    // The traceback helps whoever runs the adapter; the orchestrator gets the message.
+    e.display(py);
+    SimError::Failed(msg)
+}
+
+/// The `SimInfo` described by the dict returned from `info()`.
+fn sim_info(d: &Bound<'_, PyAny>) -> PyResult<SimInfo> {
+    let get = |k: &str| -> PyResult<Bound<'_, PyAny>> {
+        d.get_item(k)
+            .map_err(|_| PyValueError::new_err(format!("info(): the dict has no '{k}'")))
+    };
+    let opt = |k: &str| -> Option<Bound<'_, PyAny>> { d.get_item(k).ok().filter(|v| !v.is_none()) };
+    let names = |k: &str| -> PyResult<Vec<String>> {
+        get(k)?
+            .extract()
+            .map_err(|_| PyValueError::new_err(format!("info(): '{k}' must be a list of strings")))
+    };
+    let info = SimInfo {
+        env: get("env")?.extract()?,
+        kind: match opt("kind") {
+            Some(v) => v.extract()?,
+            None => "python".into(),
+        },
+        version: match opt("version") {
+            Some(v) => v.str()?.to_string(),
+            None => String::new(),
+        },
+        dt: get("dt")?.extract()?,
+        state_names: names("state_names")?,
+        input_names: names("input_names")?,
+        u_min: vec_f64(&get("u_min")?, "info()['u_min']")?,
+        u_max: vec_f64(&get("u_max")?, "info()['u_max']")?,
+        angle_indices: match opt("angle_indices") {
+            Some(v) => v.extract()?,
+            None => Vec::new(),
+        },
+    };
+    if !(info.dt > 0.0 && info.dt.is_finite()) {
+        return Err(PyValueError::new_err(format!(
+            "info(): dt must be positive, got {}",
+            info.dt
+        )));
+    }
+    if info.u_min.len() != info.nu() || info.u_max.len() != info.nu() {
+        return Err(PyValueError::new_err(format!(
+            "info(): {} input names but {} u_min and {} u_max values",
+            info.nu(),
+            info.u_min.len(),
+            info.u_max.len()
+        )));
+    }
+    Ok(info)
+}

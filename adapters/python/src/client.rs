@@ -1,0 +1,268 @@
+//! `koopbridge.Client`: the querying side from Python, through bridge's Rust client — simulators
+//! (info, reset, step with idempotent retries), MPC solves, and raw queries for the other services.
+
+use std::collections::HashMap;
+use std::sync::Mutex;
+use std::time::Duration;
+
+use bridge::client::{Client as Inner, Liveliness, SimClient};
+use bridge::codec::{SolveReply, SolveRequest, SolveStatus, StepReply};
+use bridge::keyexpr::Keys;
+use bridge::messages::ResetRequest;
+use bridge::session::{open_session, Mode, ZenohOptions};
+use bridge::zenoh::Wait;
+use numpy::PyArray1;
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyDict};
+
+use crate::convert::{array1, array2, vec_f64};
+use crate::errors::{bridge_err, KoopbridgeError};
+
+/// A client of one koopbridge session over Zenoh.
+///
+/// ``Client(session="default", connect=[], listen=[], mode="peer", zenoh_config=None)`` opens
+/// a Zenoh session (embedded peer on loopback by default; pass ``connect=["tcp/HOST:PORT"]`` to
+/// join a running koopbridge or router). Simulators are addressed by id, services by their id.
+#[pyclass(subclass, module = "koopbridge._native")]
+pub struct Client {
+    inner: Inner,
+    live: Liveliness,
+    sims: Mutex<HashMap<String, SimClient>>,
+}
+
+#[pymethods]
+impl Client {
+    #[new]
+    #[pyo3(signature = (session="default", connect=Vec::new(), listen=Vec::new(), mode="peer", zenoh_config=None))]
+    fn new(
+        py: Python<'_>,
+        session: &str,
+        connect: Vec<String>,
+        listen: Vec<String>,
+        mode: &str,
+        zenoh_config: Option<std::path::PathBuf>,
+    ) -> PyResult<Self> {
+        let mode = match mode {
+            "peer" => Mode::Peer,
+            "client" => Mode::Client,
+            "router" => Mode::Router,
+            other => {
+                return Err(PyValueError::new_err(format!(
+                    "mode '{other}': expected peer, client or router"
+                )))
+            }
+        };
+        let keys = Keys::new(session).map_err(bridge_err)?;
+        let opts = ZenohOptions {
+            connect,
+            listen,
+            mode,
+            zenoh_config,
+        };
+        let s = py.detach(|| open_session(&opts)).map_err(bridge_err)?;
+        let inner = Inner::new(s, keys);
+        let live = py.detach(|| Liveliness::new(&inner)).map_err(bridge_err)?;
+        Ok(Client {
+            inner,
+            live,
+            sims: Mutex::new(HashMap::new()),
+        })
+    }
+
+    /// The koopbridge session id.
+    #[getter]
+    fn session(&self) -> String {
+        self.inner.keys.session().to_string()
+    }
+
+    /// Waits (readiness barrier) until simulator ``id`` answers ``info``; returns that reply as a
+    /// dict (names, dims, dt, bounds, kind, counters).
+    #[pyo3(signature = (id, timeout=10.0))]
+    fn connect_sim(&self, py: Python<'_>, id: &str, timeout: f64) -> PyResult<Py<PyAny>> {
+        let t = secs(timeout)?;
+        let sim = py
+            .detach(|| SimClient::connect(&self.inner, id, t))
+            .map_err(bridge_err)?;
+        let json =
+            serde_json::to_string(&sim.info).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+        self.sims
+            .lock()
+            .map_err(poisoned)?
+            .insert(id.to_string(), sim);
+        Ok(py.import("json")?.call_method1("loads", (json,))?.unbind())
+    }
+
+    /// Resets simulator ``id`` (``seed`` for a random initial state, ``x0`` for a given one);
+    /// returns the first state.
+    #[pyo3(signature = (id, seed=None, x0=None))]
+    fn reset<'py>(
+        &self,
+        py: Python<'py>,
+        id: &str,
+        seed: Option<u64>,
+        x0: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let x0 = match x0 {
+            Some(x) => Some(vec_f64(x, "x0")?),
+            None => None,
+        };
+        let req = ResetRequest { seed, x0 };
+        let r = self.with_sim(py, id, |s| s.reset(&req))?;
+        Ok(array1(py, &r.x))
+    }
+
+    /// One lockstep step of simulator ``id`` with input ``u``: returns ``(k, t, x)``, the new
+    /// step index, its time and state. A timed-out request is re-sent (answered from the
+    /// adapter's cache, never stepped twice); a simulator whose liveliness token disappears
+    /// raises ``GoneError`` naming it.
+    fn step<'py>(
+        &self,
+        py: Python<'py>,
+        id: &str,
+        u: &Bound<'py, PyAny>,
+    ) -> PyResult<(u64, f64, Bound<'py, PyArray1<f64>>)> {
+        let u = vec_f64(u, "u")?;
+        let live = &self.live;
+        let r: StepReply = self.with_sim(py, id, |s| s.step(&u, Some(live)))?;
+        Ok((r.k, r.t, array1(py, &r.x)))
+    }
+
+    /// Asks the MPC service ``mpc_id`` for a plan at state ``x`` towards ``reference`` (one
+    /// state or H stacked states) with its model ``model`` (empty: the service's default).
+    /// Returns a dict: ``u`` (H, nu) when ``nu`` is given, else flat; ``status``;
+    /// ``iterations``; ``solve_time`` (seconds, inside the service).
+    #[pyo3(signature = (mpc_id, x, reference, model="", nu=None, timeout=10.0))]
+    #[allow(clippy::too_many_arguments)]
+    fn solve<'py>(
+        &self,
+        py: Python<'py>,
+        mpc_id: &str,
+        x: &Bound<'py, PyAny>,
+        reference: &Bound<'py, PyAny>,
+        model: &str,
+        nu: Option<usize>,
+        timeout: f64,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let req = SolveRequest {
+            model: model.to_string(),
+            x: vec_f64(x, "x")?,
+            reference: vec_f64(
+                &py.import("numpy")?.call_method1("ravel", (reference,))?,
+                "reference",
+            )?,
+        };
+        let key = self.inner.keys.mpc_solve(mpc_id).map_err(bridge_err)?;
+        let t = secs(timeout)?;
+        let who = format!("MPC service '{mpc_id}'");
+        let bytes = py
+            .detach(|| self.inner.query(&key, req.encode(), t, &who))
+            .map_err(bridge_err)?;
+        let r = SolveReply::decode(&bytes).map_err(bridge_err)?;
+        let d = PyDict::new(py);
+        match nu {
+            Some(n) if n > 0 && r.u.len() % n == 0 => {
+                d.set_item("u", array2(py, r.u.len() / n, n, &r.u)?)?
+            }
+            Some(n) => {
+                return Err(KoopbridgeError::new_err(format!(
+                    "{who} returned {} input values, not a multiple of nu = {n}",
+                    r.u.len()
+                )))
+            }
+            None => d.set_item("u", array1(py, &r.u))?,
+        }
+        let status = match r.status {
+            SolveStatus::Solved => "solved",
+            SolveStatus::Suboptimal => "suboptimal",
+            SolveStatus::Fallback => "fallback",
+            SolveStatus::Inaccurate => "inaccurate",
+        };
+        d.set_item("status", status)?;
+        d.set_item("iterations", r.iterations)?;
+        d.set_item("solve_time", r.solve_time_ns as f64 * 1e-9)?;
+        Ok(d)
+    }
+
+    /// A raw query of ``koopbridge/{session}/{key}`` (e.g. ``"trainer/t0/jobs"`` or
+    /// ``"models/NAME"``) with ``payload``; returns the reply's bytes or raises ``RemoteError``
+    /// with the service's typed error. For the JSON control plane described in PROTOCOL.md.
+    #[pyo3(signature = (key, payload=Vec::new(), timeout=10.0))]
+    fn query<'py>(
+        &self,
+        py: Python<'py>,
+        key: &str,
+        payload: Vec<u8>,
+        timeout: f64,
+    ) -> PyResult<Bound<'py, PyBytes>> {
+        let parts: Vec<&str> = key.split('/').collect();
+        for p in &parts {
+            bridge::keyexpr::validate_chunk("key", p).map_err(bridge_err)?;
+        }
+        let full = self.inner.keys.under(&parts);
+        let t = secs(timeout)?;
+        let bytes = py
+            .detach(|| self.inner.query(&full, payload, t, key))
+            .map_err(bridge_err)?;
+        Ok(PyBytes::new(py, &bytes))
+    }
+
+    /// Closes the Zenoh session (also done when the client is garbage-collected).
+    fn close(&self, py: Python<'_>) -> PyResult<()> {
+        self.sims.lock().map_err(poisoned)?.clear();
+        py.detach(|| self.inner.session.close().wait())
+            .map_err(|e| KoopbridgeError::new_err(format!("closing the session: {e}")))
+    }
+
+    fn __enter__(slf: Py<Self>) -> Py<Self> {
+        slf
+    }
+
+    fn __exit__(
+        &self,
+        py: Python<'_>,
+        _t: Py<PyAny>,
+        _v: Py<PyAny>,
+        _tb: Py<PyAny>,
+    ) -> PyResult<bool> {
+        self.close(py)?;
+        Ok(false)
+    }
+}
+
+impl Client {
+    /// Runs `f` on the simulator client of `id` (connecting it first if needed), GIL released.
+    fn with_sim<T: Send>(
+        &self,
+        py: Python<'_>,
+        id: &str,
+        f: impl FnOnce(&mut SimClient) -> bridge::Result<T> + Send,
+    ) -> PyResult<T> {
+        py.detach(|| {
+            let mut sims = self.sims.lock().map_err(poisoned)?;
+            if !sims.contains_key(id) {
+                let s = SimClient::connect(&self.inner, id, Duration::from_secs(10))
+                    .map_err(bridge_err)?;
+                sims.insert(id.to_string(), s);
+            }
+            let sim = sims
+                .get_mut(id)
+                .ok_or_else(|| PyRuntimeError::new_err("simulator client missing"))?;
+            f(sim).map_err(bridge_err)
+        })
+    }
+}
+
+fn secs(t: f64) -> PyResult<Duration> {
+    if t.is_finite() && t > 0.0 {
+        Ok(Duration::from_secs_f64(t))
+    } else {
+        Err(PyValueError::new_err(format!(
+            "timeout must be positive seconds, got {t}"
+        )))
+    }
+}
+
+fn poisoned<T>(_: T) -> PyErr {
+    PyRuntimeError::new_err("client state poisoned by an earlier panic")
+}

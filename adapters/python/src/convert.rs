@@ -1,0 +1,102 @@
+//! Conversions between numpy arrays (or any float sequence) and Rust vectors and matrices.
+
+use faer::{Mat, MatRef};
+use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+/// A 1-D vector of floats from a numpy array or any sequence of numbers; `what` names it in errors.
+pub fn vec_f64(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<Vec<f64>> {
+    if let Ok(a) = obj.extract::<PyReadonlyArray1<'_, f64>>() {
+        return Ok(a.as_array().to_vec());
+    }
+    let np = obj.py().import("numpy")?;
+    let arr = np
+        .call_method1("asarray", (obj, "float64"))
+        .map_err(|e| PyValueError::new_err(format!("{what}: not an array of numbers ({e})")))?;
+    let arr = arr.call_method0("ravel")?;
+    let a: PyReadonlyArray1<'_, f64> = arr.extract()?;
+    let v = a.as_array().to_vec();
+    if obj
+        .getattr("ndim")
+        .and_then(|n| n.extract::<usize>())
+        .unwrap_or(1)
+        > 1
+    {
+        return Err(PyValueError::new_err(format!(
+            "{what}: expected a 1-D array"
+        )));
+    }
+    Ok(v)
+}
+
+/// A 1-D vector of exactly `n` finite floats.
+pub fn vec_n(obj: &Bound<'_, PyAny>, n: usize, what: &str) -> PyResult<Vec<f64>> {
+    let v = vec_f64(obj, what)?;
+    if v.len() != n {
+        return Err(PyValueError::new_err(format!(
+            "{what}: expected {n} values, got {}",
+            v.len()
+        )));
+    }
+    if !v.iter().all(|x| x.is_finite()) {
+        return Err(PyValueError::new_err(format!(
+            "{what}: values must be finite"
+        )));
+    }
+    Ok(v)
+}
+
+/// A 2-D array of floats as (rows, cols, row-major values); a 1-D array is one row.
+pub fn rows_f64(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<(usize, usize, Vec<f64>)> {
+    let np = obj.py().import("numpy")?;
+    let arr = np
+        .call_method1("asarray", (obj, "float64"))
+        .map_err(|e| PyValueError::new_err(format!("{what}: not an array of numbers ({e})")))?;
+    let ndim: usize = arr.getattr("ndim")?.extract()?;
+    let arr = match ndim {
+        1 => arr.call_method1("reshape", (1, -1))?,
+        2 => arr,
+        _ => {
+            return Err(PyValueError::new_err(format!(
+                "{what}: expected a 1-D or 2-D array, got {ndim}-D"
+            )))
+        }
+    };
+    let a: PyReadonlyArray2<'_, f64> = np.call_method1("ascontiguousarray", (arr,))?.extract()?;
+    let view = a.as_array();
+    let (r, c) = view.dim();
+    Ok((r, c, view.iter().copied().collect()))
+}
+
+/// A numpy 1-D array holding `v`.
+pub fn array1<'py>(py: Python<'py>, v: &[f64]) -> Bound<'py, PyArray1<f64>> {
+    PyArray1::from_slice(py, v)
+}
+
+/// A numpy 2-D array of shape (rows, cols) from row-major values.
+pub fn array2<'py>(
+    py: Python<'py>,
+    rows: usize,
+    cols: usize,
+    v: &[f64],
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    PyArray1::from_slice(py, v).reshape([rows, cols])
+}
+
+/// A numpy 2-D array copied from a faer matrix.
+pub fn mat<'py>(py: Python<'py>, m: MatRef<'_, f64>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let (r, c) = (m.nrows(), m.ncols());
+    let mut v = Vec::with_capacity(r * c);
+    for i in 0..r {
+        for j in 0..c {
+            v.push(m[(i, j)]);
+        }
+    }
+    array2(py, r, c, &v)
+}
+
+/// A faer matrix from row-major values.
+pub fn faer_rows(rows: usize, cols: usize, v: &[f64]) -> Mat<f64> {
+    Mat::from_fn(rows, cols, |i, j| v[i * cols + j])
+}

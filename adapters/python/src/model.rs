@@ -1,0 +1,190 @@
+//! `koopbridge.KoopmanModel`: a trained neural Koopman model from disk, with `encode`, `predict`
+//! and the matrices A, B, P as numpy arrays.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use koopman::model::koopman::KoopmanModel as Inner;
+use koopman::model::LiftedModel;
+use numpy::PyArray2;
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+use crate::convert::{array2, faer_rows, mat, rows_f64};
+use crate::errors::koopman_err;
+
+/// A neural Koopman model ``z = [x, ψ(x)]``, ``z⁺ = A z + B u``, ``x = P z`` (f64 weights).
+///
+/// Load a saved model with ``KoopmanModel.load(dir)`` (the directory holding
+/// ``model.safetensors`` and ``config.json`` written by ``koopbridge train``).
+#[pyclass(module = "koopbridge._native", frozen)]
+pub struct KoopmanModel {
+    pub(crate) inner: Arc<Inner>,
+}
+
+#[pymethods]
+impl KoopmanModel {
+    /// Loads the model saved in directory ``path``.
+    #[staticmethod]
+    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+        let inner = py.detach(|| Inner::load(&path)).map_err(koopman_err)?;
+        Ok(KoopmanModel {
+            inner: Arc::new(inner),
+        })
+    }
+
+    /// A freshly initialised (untrained) model with SPEC's initialisation, for experiments and
+    /// tests: ``nx`` states, ``nu`` inputs, encoder ``hidden`` widths and ``n_mult``.
+    #[staticmethod]
+    #[pyo3(signature = (nx, nu, hidden=vec![256, 256, 256], n_mult=16, seed=17382))]
+    fn init(nx: usize, nu: usize, hidden: Vec<usize>, n_mult: usize, seed: u64) -> PyResult<Self> {
+        let arch = koopman::model::arch::Arch::new(nx, nu, &hidden, n_mult).map_err(koopman_err)?;
+        let inner = Inner::init(arch, seed).map_err(koopman_err)?;
+        Ok(KoopmanModel {
+            inner: Arc::new(inner),
+        })
+    }
+
+    /// Saves the model into directory ``path`` (``model.safetensors`` + ``config.json``).
+    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        py.detach(|| self.inner.save(&path)).map_err(koopman_err)
+    }
+
+    /// State dimension nx.
+    #[getter]
+    fn nx(&self) -> usize {
+        self.inner.nx()
+    }
+
+    /// Input dimension nu.
+    #[getter]
+    fn nu(&self) -> usize {
+        self.inner.nu()
+    }
+
+    /// Latent dimension N = nx + n_enc.
+    #[getter]
+    fn latent_dim(&self) -> usize {
+        self.inner.latent_dim()
+    }
+
+    /// The latent transition matrix A, shape (N, N).
+    #[getter(A)]
+    fn a<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        mat(py, self.inner.a_ref())
+    }
+
+    /// The latent input matrix B, shape (N, nu).
+    #[getter(B)]
+    fn b<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        mat(py, self.inner.b_ref())
+    }
+
+    /// The projection P = [I 0] with x = P z, shape (nx, N).
+    #[getter(P)]
+    fn p<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let (nx, n) = (self.inner.nx(), self.inner.latent_dim());
+        let v: Vec<f64> = (0..nx * n)
+            .map(|k| if k / n == k % n { 1.0 } else { 0.0 })
+            .collect();
+        array2(py, nx, n, &v)
+    }
+
+    /// The metadata saved with the model (training configuration, metrics, data), as a dict.
+    #[getter]
+    fn metadata(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
+        let s = self.inner.metadata.to_string();
+        Ok(py.import("json")?.call_method1("loads", (s,))?.unbind())
+    }
+
+    /// Lifts states: ``x`` of shape (nx,) gives z of shape (N,); (n, nx) gives (n, N).
+    fn encode<'py>(&self, py: Python<'py>, x: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
+        let one = x
+            .getattr("ndim")
+            .and_then(|d| d.extract::<usize>())
+            .map(|d| d == 1);
+        let one =
+            one.unwrap_or_else(|_| !matches!(x.get_item(0).map(|e| e.len().is_ok()), Ok(true)));
+        let (rows, cols, v) = rows_f64(x, "x")?;
+        check_finite(&v, "x")?;
+        if cols != self.inner.nx() {
+            return Err(PyValueError::new_err(format!(
+                "x: states have {} values, the model has nx = {}",
+                cols,
+                self.inner.nx()
+            )));
+        }
+        let inner = self.inner.clone();
+        let z = py
+            .detach(move || inner.lift_rows(faer_rows(rows, cols, &v).as_ref()))
+            .map_err(koopman_err)?;
+        let z = mat(py, z.as_ref())?;
+        if one {
+            Ok(z.call_method1("reshape", (-1,))?)
+        } else {
+            Ok(z.into_any())
+        }
+    }
+
+    /// Forecasts from ``x0`` (nx,) under the inputs ``u_seq`` (T, nu): encodes once, rolls out
+    /// ``z⁺ = A z + B u`` and returns the predicted states x_1..x_T, shape (T, nx).
+    fn predict<'py>(
+        &self,
+        py: Python<'py>,
+        x0: &Bound<'py, PyAny>,
+        u_seq: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let (nx, nu, n) = (self.inner.nx(), self.inner.nu(), self.inner.latent_dim());
+        let x0 = crate::convert::vec_n(x0, nx, "x0")?;
+        let (t, cols, u) = rows_f64(u_seq, "u_seq")?;
+        if cols != nu {
+            return Err(PyValueError::new_err(format!(
+                "u_seq: inputs have {cols} values, the model has nu = {nu}"
+            )));
+        }
+        check_finite(&u, "u_seq")?;
+        let inner = self.inner.clone();
+        let out = py.detach(move || {
+            let a = inner.a_ref();
+            let b = inner.b_ref();
+            let mut z = inner.lift(&x0);
+            let mut next = vec![0.0; n];
+            let mut out = Vec::with_capacity(t * nx);
+            for s in 0..t {
+                for i in 0..n {
+                    let mut acc = 0.0;
+                    for j in 0..n {
+                        acc += a[(i, j)] * z[j];
+                    }
+                    for j in 0..nu {
+                        acc += b[(i, j)] * u[s * nu + j];
+                    }
+                    next[i] = acc;
+                }
+                std::mem::swap(&mut z, &mut next);
+                out.extend_from_slice(&z[..nx]);
+            }
+            out
+        });
+        array2(py, t, nx, &out)
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "KoopmanModel(nx={}, nu={}, latent_dim={})",
+            self.inner.nx(),
+            self.inner.nu(),
+            self.inner.latent_dim()
+        )
+    }
+}
+
+fn check_finite(v: &[f64], what: &str) -> PyResult<()> {
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(())
+    } else {
+        Err(PyValueError::new_err(format!(
+            "{what}: values must be finite"
+        )))
+    }
+}

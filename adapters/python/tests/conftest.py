@@ -1,0 +1,148 @@
+"""Shared fixtures: the project's FMUs (built by adapters/fmu/build.sh if missing), fresh
+koopbridge session ids, and adapters served in a background thread or a child process."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import threading
+import uuid
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[3]
+FMU_DIR = ROOT / "adapters" / "fmu" / "build"
+
+
+def _fmu(name: str) -> Path:
+    path = FMU_DIR / f"{name}.fmu"
+    if not path.exists():
+        subprocess.run(
+            [str(ROOT / "adapters" / "fmu" / "build.sh")],
+            check=True,
+            env={**os.environ, "PYTHON": sys.executable},
+        )
+    return path
+
+
+@pytest.fixture(scope="session")
+def damped_fmu() -> Path:
+    return _fmu("damped_pendulum")
+
+
+@pytest.fixture(scope="session")
+def double_fmu() -> Path:
+    return _fmu("double_pendulum")
+
+
+@pytest.fixture
+def session_id() -> str:
+    """A fresh koopbridge session id, so that tests never see each other's participants."""
+    return "t" + uuid.uuid4().hex[:12]
+
+
+class Served:
+    """An adapter served on a background thread; stopped and joined on exit."""
+
+    def __init__(self, adapter, **kw) -> None:
+        self.adapter = adapter
+        self.stats = None
+        self.error: BaseException | None = None
+        self.thread = threading.Thread(target=self._run, kwargs=kw, daemon=True)
+
+    def _run(self, **kw) -> None:
+        try:
+            self.stats = self.adapter.serve(**kw)
+        except BaseException as e:  # reported by the test
+            self.error = e
+
+    def __enter__(self) -> "Served":
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.adapter.stop()
+        self.thread.join(timeout=10)
+        assert not self.thread.is_alive(), "serve() did not return after stop()"
+
+
+@pytest.fixture
+def serve_in_thread():
+    return Served
+
+
+def fmu_adapter_cmd(fmu: Path, session: str, sim_id: str, *extra: str) -> list[str]:
+    """The command line of the damped-pendulum FMU adapter as a child process."""
+    return [
+        sys.executable,
+        "-m",
+        "koopbridge.adapters.fmu",
+        str(fmu),
+        "--inputs",
+        "u",
+        "--outputs",
+        "theta,omega",
+        "--dt",
+        "0.02",
+        "--initial",
+        "theta0,omega0",
+        "--x0-low=-6.283185307179586,-8",
+        "--x0-high=6.283185307179586,8",
+        "--u-min=-8",
+        "--u-max=8",
+        "--env",
+        "damped-pendulum",
+        "--angles",
+        "0",
+        "--session",
+        session,
+        "--id",
+        sim_id,
+        *extra,
+    ]
+
+
+def free_endpoint() -> str:
+    """A free TCP port on 127.0.0.1 as a Zenoh endpoint."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+def koopbridge_binary() -> Path | None:
+    """The `koopbridge` CLI built by cargo (release), if any: $KOOPBRIDGE_BIN, then
+    $CARGO_TARGET_DIR/release, then target/release."""
+    cands = [os.environ.get("KOOPBRIDGE_BIN")]
+    if os.environ.get("CARGO_TARGET_DIR"):
+        cands.append(os.path.join(os.environ["CARGO_TARGET_DIR"], "release", "koopbridge"))
+    cands.append(str(ROOT / "target" / "release" / "koopbridge"))
+    for c in cands:
+        if c and os.path.isfile(c) and os.access(c, os.X_OK):
+            return Path(c)
+    return None
+
+
+class Child:
+    """A child process with its output in a log file; killed on exit."""
+
+    def __init__(self, cmd: list[str], log: Path) -> None:
+        self.log = log
+        self.f = open(log, "wb")
+        self.p = subprocess.Popen(cmd, stdout=self.f, stderr=subprocess.STDOUT, stdin=subprocess.PIPE)
+
+    def output(self) -> str:
+        self.f.flush()
+        return self.log.read_text(errors="replace")
+
+    def __enter__(self) -> "Child":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self.p.poll() is None:
+            self.p.kill()
+        self.p.wait(timeout=10)
+        self.f.close()

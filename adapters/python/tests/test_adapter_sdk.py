@@ -1,0 +1,134 @@
+"""koopbridge.Adapter served over Zenoh (bridge::adapter) and driven by koopbridge.Client
+(bridge's Rust client): lockstep semantics, typed errors from Python exceptions, stopping."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import koopbridge
+from conftest import free_endpoint
+
+
+class Linear(koopbridge.Adapter):
+    """x⁺ = 0.5 x + u (nx = nu = 2); raises on demand to test error replies."""
+
+    def __init__(self):
+        self.x = np.zeros(2)
+        self.calls = 0
+
+    def info(self):
+        return dict(env="linear", dt=0.1, state_names=["a", "b"], input_names=["p", "q"], u_min=[-1, -1], u_max=[1, 1], version="1")
+
+    def reset(self, seed=None, x0=None):
+        if x0 is not None:
+            self.x = np.array(x0, dtype=float)
+        elif seed is not None:
+            self.x = np.random.default_rng(seed).uniform(-1, 1, 2)
+        else:
+            self.x = np.zeros(2)
+        return self.x
+
+    def step(self, u):
+        self.calls += 1
+        assert isinstance(u, np.ndarray) and u.dtype == np.float64
+        if u[0] == 0.25:
+            raise ValueError("u[0] = 0.25 is cursed")
+        if u[0] == -0.25:
+            raise koopbridge.InvalidInput("negative quarter refused")
+        self.x = 0.5 * self.x + u
+        return self.x
+
+
+def test_lockstep_steps_errors_and_stop(session_id, serve_in_thread):
+    sim = Linear()
+    ep = free_endpoint()  # multicast scouting is off: the client connects to the adapter
+    with serve_in_thread(sim, session=session_id, id="lin", listen=[ep]) as served:
+        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+            info = c.connect_sim("lin", timeout=10)
+            assert info["env"] == "linear" and info["state_names"] == ["a", "b"] and info["kind"] == "python"
+            assert info["dt"] == 0.1 and info["mode"] == "lockstep"
+            x = c.reset("lin", x0=[1.0, -2.0])
+            np.testing.assert_array_equal(x, [1.0, -2.0])
+            k, t, x = c.step("lin", [0.1, 0.2])
+            assert k == 1 and t == pytest.approx(0.1)
+            np.testing.assert_allclose(x, [0.6, -0.8])
+            # A Python exception becomes a sim_failure reply with the Python message...
+            with pytest.raises(koopbridge.RemoteError, match="ValueError: u\\[0\\] = 0.25 is cursed") as e:
+                c.step("lin", [0.25, 0.0])
+            assert e.value.code == "sim_failure"
+            # ...InvalidInput a bad_request reply...
+            with pytest.raises(koopbridge.RemoteError) as e:
+                c.step("lin", [-0.25, 0.0])
+            assert e.value.code == "bad_request" and "negative quarter refused" in str(e.value)
+            # ...and the adapter keeps serving from where it was.
+            k, t, x = c.step("lin", [0.0, 0.0])
+            assert k == 2
+            np.testing.assert_allclose(x, [0.3, -0.4])
+            # Bad requests are refused by the Rust side without calling Python.
+            calls = sim.calls
+            with pytest.raises(koopbridge.RemoteError) as e:
+                c.step("lin", [0.1])
+            assert e.value.code == "dimension" and sim.calls == calls
+            x = c.reset("lin", seed=5)
+            np.testing.assert_array_equal(x, np.random.default_rng(5).uniform(-1, 1, 2))
+    assert served.error is None, served.error
+    assert served.stats["steps"] == 2 and served.stats["resets"] == 2 and served.stats["errors"] >= 3
+
+
+def test_the_gil_is_released_while_serving(session_id, serve_in_thread):
+    # A Python thread keeps running while serve() waits on Zenoh.
+    sim = Linear()
+    with serve_in_thread(sim, session=session_id, id="lin"):
+        time.sleep(0.2)
+        n = 0
+        t0 = time.perf_counter()
+        while time.perf_counter() - t0 < 0.3:
+            n += 1
+        assert n > 10000
+
+
+def test_info_is_checked_before_serving(session_id):
+    class Bad(Linear):
+        def info(self):
+            d = super().info()
+            d["u_max"] = [1.0]
+            return d
+
+    with pytest.raises(ValueError, match="2 input names but 2 u_min and 1 u_max values"):
+        Bad().serve(session=session_id, id="bad")
+
+    class Missing(koopbridge.Adapter):
+        pass
+
+    with pytest.raises(NotImplementedError, match="must implement info"):
+        Missing().serve(session=session_id, id="missing")
+
+
+def test_free_run_publishes_and_stops_after_steps(session_id):
+    sim = Linear()
+    stats = sim.serve(session=session_id, id="fr", free_run=True, rate_hz=200.0, steps=20, x0=[1.0, 1.0])
+    assert stats["steps"] == 20 and stats["published"] == 21
+    np.testing.assert_allclose(sim.x, [0.5**20, 0.5**20])
+
+
+def test_stop_from_another_thread_returns_promptly(session_id):
+    sim = Linear()
+    done = threading.Event()
+
+    def run():
+        sim.serve(session=session_id, id="st")
+        done.set()
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    time.sleep(0.5)
+    assert sim.serving
+    t0 = time.perf_counter()
+    sim.stop()
+    assert done.wait(2.0)
+    assert time.perf_counter() - t0 < 1.0
+    assert not sim.serving
