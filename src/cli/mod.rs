@@ -1,6 +1,10 @@
 //! Subcommands of the `koopbridge` binary, one file each.
 
 pub mod bench;
+pub mod bench_mpc;
+pub mod bench_bridge;
+pub mod bench_edmd;
+pub mod bench_train;
 pub mod control;
 pub mod data;
 pub mod eval;

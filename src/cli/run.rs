@@ -1,10 +1,119 @@
-//! `koopbridge run` (being built; see its issue).
+//! `koopbridge run SCENARIO.toml`: starts the scenario's simulators and services over Zenoh,
+//! collects data in lockstep, trains through the trainer service, controls through the MPC
+//! service and writes `results/{scenario}/report.json` (plus plots).
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use bridge::orchestrator::{run_scenario, Event, RunOptions};
+use bridge::scenario::Scenario;
+use bridge::session::ZenohOptions;
 
 /// Arguments of `koopbridge run`.
 #[derive(clap::Args)]
-pub struct RunArgs {}
+#[command(
+    after_help = "Example:\n  koopbridge run scenarios/damped-pendulum.toml\n\n\
+    Nothing has to be started by hand: the simulators (`koopbridge sim`) and services\n\
+    (`koopbridge serve`) are started from this executable, connect to this process on a free\n\
+    loopback port, and exit with it. Logs: results/{scenario}/logs/."
+)]
+pub struct RunArgs {
+    /// The scenario file (TOML, see scenarios/).
+    pub scenario: PathBuf,
+    /// Use the scenario's `[full]` budget (the SPEC settings; hours on 2 cores).
+    #[arg(long)]
+    pub full: bool,
+    /// Output folder (default: results/{scenario name}).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Session id (default: a fresh one).
+    #[arg(long)]
+    pub session: Option<String>,
+    /// Seconds to wait for every participant to be ready.
+    #[arg(long, default_value_t = 60.0)]
+    pub ready_timeout: f64,
+    #[command(flatten)]
+    pub zenoh: ZenohOptions,
+}
 
 /// Runs `koopbridge run`.
-pub fn run(_args: RunArgs) -> anyhow::Result<()> {
-    anyhow::bail!("'koopbridge run' is not built yet")
+pub fn run(args: RunArgs) -> anyhow::Result<()> {
+    let mut sc = Scenario::load(&args.scenario)?;
+    if args.full {
+        sc.apply_full();
+    }
+    let out_dir = args
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("results").join(&sc.name));
+    std::fs::create_dir_all(&out_dir)?;
+    let opts = RunOptions {
+        exe: std::env::current_exe()?,
+        out_dir: out_dir.clone(),
+        zenoh: args.zenoh.clone(),
+        session: args.session.clone(),
+        ready_timeout: Duration::from_secs_f64(args.ready_timeout),
+    };
+    let bar = indicatif::ProgressBar::new(0);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{msg:40} [{bar:30}] {pos}/{len} {per_sec} eta {eta}",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let mut last_phase = String::new();
+    let report = run_scenario(&sc, &opts, &mut |e| match e {
+        Event::Phase(p) => {
+            bar.println(format!("== {p}"));
+            last_phase = p.to_string();
+        }
+        Event::Collect(split, done, total) => {
+            if bar.length() != Some(total as u64) || bar.message() != split {
+                bar.set_length(total as u64);
+                bar.set_message(format!("collect {split}"));
+            }
+            bar.set_position(done as u64);
+        }
+        Event::Train(p) => {
+            let it = p.get("iteration").and_then(|v| v.as_u64()).unwrap_or(0);
+            let total = p.get("total").and_then(|v| v.as_u64()).unwrap_or(0);
+            if bar.length() != Some(total) {
+                bar.set_length(total);
+                bar.set_message("train");
+            }
+            bar.set_position(it);
+        }
+        Event::Control(k, n) => {
+            if bar.length() != Some(n as u64) {
+                bar.set_length(n as u64);
+                bar.set_message("control");
+            }
+            bar.set_position(k as u64);
+        }
+    })?;
+    bar.finish_and_clear();
+    let path = out_dir.join("report.json");
+    bridge::fsutil::write_atomic(&path, &serde_json::to_vec_pretty(&report)?)?;
+    println!(
+        "scenario '{}' done in {:.1} s (session {})",
+        report.scenario, report.wall_seconds, report.session
+    );
+    println!(
+        "  collected {:?} windows × {} steps from {:?} at {:.0} macro steps/s",
+        report.collect.windows,
+        report.collect.steps,
+        report.collect.sims,
+        report.collect.macro_steps_per_second
+    );
+    for t in &report.train {
+        println!("  model '{}' (job {}): {}", t.model, t.job, t.metrics);
+    }
+    if let Some(c) = &report.control {
+        println!(
+            "  control of '{}': final error {:.4}, time to goal {:?} steps, solve median {:.0} µs, round trip median {:.0} µs",
+            c.sim, c.final_error, c.time_to_goal_steps, c.solve_median_us, c.solve_round_trip_median_us
+        );
+    }
+    println!("  report: {}", path.display());
+    Ok(())
 }

@@ -1,6 +1,7 @@
 //! Zenoh services (trainer, model store, MPC, recorder): each runs on its own worker thread;
 //! Zenoh callbacks only forward queries into that thread's channel.
 
+pub mod koopman_trainer;
 pub mod models;
 pub mod mpc;
 pub mod recorder;

@@ -1,0 +1,105 @@
+//! The MPC service and the model store over Zenoh, in separate processes: a remote solve equals
+//! a local solve of the same model, bad requests get typed errors and the service keeps serving,
+//! and a model fetched from the store is byte-identical.
+
+mod common;
+
+use std::time::Duration;
+
+use bridge::codec::{SolveReply, SolveRequest};
+use bridge::error::{Error, ErrorCode};
+use bridge::orchestrator::SERVICES_ID;
+use koopman::model::arch::Arch;
+use koopman::model::koopman::KoopmanModel;
+use koopman::mpc::{MpcConfig, MpcController};
+
+fn code(r: bridge::Result<Vec<u8>>) -> ErrorCode {
+    match r {
+        Err(Error::Remote { reply, .. }) => reply.code,
+        other => panic!("expected a typed error reply, got {other:?}"),
+    }
+}
+
+#[test]
+fn remote_solve_equals_local_solve_and_errors_are_typed() {
+    let (opts, session) = common::options("mpc");
+    // The store is created before the services start; they serve it from `out_dir/models`.
+    let model = KoopmanModel::init(Arch::new(2, 1, &[32, 32], 4).unwrap(), 7).unwrap();
+    model.save(&opts.out_dir.join("models").join("m1")).unwrap();
+    let c = bridge::orchestrator::Cluster::start(&opts, &session, &[], &["mpc", "models"]).unwrap();
+    let cfg = MpcConfig::with_bounds(vec![-2.0], vec![2.0]);
+    let configure = c.client.keys.under(&["mpc", SERVICES_ID, "configure"]);
+    let body = serde_json::to_vec(&serde_json::json!({"model": "m1", "mpc": cfg})).unwrap();
+    let r: serde_json::Value = serde_json::from_slice(
+        &c.client
+            .query(&configure, body, Duration::from_secs(60), "mpc")
+            .unwrap(),
+    )
+    .unwrap();
+    assert_eq!(r["horizon"], 15);
+    let key = c.client.keys.mpc_solve(SERVICES_ID).unwrap();
+    let mut local = MpcController::new(&model, &cfg).unwrap();
+    for (i, x) in [[0.5, -0.3], [-2.0, 1.0], [3.0, 0.0]].iter().enumerate() {
+        let req = SolveRequest {
+            model: "m1".into(),
+            x: x.to_vec(),
+            reference: vec![0.0, 0.0],
+        };
+        let b = c
+            .client
+            .query(&key, req.encode(), Duration::from_secs(30), "mpc")
+            .unwrap();
+        let remote = SolveReply::decode(&b).unwrap();
+        let mine = local.solve(x, &[0.0, 0.0]).unwrap();
+        assert_eq!(remote.u.len(), 15);
+        for (a, b) in remote.u.iter().zip(&mine.u) {
+            assert!((a - b).abs() < 1e-9, "solve {i}: remote {a} vs local {b}");
+        }
+        assert!(remote
+            .u
+            .iter()
+            .all(|u| (-2.0 - 1e-9..=2.0 + 1e-9).contains(u)));
+    }
+    let q = |b: Vec<u8>| c.client.query(&key, b, Duration::from_secs(30), "mpc");
+    assert_eq!(code(q(b"\x00\x01".to_vec())), ErrorCode::BadRequest);
+    assert_eq!(code(q(vec![7u8; 3 << 20])), ErrorCode::TooLarge);
+    let wrong_dim = SolveRequest {
+        model: "m1".into(),
+        x: vec![0.0; 3],
+        reference: vec![0.0, 0.0],
+    };
+    assert_eq!(code(q(wrong_dim.encode())), ErrorCode::Dimension);
+    let missing = SolveRequest {
+        model: "nope".into(),
+        x: vec![0.0; 2],
+        reference: vec![0.0; 2],
+    };
+    assert!(matches!(q(missing.encode()), Err(Error::Remote { .. })));
+    // Still serving.
+    let ok = SolveRequest {
+        model: String::new(),
+        x: vec![0.1, 0.1],
+        reference: vec![0.0, 0.0],
+    };
+    assert!(SolveReply::decode(&q(ok.encode()).unwrap()).is_ok());
+
+    // Model store: the archive unpacks to the same files.
+    let dst = opts.out_dir.join("fetched");
+    let dir =
+        bridge::services::models::fetch(&c.client, "m1", &dst, Duration::from_secs(30)).unwrap();
+    for f in ["config.json", "model.safetensors"] {
+        assert_eq!(
+            std::fs::read(dir.join(f)).unwrap(),
+            std::fs::read(opts.out_dir.join("models/m1").join(f)).unwrap()
+        );
+    }
+    assert_eq!(
+        code(c.client.query(
+            &c.client.keys.model("absent").unwrap(),
+            vec![],
+            Duration::from_secs(30),
+            "models"
+        )),
+        ErrorCode::NotFound
+    );
+}
