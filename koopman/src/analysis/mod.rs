@@ -1,1 +1,10 @@
-//! placeholder, filled by its issue.
+//! Diagnostics of lifted models: the SPEC prediction error, conditioning (κ of the latent Gram
+//! matrix, κ(BᵀB)), spectra of A, and the scaling-law fit `E = A·D^(−α) + C`.
+
+pub mod conditioning;
+pub mod prediction;
+pub mod scaling;
+
+pub use conditioning::{bbt_condition, eigenvalues, gram_condition, spd_condition};
+pub use prediction::prediction_error;
+pub use scaling::{fit_scaling_law, ScalingFit};

@@ -10,6 +10,11 @@ use rayon::prelude::*;
 /// Windows per parallel work unit (also the granularity of progress reports).
 const BLOCK: usize = 512;
 
+/// The number of worker threads generation uses (rayon's pool; `RAYON_NUM_THREADS` sets it).
+pub fn worker_threads() -> usize {
+    rayon::current_num_threads()
+}
+
 /// Generates `windows` windows of `steps` transitions from `system`, with data seed `seed` and
 /// the given input pairing (see the module documentation of [`crate::data`]). Window `i` uses
 /// the random stream `Rng::derive(seed, i)`: initial state first, then one input per row.

@@ -23,7 +23,7 @@ pub mod npz;
 pub mod splits;
 
 pub use atomic::{write_atomic, write_atomic_with};
-pub use generate::{generate, generate_with_progress};
+pub use generate::{generate, generate_with_progress, worker_threads};
 pub use splits::{generate_splits, generate_splits_with_progress, SplitSpec, Splits};
 
 use crate::{Error, Result};

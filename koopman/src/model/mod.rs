@@ -20,6 +20,7 @@ pub trait LiftedModel: Send + Sync {
 }
 
 pub mod arch;
+pub mod edmd;
 pub mod encoder;
 pub mod init;
 pub mod koopman;
@@ -34,10 +35,11 @@ use std::path::Path;
 pub fn load_lifted(dir: &Path) -> Result<Box<dyn LiftedModel>> {
     match store::read_kind(dir)?.as_str() {
         "koopman" => Ok(Box::new(koopman::KoopmanModel::load(dir)?)),
+        "edmd" => Ok(Box::new(edmd::EdmdModel::load(dir)?)),
         other => Err(Error::UnknownName {
             kind: "lifted model kind",
             name: other.to_string(),
-            known: "koopman".into(),
+            known: "koopman, edmd".into(),
         }),
     }
 }
