@@ -36,6 +36,21 @@ use crate::errors::{bridge_err, InvalidInput, Unsupported};
 /// Raise ``koopbridge.InvalidInput`` or ``koopbridge.Unsupported`` for a ``bad_request`` or
 /// ``unsupported`` reply; any other exception gives a ``sim_failure`` reply with its message,
 /// its traceback is printed, and the adapter keeps serving.
+///
+/// Example::
+///
+///     class Decay(koopbridge.Adapter):
+///         def info(self):
+///             return dict(env="decay", dt=0.1, state_names=["x"], input_names=["u"],
+///                         u_min=[-1.0], u_max=[1.0])
+///         def reset(self, seed=None, x0=None):
+///             self.x = np.zeros(1) if x0 is None else np.asarray(x0, float)
+///             return self.x
+///         def step(self, u):
+///             self.x = 0.9 * self.x + u
+///             return self.x
+///
+///     Decay().serve(session="demo", id="decay0", listen=["tcp/127.0.0.1:7501"])
 #[pyclass(subclass, module = "koopbridge._native")]
 pub struct Adapter {
     stop: Arc<AtomicBool>,
@@ -85,15 +100,15 @@ impl Adapter {
     /// ``client`` or ``router``), ``zenoh_config`` (a JSON5 file); ``free_run=True`` with
     /// ``rate_hz`` (default real time, ``1/dt``), ``steps`` (default unlimited) and the initial
     /// ``seed``/``x0``.
-    #[pyo3(signature = (*, session="default", id="sim0", connect=Vec::new(), listen=Vec::new(), mode="peer",
+    #[pyo3(signature = (*, session="default", id="sim0", connect=None, listen=None, mode="peer",
                         zenoh_config=None, free_run=false, rate_hz=None, steps=None, seed=None, x0=None))]
     #[allow(clippy::too_many_arguments)]
     fn serve(
         slf: &Bound<'_, Self>,
         session: &str,
         id: &str,
-        connect: Vec<String>,
-        listen: Vec<String>,
+        connect: Option<Vec<String>>,
+        listen: Option<Vec<String>>,
         mode: &str,
         zenoh_config: Option<std::path::PathBuf>,
         free_run: bool,
@@ -115,8 +130,8 @@ impl Adapter {
             }
         };
         let zopts = ZenohOptions {
-            connect,
-            listen,
+            connect: connect.unwrap_or_default(),
+            listen: listen.unwrap_or_default(),
             mode,
             zenoh_config,
         };
@@ -163,10 +178,17 @@ impl Adapter {
             .name(format!("koopbridge-adapter-{id}"))
             .spawn(move || {
                 let mut backend = backend;
-                let result = open_session(&zopts).and_then(|s| {
-                    let r = bridge::adapter::serve(&s, &mut backend, &opts, &worker_stop);
-                    let _ = s.close().wait();
-                    r
+                // Attach once and detach for the whole serve: the thread keeps its Python thread
+                // state, so each callback's `Python::attach` only re-takes the GIL instead of
+                // creating and destroying a thread state per step.
+                let result = Python::attach(|py| {
+                    py.detach(|| {
+                        open_session(&zopts).and_then(|s| {
+                            let r = bridge::adapter::serve(&s, &mut backend, &opts, &worker_stop);
+                            let _ = s.close().wait();
+                            r
+                        })
+                    })
                 });
                 // Drop the Python object reference with the GIL held.
                 Python::attach(|_| drop(backend));
@@ -250,7 +272,10 @@ impl SimBackend for PyBackend {
     fn step(&mut self, u: &[f64]) -> Result<Vec<f64>, SimError> {
         Python::attach(|py| {
             let r = (|| -> PyResult<Vec<f64>> {
-                let x = self.obj.bind(py).call_method1("step", (array1(py, u),))?;
+                let x = self
+                    .obj
+                    .bind(py)
+                    .call_method1(pyo3::intern!(py, "step"), (array1(py, u),))?;
                 vec_f64(&x, "the state returned by step()")
             })();
             r.map_err(|e| sim_error(py, e, "step"))

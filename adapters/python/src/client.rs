@@ -34,12 +34,12 @@ pub struct Client {
 #[pymethods]
 impl Client {
     #[new]
-    #[pyo3(signature = (session="default", connect=Vec::new(), listen=Vec::new(), mode="peer", zenoh_config=None))]
+    #[pyo3(signature = (session="default", connect=None, listen=None, mode="peer", zenoh_config=None))]
     fn new(
         py: Python<'_>,
         session: &str,
-        connect: Vec<String>,
-        listen: Vec<String>,
+        connect: Option<Vec<String>>,
+        listen: Option<Vec<String>>,
         mode: &str,
         zenoh_config: Option<std::path::PathBuf>,
     ) -> PyResult<Self> {
@@ -55,8 +55,8 @@ impl Client {
         };
         let keys = Keys::new(session).map_err(bridge_err)?;
         let opts = ZenohOptions {
-            connect,
-            listen,
+            connect: connect.unwrap_or_default(),
+            listen: listen.unwrap_or_default(),
             mode,
             zenoh_config,
         };

@@ -34,8 +34,8 @@ class Adapter:
         *,
         session: str = "default",
         id: str = "sim0",
-        connect: Sequence[str] = ...,
-        listen: Sequence[str] = ...,
+        connect: Sequence[str] | None = None,
+        listen: Sequence[str] | None = None,
         mode: str = "peer",
         zenoh_config: str | PathLike[str] | None = None,
         free_run: bool = False,
@@ -87,8 +87,8 @@ class Client:
     def __init__(
         self,
         session: str = "default",
-        connect: Sequence[str] = ...,
-        listen: Sequence[str] = ...,
+        connect: Sequence[str] | None = None,
+        listen: Sequence[str] | None = None,
         mode: str = "peer",
         zenoh_config: str | PathLike[str] | None = None,
     ) -> None: ...
