@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import os
 import shutil
-from ctypes import byref
+from ctypes import byref, c_double, c_uint32
 from typing import Any, Sequence
 
 import numpy as np
@@ -98,6 +98,10 @@ class FmuSimulator:
         self.angle_indices = list(angle_indices)
         self.vr_in = [self._var(n).valueReference for n in self.inputs]
         self.vr_out = [self._var(n).valueReference for n in self.outputs]
+        self._vr_in = (c_uint32 * len(self.vr_in))(*self.vr_in)
+        self._vr_out = (c_uint32 * len(self.vr_out))(*self.vr_out)
+        self._u_buf = (c_double * len(self.vr_in))()
+        self._x_buf = (c_double * len(self.vr_out))()
         self.log: list[str] = []
         self.unzipdir = fmpy.extract(self.path)
         self.fmu: Any = None
@@ -269,16 +273,27 @@ class FmuSimulator:
         u = np.asarray(u, dtype=float).ravel()
         if u.shape != (len(self.inputs),):
             raise InvalidInput(f"FMU '{self.name}': u must have {len(self.inputs)} values, got {u.size}")
+        # The hot path calls the FMI functions directly with buffers made once (fmpy's
+        # setReal/getReal build new ctypes arrays on every call).
+        fmu, ni, no = self.fmu, len(self.vr_in), len(self.vr_out)
         try:
-            if self.inputs:
-                self._set(self.inputs, u)
+            if ni:
+                self._u_buf[:] = u.tolist()
+                if self.fmi3:
+                    fmu.fmi3SetFloat64(fmu.component, self._vr_in, ni, self._u_buf, ni)
+                else:
+                    fmu.fmi2SetReal(fmu.component, self._vr_in, ni, self._u_buf)
             if self.fmi3:
-                _, terminate, early, _ = self.fmu.doStep(self.t, self.dt)
+                _, terminate, early, _ = fmu.doStep(self.t, self.dt)
                 if terminate or early:
                     raise RuntimeError("the FMU ended the step early or asked to terminate")
             else:
-                self.fmu.doStep(currentCommunicationPoint=self.t, communicationStepSize=self.dt)
-            x = self._get(self.vr_out)
+                fmu.fmi2DoStep(fmu.component, self.t, self.dt, 1)
+            if self.fmi3:
+                fmu.fmi3GetFloat64(fmu.component, self._vr_out, no, self._x_buf, no)
+            else:
+                fmu.fmi2GetReal(fmu.component, self._vr_out, no, self._x_buf)
+            x = np.array(self._x_buf[:], dtype=float)
         except Exception as e:
             t = self.t
             self._discard()
