@@ -1,6 +1,7 @@
 //! The `koopbridge` command line: one binary for data, training, control, services and scenarios.
 
 mod cli;
+mod plot;
 
 use clap::{Parser, Subcommand};
 

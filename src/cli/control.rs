@@ -1,10 +1,383 @@
-//! `koopbridge control` (being built; see its issue).
+//! `koopbridge control`: closed-loop control of a reference system with a lifted model —
+//! prints the SPEC metrics, writes them as JSON and draws states, references and inputs.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context};
+use koopman::model::LiftedModel;
+use koopman::mpc::metrics::GoalSpec;
+use koopman::mpc::{
+    run_closed_loop, ClosedLoopMetrics, Lqr, LqrPolicy, MpcConfig, MpcController, Policy,
+    RandomShooting, ShootingPolicy, SolverKind, SystemAsModel, Task, TaskKind, Trajectory,
+};
+use koopman::systems::System;
+
+use crate::plot::{time_series_png, Panel, Series};
+
+/// Controller choices of `--solver`.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ControllerChoice {
+    /// Koopman MPC, dedicated box-QP solver (input bounds).
+    Dedicated,
+    /// Koopman MPC solved by Clarabel (also rate and state bounds).
+    Clarabel,
+    /// Unconstrained closed-form MPC, clamped (the reference code's baseline).
+    ClosedForm,
+    /// LQR on the lifted model with feed-forward, clamped.
+    Lqr,
+    /// Random-shooting MPC (1000 samples) on the true system as its own one-step model.
+    Shooting,
+    /// Every controller above, one after the other, as one comparison table.
+    All,
+}
 
 /// Arguments of `koopbridge control`.
-#[derive(clap::Args)]
-pub struct ControlArgs {}
+#[derive(clap::Args, Debug)]
+#[command(
+    about = "Closed-loop control of a reference system with a lifted (Koopman/EDMD) model",
+    long_about = "Runs the SPEC control task (regulation: damped pendulum from [-2.5, 0.1] to 0, \
+double pendulum from 0 to [1.2, -0.8, 0, 0]; tracking: a smooth sine reference) for 200 steps \
+with the chosen controller, prints the metrics (final error with wrapped angles, time to goal, \
+tracking RMS/Frobenius, solve time, input-bound violations), writes metrics.json and plot.png \
+under --out.\n\nExample:\n  koopbridge control --model models/damped --env damped-pendulum --task regulate --solver all"
+)]
+pub struct ControlArgs {
+    /// Model directory (config.json with "kind": koopman | edmd). Without it, --fit is required.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Fit an in-process stand-in model instead (least squares on random tanh features, this
+    /// many features, 2000 windows of aligned data, seed 42).
+    #[arg(long, value_name = "FEATURES", conflicts_with = "model")]
+    pub fit: Option<usize>,
+    /// Environment: damped-pendulum or double-pendulum.
+    #[arg(long)]
+    pub env: String,
+    /// Task.
+    #[arg(long, value_enum, default_value_t = TaskArg::Regulate)]
+    pub task: TaskArg,
+    /// Controller.
+    #[arg(long, value_enum, default_value_t = ControllerChoice::Dedicated)]
+    pub solver: ControllerChoice,
+    /// MPC horizon H (SPEC: 15).
+    #[arg(long, default_value_t = 15)]
+    pub horizon: usize,
+    /// Control steps (SPEC: 200).
+    #[arg(long, default_value_t = 200)]
+    pub steps: usize,
+    /// Diagonal input weight R (SPEC: 0; LQR uses max(R, 1e-6)).
+    #[arg(long, default_value_t = 0.0)]
+    pub r: f64,
+    /// Symmetric input bound |u| ≤ B overriding the system's data-collection bounds.
+    #[arg(long, value_name = "B")]
+    pub u_bound: Option<f64>,
+    /// Output directory for metrics.json and plot.png (default results/control/ENV-TASK).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Print the metrics as one JSON object per controller instead of a table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `--task` values.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TaskArg {
+    /// Reach the SPEC target and hold it.
+    Regulate,
+    /// Follow a smooth reference.
+    Track,
+}
 
 /// Runs `koopbridge control`.
-pub fn run(_args: ControlArgs) -> anyhow::Result<()> {
-    anyhow::bail!("'koopbridge control' is not built yet")
+pub fn run(args: ControlArgs) -> anyhow::Result<()> {
+    let system = koopman::systems::by_name(&args.env)?;
+    if system.nu() == 0 {
+        bail!("{} has no inputs: nothing to control", system.name());
+    }
+    let model = load_model(&args, system.as_ref())?;
+    if model.nx() != system.nx() || model.nu() != system.nu() {
+        bail!(
+            "model has nx = {}, nu = {} but {} has nx = {}, nu = {}",
+            model.nx(),
+            model.nu(),
+            system.name(),
+            system.nx(),
+            system.nu()
+        );
+    }
+    let kind = match args.task {
+        TaskArg::Regulate => TaskKind::Regulate,
+        TaskArg::Track => TaskKind::Track,
+    };
+    let mut task = Task::standard(system.as_ref(), kind)?;
+    task.steps = args.steps;
+    let (lo, hi) = match args.u_bound {
+        Some(b) if b.is_finite() && b > 0.0 => (vec![-b; system.nu()], vec![b; system.nu()]),
+        Some(b) => bail!("--u-bound must be a positive number, got {b}"),
+        None => system.input_bounds(),
+    };
+    let choices = match args.solver {
+        ControllerChoice::All => vec![
+            ControllerChoice::Dedicated,
+            ControllerChoice::Clarabel,
+            ControllerChoice::ClosedForm,
+            ControllerChoice::Lqr,
+            ControllerChoice::Shooting,
+        ],
+        c => vec![c],
+    };
+    let task_name = match kind {
+        TaskKind::Regulate => "regulate",
+        TaskKind::Track => "track",
+    };
+    let out = args.out.clone().unwrap_or_else(|| {
+        PathBuf::from("results/control").join(format!("{}-{task_name}", system.name()))
+    });
+    let mut all = Vec::new();
+    if !args.json {
+        print_header();
+    }
+    for choice in choices {
+        let (metrics, traj) = run_one(
+            &args,
+            choice,
+            system.as_ref(),
+            model.as_ref(),
+            &task,
+            &lo,
+            &hi,
+        )?;
+        let stem = controller_stem(choice);
+        write_json_atomic(&out.join(format!("metrics-{stem}.json")), &metrics)?;
+        let png = out.join(format!("plot-{stem}.png"));
+        plot_trajectory(&png, system.as_ref(), &metrics, &traj, &lo, &hi)?;
+        if args.json {
+            println!("{}", serde_json::to_string(&metrics)?);
+        } else {
+            print_row(&metrics);
+        }
+        all.push(metrics);
+    }
+    write_json_atomic(&out.join("metrics.json"), &all)?;
+    if !args.json {
+        eprintln!("wrote {}/metrics.json and plot-*.png", out.display());
+    }
+    Ok(())
+}
+
+fn controller_stem(c: ControllerChoice) -> &'static str {
+    match c {
+        ControllerChoice::Dedicated => "dedicated",
+        ControllerChoice::Clarabel => "clarabel",
+        ControllerChoice::ClosedForm => "closed-form",
+        ControllerChoice::Lqr => "lqr",
+        ControllerChoice::Shooting => "shooting",
+        ControllerChoice::All => "all",
+    }
+}
+
+fn load_model(args: &ControlArgs, system: &dyn System) -> anyhow::Result<Box<dyn LiftedModel>> {
+    match (&args.model, args.fit) {
+        (Some(dir), _) => koopman::model::load_lifted(dir)
+            .with_context(|| format!("loading the model in {}", dir.display())),
+        (None, Some(features)) => {
+            eprintln!("fitting a stand-in model ({features} random tanh features, 2000 windows)…");
+            let data = koopman::data::generate(
+                system,
+                2000,
+                system.window_steps(),
+                42,
+                koopman::data::Pairing::Aligned,
+            )?;
+            Ok(Box::new(koopman::mpc::fit::fit_random_features(
+                &data, features, 1e-8, 1,
+            )?))
+        }
+        (None, None) => {
+            bail!("give --model DIR (a trained model) or --fit FEATURES (an in-process stand-in)")
+        }
+    }
+}
+
+fn run_one(
+    args: &ControlArgs,
+    choice: ControllerChoice,
+    system: &dyn System,
+    model: &dyn LiftedModel,
+    task: &Task,
+    lo: &[f64],
+    hi: &[f64],
+) -> anyhow::Result<(ClosedLoopMetrics, Trajectory)> {
+    let nu = system.nu();
+    let bar = indicatif::ProgressBar::new(task.steps as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg:>24} [{bar:30}] {pos}/{len} steps {elapsed}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    bar.set_message(controller_stem(choice));
+    let progress = |k: usize, _n: usize| bar.set_position(k as u64);
+    let goal = GoalSpec::default();
+    let oracle = SystemAsModel(system);
+    let mut policy: Box<dyn Policy + '_> = match choice {
+        ControllerChoice::Dedicated | ControllerChoice::Clarabel | ControllerChoice::ClosedForm => {
+            let solver = match choice {
+                ControllerChoice::Dedicated => SolverKind::Dedicated,
+                ControllerChoice::Clarabel => SolverKind::Clarabel,
+                _ => SolverKind::ClosedForm,
+            };
+            let cfg = MpcConfig {
+                horizon: args.horizon,
+                r: Some(vec![args.r; nu]),
+                solver,
+                ..MpcConfig::with_bounds(lo.to_vec(), hi.to_vec())
+            };
+            Box::new(MpcController::new(model, &cfg)?)
+        }
+        ControllerChoice::Lqr => {
+            let lqr = Lqr::new(
+                model,
+                &vec![1.0; system.nx()],
+                &vec![args.r.max(1e-6); nu],
+                20_000,
+                1e-10,
+            )?;
+            if !lqr.converged {
+                eprintln!(
+                    "warning: the Riccati iteration did not converge in {} iterations",
+                    lqr.iterations
+                );
+            }
+            Box::new(LqrPolicy::new(lqr, model, lo.to_vec(), hi.to_vec())?)
+        }
+        ControllerChoice::Shooting => {
+            let planner = RandomShooting::new(
+                1000,
+                args.horizon,
+                vec![1.0; system.nx()],
+                lo.to_vec(),
+                hi.to_vec(),
+                1,
+            )?;
+            Box::new(ShootingPolicy::new(planner, &oracle, "true-system"))
+        }
+        ControllerChoice::All => unreachable!("expanded by the caller"),
+    };
+    let result = run_closed_loop(system, policy.as_mut(), task, lo, hi, &goal, progress);
+    bar.finish_and_clear();
+    Ok(result?)
+}
+
+fn print_header() {
+    println!(
+        "{:<26} {:>9} {:>9} {:>8} {:>10} {:>10} {:>9} {:>9} {:>6} {:>5}",
+        "controller",
+        "final err",
+        "angle err",
+        "t_goal",
+        "track rms",
+        "frobenius",
+        "med ms",
+        "p99 ms",
+        "viol",
+        "fb"
+    );
+}
+
+fn print_row(m: &ClosedLoopMetrics) {
+    println!(
+        "{:<26} {:>9.4} {:>9.4} {:>8} {:>10.4} {:>10.3} {:>9.3} {:>9.3} {:>6} {:>5}{}",
+        m.controller,
+        m.final_error,
+        m.final_angle_error,
+        m.time_to_goal_s
+            .map(|s| format!("{s:.2}s"))
+            .unwrap_or_else(|| "never".into()),
+        m.tracking_rms,
+        m.tracking_frobenius,
+        m.solve_ms_median,
+        m.solve_ms_p99,
+        m.input_violations,
+        m.fallbacks,
+        if m.diverged { "  DIVERGED" } else { "" }
+    );
+}
+
+/// Writes JSON to a temporary name beside `path`, then renames it into place.
+fn write_json_atomic<T: serde::Serialize>(path: &Path, value: &T) -> anyhow::Result<()> {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let tmp = dir.join(format!(
+        ".{}.{}.tmp",
+        path.file_name().and_then(|n| n.to_str()).unwrap_or("out"),
+        std::process::id()
+    ));
+    std::fs::write(&tmp, serde_json::to_vec_pretty(value)?)
+        .with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("renaming to {}", path.display()))
+}
+
+fn plot_trajectory(
+    path: &Path,
+    system: &dyn System,
+    m: &ClosedLoopMetrics,
+    tr: &Trajectory,
+    lo: &[f64],
+    hi: &[f64],
+) -> anyhow::Result<()> {
+    let names = system.state_names();
+    let angles = system.angle_indices();
+    let column = |rows: &[Vec<f64>], i: usize| rows.iter().map(|r| r[i]).collect::<Vec<f64>>();
+    let mut angle_panel = Panel {
+        title: "angles".into(),
+        y_label: "rad".into(),
+        series: vec![],
+    };
+    let mut rate_panel = Panel {
+        title: "other states".into(),
+        y_label: "value".into(),
+        series: vec![],
+    };
+    for (i, name) in names.iter().enumerate() {
+        let panel = if angles.contains(&i) {
+            &mut angle_panel
+        } else {
+            &mut rate_panel
+        };
+        panel
+            .series
+            .push(Series::new(name.clone(), &tr.t, &column(&tr.x, i)));
+        panel
+            .series
+            .push(Series::new(format!("{name} ref"), &tr.t, &column(&tr.r, i)).dashed());
+    }
+    let tu: Vec<f64> = tr.t[..tr.u.len()].to_vec();
+    let mut input_panel = Panel {
+        title: "inputs".into(),
+        y_label: "u".into(),
+        series: vec![],
+    };
+    for (i, name) in system.input_names().iter().enumerate() {
+        input_panel
+            .series
+            .push(Series::new(name.clone(), &tu, &column(&tr.u, i)));
+    }
+    let ends = [
+        tu.first().copied().unwrap_or(0.0),
+        tu.last().copied().unwrap_or(1.0),
+    ];
+    if let (Some(l), Some(h)) = (
+        lo.iter().copied().reduce(f64::min),
+        hi.iter().copied().reduce(f64::max),
+    ) {
+        input_panel
+            .series
+            .push(Series::new("u max", &ends, &[h, h]).dashed());
+        input_panel
+            .series
+            .push(Series::new("u min", &ends, &[l, l]).dashed());
+    }
+    let title = format!("{} {:?} — {}", m.env, m.task, m.controller).to_lowercase();
+    time_series_png(path, &title, &[angle_panel, rate_panel, input_panel], 1000)
 }

@@ -1,0 +1,217 @@
+//! Multi-panel time-series PNGs (states against references, inputs) for `control` and scenario
+//! reports, drawn with plotters and the bundled DejaVu Sans font (no system fonts needed).
+
+use std::path::Path;
+use std::sync::Once;
+
+use anyhow::{bail, Context};
+use plotters::prelude::*;
+use plotters::style::FontStyle;
+
+/// The font bundled in the repository (`assets/fonts/`, licence beside it).
+static FONT: &[u8] = include_bytes!("../assets/fonts/DejaVuSans.ttf");
+static REGISTER: Once = Once::new();
+
+fn register_font() {
+    REGISTER.call_once(|| {
+        // The bytes are a valid TrueType font checked in with the code; a failure here would
+        // only make text disappear, so it is ignored rather than aborting the plot.
+        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
+    });
+}
+
+/// One curve: points `(t, y)`, a legend label, and whether it is drawn dashed (references).
+#[derive(Clone, Debug)]
+pub struct Series {
+    /// Legend text.
+    pub label: String,
+    /// The points, in time order.
+    pub points: Vec<(f64, f64)>,
+    /// Dashed line (used for references and bounds).
+    pub dashed: bool,
+}
+
+impl Series {
+    /// A solid curve from parallel time and value slices.
+    pub fn new(label: impl Into<String>, t: &[f64], y: &[f64]) -> Self {
+        Series {
+            label: label.into(),
+            points: t.iter().copied().zip(y.iter().copied()).collect(),
+            dashed: false,
+        }
+    }
+
+    /// The same curve drawn dashed.
+    pub fn dashed(mut self) -> Self {
+        self.dashed = true;
+        self
+    }
+}
+
+/// One panel (sub-plot) stacked vertically with the others, sharing the time axis.
+#[derive(Clone, Debug)]
+pub struct Panel {
+    /// Panel caption.
+    pub title: String,
+    /// Label of the y axis.
+    pub y_label: String,
+    /// Its curves.
+    pub series: Vec<Series>,
+}
+
+const COLORS: [RGBColor; 6] = [
+    RGBColor(31, 119, 180),
+    RGBColor(214, 39, 40),
+    RGBColor(44, 160, 44),
+    RGBColor(255, 127, 14),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+];
+
+/// Draws `panels` stacked vertically into a PNG at `path` (written to a temporary name in the
+/// same directory, then renamed). `width` is in pixels; each panel is 260 px high.
+pub fn time_series_png(
+    path: &Path,
+    title: &str,
+    panels: &[Panel],
+    width: u32,
+) -> anyhow::Result<()> {
+    if panels.is_empty() {
+        bail!("nothing to plot: no panels");
+    }
+    register_font();
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let name = path
+        .file_name()
+        .and_then(|n| n.to_str())
+        .context("plot path has no file name")?;
+    let tmp = dir.join(format!(".{name}.{}.tmp.png", std::process::id()));
+    let result = draw(&tmp, title, panels, width);
+    if let Err(e) = result {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(e);
+    }
+    std::fs::rename(&tmp, path)
+        .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
+}
+
+fn draw(path: &Path, title: &str, panels: &[Panel], width: u32) -> anyhow::Result<()> {
+    let height = 60 + 260 * panels.len() as u32;
+    let root = BitMapBackend::new(path, (width, height)).into_drawing_area();
+    root.fill(&WHITE)
+        .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+    let root = root
+        .titled(title, ("sans-serif", 24))
+        .map_err(|e| anyhow::anyhow!("plot title: {e}"))?;
+    let areas = root.split_evenly((panels.len(), 1));
+    for (panel, area) in panels.iter().zip(&areas) {
+        let pts = panel
+            .series
+            .iter()
+            .flat_map(|s| s.points.iter())
+            .filter(|p| p.0.is_finite() && p.1.is_finite());
+        let (mut x0, mut x1, mut y0, mut y1) = (
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        );
+        for &(x, y) in pts {
+            x0 = x0.min(x);
+            x1 = x1.max(x);
+            y0 = y0.min(y);
+            y1 = y1.max(y);
+        }
+        if !x0.is_finite() {
+            (x0, x1, y0, y1) = (0.0, 1.0, -1.0, 1.0);
+        }
+        if x1 <= x0 {
+            x1 = x0 + 1.0;
+        }
+        let pad = ((y1 - y0) * 0.08).max(1e-3);
+        let (y0, y1) = (y0 - pad, y1 + pad);
+        let mut chart = ChartBuilder::on(area)
+            .caption(&panel.title, ("sans-serif", 18))
+            .margin(8)
+            .x_label_area_size(36)
+            .y_label_area_size(64)
+            .build_cartesian_2d(x0..x1, y0..y1)
+            .map_err(|e| anyhow::anyhow!("plot axes: {e}"))?;
+        chart
+            .configure_mesh()
+            .x_desc("t [s]")
+            .y_desc(&panel.y_label)
+            .label_style(("sans-serif", 14))
+            .draw()
+            .map_err(|e| anyhow::anyhow!("plot mesh: {e}"))?;
+        for (i, s) in panel.series.iter().enumerate() {
+            let color = COLORS[i % COLORS.len()];
+            let pts: Vec<(f64, f64)> = s
+                .points
+                .iter()
+                .copied()
+                .filter(|p| p.0.is_finite() && p.1.is_finite())
+                .collect();
+            let style = color.stroke_width(2);
+            let drawn = if s.dashed {
+                chart.draw_series(DashedLineSeries::new(pts, 8, 5, style))
+            } else {
+                chart.draw_series(LineSeries::new(pts, style))
+            };
+            drawn
+                .map_err(|e| anyhow::anyhow!("plot series: {e}"))?
+                .label(s.label.clone())
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
+                });
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 14))
+            .position(SeriesLabelPosition::UpperRight)
+            .draw()
+            .map_err(|e| anyhow::anyhow!("plot legend: {e}"))?;
+    }
+    root.present()
+        .map_err(|e| anyhow::anyhow!("writing {}: {e}", path.display()))?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn draws_a_png_atomically() {
+        let dir = std::env::temp_dir().join(format!("koopbridge-plot-{}", std::process::id()));
+        let path = dir.join("p.png");
+        let t: Vec<f64> = (0..50).map(|k| k as f64 * 0.1).collect();
+        let y: Vec<f64> = t.iter().map(|v| v.sin()).collect();
+        let panels = vec![Panel {
+            title: "states".into(),
+            y_label: "θ [rad]".into(),
+            series: vec![
+                Series::new("θ", &t, &y),
+                Series::new("θ ref", &t, &vec![0.0; 50]).dashed(),
+            ],
+        }];
+        time_series_png(&path, "test", &panels, 600).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        assert_eq!(&bytes[1..4], b"PNG");
+        // No temporary file is left behind.
+        let left: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .map(|e| e.file_name())
+            .collect();
+        assert_eq!(left.len(), 1, "{left:?}");
+        assert!(time_series_png(&path, "empty", &[], 600).is_err());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
