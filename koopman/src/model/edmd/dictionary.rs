@@ -140,6 +140,61 @@ impl Dictionary {
         }
     }
 
+    /// Lifts a batch of states column-wise: for `m = states.len()`, column `j` of the
+    /// column-major block `out[j·ld .. j·ld + m]` (`ld ≥ m`) receives feature j of every state.
+    /// Same values as [`Dictionary::lift_into`], computed feature by feature over contiguous
+    /// vectors. `work` is resized as needed.
+    pub fn lift_columns(&self, states: &[&[f64]], out: &mut [f64], ld: usize, work: &mut Vec<f64>) {
+        let (nx, d1, m) = (self.nx, self.degree + 1, states.len());
+        work.resize(nx * d1 * m, 0.0);
+        // work[(i·d1 + k)·m + r] = p_k(x̃_i) of state r.
+        for i in 0..nx {
+            let base = i * d1 * m;
+            let (c, h) = (self.center[i], self.half_width[i]);
+            for (r, x) in states.iter().enumerate() {
+                work[base + r] = 1.0;
+                if d1 > 1 {
+                    work[base + m + r] = (x[i] - c) / h;
+                }
+            }
+            for k in 2..d1 {
+                let (done, rest) = work[base..].split_at_mut(k * m);
+                let (s, prev) = (&done[m..2 * m], &done[(k - 1) * m..k * m]);
+                let prev2 = &done[(k - 2) * m..(k - 1) * m];
+                let dst = &mut rest[..m];
+                match self.basis {
+                    Basis::Chebyshev => {
+                        for r in 0..m {
+                            dst[r] = 2.0 * s[r] * prev[r] - prev2[r];
+                        }
+                    }
+                    Basis::Monomial => {
+                        for r in 0..m {
+                            dst[r] = s[r] * prev[r];
+                        }
+                    }
+                }
+            }
+        }
+        for i in 0..nx {
+            for (r, x) in states.iter().enumerate() {
+                out[i * ld + r] = x[i];
+            }
+        }
+        out[nx * ld..nx * ld + m].fill(1.0);
+        for (j, alpha) in self.exponents.iter().enumerate() {
+            let col = &mut out[(nx + 1 + j) * ld..(nx + 1 + j) * ld + m];
+            let first = &work[alpha[0] as usize * m..(alpha[0] as usize + 1) * m];
+            col.copy_from_slice(first);
+            for (i, &a) in alpha.iter().enumerate().skip(1) {
+                let o = (i * d1 + a as usize) * m;
+                for (v, p) in col.iter_mut().zip(&work[o..o + m]) {
+                    *v *= p;
+                }
+            }
+        }
+    }
+
     /// `Φ(x)` as a new vector.
     pub fn lift(&self, x: &[f64]) -> Vec<f64> {
         let mut z = vec![0.0; self.len()];
@@ -152,6 +207,36 @@ impl Dictionary {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn column_lifting_equals_pointwise_lifting() {
+        for (nx, d, basis) in [
+            (2, 20, Basis::Chebyshev),
+            (3, 5, Basis::Monomial),
+            (1, 7, Basis::Chebyshev),
+        ] {
+            let dict = Dictionary::new(d, basis, &vec![-3.0; nx], &vec![2.0; nx]);
+            let mut rng = crate::rng::Rng::new(1);
+            let xs: Vec<Vec<f64>> = (0..37)
+                .map(|_| (0..nx).map(|_| rng.uniform(-4.0, 3.0)).collect())
+                .collect();
+            let refs: Vec<&[f64]> = xs.iter().map(|v| v.as_slice()).collect();
+            let ld = 40;
+            let mut out = vec![f64::NAN; ld * dict.len()];
+            let mut work = Vec::new();
+            dict.lift_columns(&refs, &mut out, ld, &mut work);
+            for (r, x) in xs.iter().enumerate() {
+                let z = dict.lift(x);
+                for (j, zj) in z.iter().enumerate() {
+                    let got = out[j * ld + r];
+                    assert!(
+                        (got - zj).abs() <= 1e-12 * zj.abs().max(1.0),
+                        "nx {nx} row {r} feature {j}: {got} vs {zj}"
+                    );
+                }
+            }
+        }
+    }
 
     #[test]
     fn counts_match_the_binomial_and_the_spec_choice() {

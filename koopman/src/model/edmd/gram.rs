@@ -63,21 +63,31 @@ pub fn accumulate(dict: &Dictionary, data: &Dataset, chunk: usize) -> Normal {
             let mut syy = 0.0;
             let rows = chunk.min(end - start);
             let width = nw + n_lat;
-            // Row-major chunk [W Y]: one row per pair, lifted in place.
+            // Column-major chunk [W Y] with leading dimension `rows`, lifted column by column.
             let mut wy = vec![0.0; rows * width];
-            let mut work = vec![0.0; dict.nx * (dict.degree + 1)];
+            let mut work = Vec::new();
+            let mut xs: Vec<&[f64]> = Vec::with_capacity(rows);
             let mut p = start;
             while p < end {
                 let m = chunk.min(end - p);
-                for (r, row) in wy.chunks_exact_mut(width).take(m).enumerate() {
-                    let (i, t) = ((p + r) / data.steps, (p + r) % data.steps);
-                    let (w, y) = row.split_at_mut(nw);
-                    dict.lift_into(data.state(i, t), &mut w[..n_lat], &mut work);
-                    w[n_lat..].copy_from_slice(data.input(i, t));
-                    dict.lift_into(data.state(i, t + 1), y, &mut work);
-                    syy += y.iter().map(|v| v * v).sum::<f64>();
+                let pair = |q: usize| (q / data.steps, q % data.steps);
+                xs.clear();
+                xs.extend((p..p + m).map(|q| data.state(pair(q).0, pair(q).1)));
+                dict.lift_columns(&xs, &mut wy, rows, &mut work);
+                for j in 0..nu {
+                    for r in 0..m {
+                        let (i, t) = pair(p + r);
+                        wy[(n_lat + j) * rows + r] = data.input(i, t)[j];
+                    }
                 }
-                let block = MatRef::from_row_major_slice(&wy[..m * width], m, width);
+                xs.clear();
+                xs.extend((p..p + m).map(|q| data.state(pair(q).0, pair(q).1 + 1)));
+                dict.lift_columns(&xs, &mut wy[nw * rows..], rows, &mut work);
+                for j in 0..n_lat {
+                    let col = &wy[(nw + j) * rows..(nw + j) * rows + m];
+                    syy += col.iter().map(|v| v * v).sum::<f64>();
+                }
+                let block = MatRef::from_column_major_slice_with_stride(&wy, m, width, rows);
                 let w = block.subcols(0, nw);
                 triangular::matmul(
                     g.as_mut(),
