@@ -1,10 +1,120 @@
-//! `koopbridge eval` (being built; see its issue).
+//! `koopbridge eval`: the prediction error and diagnostics of a saved model on a dataset file.
+
+use anyhow::Context;
+use koopman::data::Dataset;
+use koopman::model::koopman::KoopmanModel;
+use koopman::model::{load_lifted, store, LiftedModel};
+use serde::Serialize;
+use std::path::PathBuf;
 
 /// Arguments of `koopbridge eval`.
-#[derive(clap::Args)]
-pub struct EvalArgs {}
+#[derive(clap::Args, Debug)]
+#[command(
+    about = "Evaluate a saved model on a dataset: prediction error, conditioning, spectrum of A",
+    long_about = "Evaluate a saved model (a folder written by 'koopbridge train') on a dataset file (.npz from \
+        'koopbridge data gen'): SPEC's prediction error (discounted multi-step L_pred, every window encoded once \
+        at its first state), the condition numbers κ(G) of the latent Gram matrix on the data and κ(BᵀB), and the \
+        spectral radius of A.\n\nExample: koopbridge eval --model models/damped --data data/damped/test.npz"
+)]
+pub struct EvalArgs {
+    /// Model folder (config.json + weights).
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Dataset file (.npz).
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Discount γ of the prediction error.
+    #[arg(long, default_value_t = 0.8)]
+    pub gamma: f64,
+    /// Print one JSON object instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Serialize)]
+struct EvalReport {
+    kind: String,
+    windows: usize,
+    pairing: koopman::data::Pairing,
+    prediction_error: f64,
+    gram_condition: Option<f64>,
+    bbt_condition: Option<f64>,
+    spectral_radius: Option<f64>,
+    latent_dim: usize,
+}
 
 /// Runs `koopbridge eval`.
-pub fn run(_args: EvalArgs) -> anyhow::Result<()> {
-    anyhow::bail!("'koopbridge eval' is not built yet")
+pub fn run(args: EvalArgs) -> anyhow::Result<()> {
+    let data = Dataset::load_npz(&args.data)
+        .with_context(|| format!("loading {}", args.data.display()))?;
+    let kind = store::read_kind(&args.model)?;
+    let model: Box<dyn LiftedModel> = load_lifted(&args.model)?;
+    if data.nx != model.nx() || data.nu != model.nu() {
+        anyhow::bail!(
+            "the model expects nx = {}, nu = {} but {} has nx = {}, nu = {}",
+            model.nx(),
+            model.nu(),
+            args.data.display(),
+            data.nx,
+            data.nu
+        );
+    }
+    let prediction_error = if kind == "koopman" {
+        let km = KoopmanModel::load(&args.model)?;
+        koopman::train::prediction_error(&km, &data, args.gamma)?
+    } else {
+        koopman::analysis::prediction_error(model.as_ref(), &data, args.gamma)?
+    };
+    let gram_condition = koopman::analysis::gram_condition(model.as_ref(), &data).ok();
+    let bbt_condition = if model.nu() > 0 {
+        koopman::analysis::bbt_condition(model.as_ref()).ok()
+    } else {
+        None
+    };
+    let spectral_radius = koopman::analysis::eigenvalues(model.a().as_ref())
+        .ok()
+        .map(|ev| {
+            ev.iter()
+                .map(|c| (c.re * c.re + c.im * c.im).sqrt())
+                .fold(0.0, f64::max)
+        });
+    let rep = EvalReport {
+        kind,
+        windows: data.n,
+        pairing: data.meta.pairing,
+        prediction_error,
+        gram_condition,
+        bbt_condition,
+        spectral_radius,
+        latent_dim: model.latent_dim(),
+    };
+    if args.json {
+        println!("{}", serde_json::to_string(&rep)?);
+    } else {
+        let f = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.4e}"));
+        println!(
+            "model        {} ({}; N = {})",
+            args.model.display(),
+            rep.kind,
+            rep.latent_dim
+        );
+        println!(
+            "data         {} ({} windows, {:?} pairing)",
+            args.data.display(),
+            rep.windows,
+            rep.pairing
+        );
+        println!(
+            "prediction error (γ = {}): {:.6}",
+            args.gamma, rep.prediction_error
+        );
+        println!("κ(G) latent Gram: {}", f(rep.gram_condition));
+        println!("κ(BᵀB):           {}", f(rep.bbt_condition));
+        println!(
+            "spectral radius of A: {}",
+            rep.spectral_radius
+                .map_or("-".into(), |v| format!("{v:.6}"))
+        );
+    }
+    Ok(())
 }

@@ -166,20 +166,23 @@ impl<T: Real> EncoderWs<T> {
     /// pre-activations.
     pub fn backward(&mut self, params: &[T], grad: &mut [T]) {
         let rows = self.rows;
-        let zero = T::default();
         for (l, blk) in self.layout.blocks.iter().enumerate().rev() {
             let k = blk.rows();
             let (gprev, grest) = self.grads.split_at_mut(l + 1);
             let dy = &grest[0][..rows * blk.out];
             let pre = &mut self.pre[l][..rows * k];
-            // dpre = [dY ⊙ (pre > 0), dY] in place of pre.
+            // dpre = [dY ⊙ (pre > 0), dY] in place of pre, and the bias gradients with it.
             {
                 let (main, res) = pre.split_at_mut(blk.out * rows);
-                for (pv, dv) in main.iter_mut().zip(dy) {
-                    *pv = if *pv > zero { *dv } else { zero };
-                }
-                if blk.linear_residual {
-                    res.copy_from_slice(dy);
+                let gb = &mut grad[blk.b..blk.b + k];
+                for j in 0..blk.out {
+                    let pj = &mut main[j * rows..(j + 1) * rows];
+                    let dj = &dy[j * rows..(j + 1) * rows];
+                    gb[j] = T::mask_and_sum(pj, dj);
+                    if blk.linear_residual {
+                        res[j * rows..(j + 1) * rows].copy_from_slice(dj);
+                        gb[blk.out + j] = T::sum(dj);
+                    }
                 }
             }
             let x = &self.acts[l][..rows * blk.fan_in];
@@ -196,13 +199,6 @@ impl<T: Real> EncoderWs<T> {
                 T::one(),
                 self.par,
             );
-            for (j, g) in grad[blk.b..blk.b + k].iter_mut().enumerate() {
-                let mut s = zero;
-                for v in &pre[j * rows..(j + 1) * rows] {
-                    s += *v;
-                }
-                *g = s;
-            }
             if l == 0 {
                 break;
             }

@@ -1,0 +1,155 @@
+//! `koopbridge bench train`: training iterations per second on generated data, for comparison
+//! with the PyTorch anchor (`scripts/bench-train-vs-anchor.sh` runs both side by side).
+
+use anyhow::Context;
+use koopman::data::{generate, Pairing};
+use koopman::train::{train, Precision, TrainConfig};
+use serde::Serialize;
+use std::ops::ControlFlow;
+
+/// Arguments of `koopbridge bench train`.
+#[derive(clap::Args, Debug)]
+#[command(
+    about = "Training speed (iterations/second) of the neural Koopman trainer on generated data"
+)]
+pub struct BenchTrainArgs {
+    /// Reference system to generate the data from.
+    #[arg(long, default_value = "damped-pendulum")]
+    pub system: String,
+    /// Timed training iterations.
+    #[arg(long, default_value_t = 2000)]
+    pub iters: usize,
+    /// Untimed warm-up iterations run before (same model, same data).
+    #[arg(long, default_value_t = 50)]
+    pub warmup: usize,
+    /// Encoder width multiplier n_mult.
+    #[arg(long, default_value_t = 16)]
+    pub n_mult: usize,
+    /// Windows per batch.
+    #[arg(long, default_value_t = 64)]
+    pub batch: usize,
+    /// Generated training windows to sample batches from.
+    #[arg(long, default_value_t = 4096)]
+    pub windows: usize,
+    /// Turn the inverse-control loss off.
+    #[arg(long)]
+    pub no_ctrl: bool,
+    /// Turn the covariance loss off.
+    #[arg(long)]
+    pub no_cov: bool,
+    /// Train in f64 instead of f32.
+    #[arg(long)]
+    pub f64: bool,
+    /// Threads for the large products (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
+    /// Print one JSON object instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Serialize)]
+struct Report {
+    bench: &'static str,
+    system: String,
+    iterations: usize,
+    iterations_per_second: f64,
+    seconds: f64,
+    n_mult: usize,
+    batch: usize,
+    ctrl: bool,
+    cov: bool,
+    precision: Precision,
+    threads: usize,
+    loadavg_1min: Option<f64>,
+}
+
+/// Runs `koopbridge bench train`.
+pub fn run(args: BenchTrainArgs) -> anyhow::Result<()> {
+    if args.iters == 0 {
+        anyhow::bail!("--iters must be at least 1");
+    }
+    let system = koopman::systems::by_name(&args.system)?;
+    let data = generate(
+        system.as_ref(),
+        args.windows.max(2),
+        15,
+        42,
+        Pairing::Aligned,
+    )
+    .context("generating benchmark data")?;
+    let val = data.head(256.min(data.n))?;
+    let mut cfg = TrainConfig {
+        n_mult: args.n_mult,
+        batch: args.batch,
+        ctrl: !args.no_ctrl,
+        cov: !args.no_cov,
+        precision: if args.f64 {
+            Precision::F64
+        } else {
+            Precision::F32
+        },
+        threads: args.threads,
+        ..TrainConfig::default()
+    };
+    if args.warmup > 0 {
+        cfg.iterations = args.warmup;
+        cfg.validate_every = args.warmup;
+        train(&cfg, &data, &val, None, &mut |_| ControlFlow::Continue(()))?;
+    }
+    cfg.iterations = args.iters;
+    cfg.validate_every = args.iters;
+    let out = train(&cfg, &data, &val, None, &mut |_| ControlFlow::Continue(()))?;
+    let ips = out.metrics.iterations_per_second;
+    let report = Report {
+        bench: "train",
+        system: args.system.clone(),
+        iterations: args.iters,
+        iterations_per_second: ips,
+        seconds: args.iters as f64 / ips,
+        n_mult: args.n_mult,
+        batch: args.batch,
+        ctrl: cfg.ctrl,
+        cov: cfg.cov,
+        precision: cfg.precision,
+        threads: if args.threads == 0 {
+            rayon_threads()
+        } else {
+            args.threads
+        },
+        loadavg_1min: loadavg(),
+    };
+    if args.json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        println!(
+            "bench train: {} n_mult {} batch {} ctrl {} cov {} {:?}, {} iterations: {:.1} it/s ({:.2} ms/it), load {:?}",
+            report.system,
+            report.n_mult,
+            report.batch,
+            report.ctrl,
+            report.cov,
+            report.precision,
+            report.iterations,
+            ips,
+            1000.0 / ips,
+            report.loadavg_1min
+        );
+    }
+    Ok(())
+}
+
+fn rayon_threads() -> usize {
+    std::thread::available_parallelism()
+        .map(|n| n.get())
+        .unwrap_or(1)
+}
+
+fn loadavg() -> Option<f64> {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+}
