@@ -88,7 +88,10 @@ pub fn generate_with_progress(
         input_names: system.input_names(),
         pairing,
         seed,
-        source: "koopman::systems".to_string(),
+        source: match system.parameters() {
+            p if p.is_empty() => "koopman::systems".to_string(),
+            p => format!("koopman::systems ({p})"),
+        },
         policy: "uniform random input each step (zero-order hold)".to_string(),
     };
     let data = Dataset {
@@ -215,6 +218,7 @@ mod tests {
         assert_eq!(one, two);
         assert_eq!(one, three);
         let other = generate(s.as_ref(), 1500, 15, 43, Pairing::Aligned).unwrap();
+        assert_eq!(one.meta.source, "koopman::systems");
         assert_ne!(one.x, other.x);
         // A prefix of a bigger generation is the smaller generation.
         let small = generate(s.as_ref(), 700, 15, 42, Pairing::Aligned).unwrap();

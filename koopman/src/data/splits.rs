@@ -149,6 +149,7 @@ mod tests {
         let sp = generate_splits(s.as_ref(), &spec).unwrap();
         assert_eq!((sp.train.n, sp.val.n, sp.test.n), (70, 10, 10));
         assert_eq!(sp.train.steps, 1);
+        assert_eq!(sp.train.meta.source, "koopman::systems (n_poly=5)");
         let pool = crate::data::generate(s.as_ref(), 90, 1, 42, Pairing::Aligned).unwrap();
         // Every window of the pool appears exactly once across the splits, and the order changed.
         let key = |d: &Dataset, i: usize| {

@@ -85,6 +85,11 @@ pub trait System: Send + Sync {
             .map(|(&l, &h)| rng.uniform(l, h))
             .collect()
     }
+    /// Parameters that distinguish this instance from the default one (e.g. `n_poly=10`), or an
+    /// empty string; recorded in dataset metadata.
+    fn parameters(&self) -> String {
+        String::new()
+    }
     /// Advances the state by one step `dt` with `u` held constant; writes `x_next`.
     fn step(&self, x: &[f64], u: &[f64], x_next: &mut [f64]);
 }

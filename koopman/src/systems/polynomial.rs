@@ -84,6 +84,9 @@ impl System for PolynomialSystem {
     fn sample_initial_state(&self, rng: &mut Rng) -> Vec<f64> {
         (0..3).map(|_| rng.uniform(-1.0, 1.0)).collect()
     }
+    fn parameters(&self) -> String {
+        format!("n_poly={}", self.n_poly)
+    }
     fn step(&self, x: &[f64], _u: &[f64], x_next: &mut [f64]) {
         // Horner: Σ_{p=1}^{k} b_p x1^p = x1 (b_1 + x1 (b_2 + ...)).
         let x1 = x[0];
