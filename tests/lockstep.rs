@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use bridge::client::{step_all, SimClient};
 use bridge::codec::{StepReply, StepRequest};
-use bridge::collect::{collect, window_seed, Split};
+use bridge::collect::{collect, window_seed, CollectJob, Split};
 use bridge::error::{Error, ErrorCode};
 use bridge::keyexpr::SimLeaf;
 use bridge::messages::ResetRequest;
@@ -136,19 +136,14 @@ fn collection_is_bit_for_bit_repeatable_and_equals_local_stepping() {
         SimClient::connect(&c.client, "a", common::READY).unwrap(),
         SimClient::connect(&c.client, "b", common::READY).unwrap(),
     ];
-    let run = |sims: &mut [SimClient]| {
-        collect(
-            sims,
-            &Policy::Uniform,
-            6,
-            5,
-            42,
-            Split::Train,
-            Some(&c.live),
-            &mut |_, _| {},
-        )
-        .unwrap()
+    let job = CollectJob {
+        policy: &Policy::Uniform,
+        windows: 6,
+        steps: 5,
+        seed: 42,
+        split: Split::Train,
     };
+    let run = |sims: &mut [SimClient]| collect(sims, &job, Some(&c.live), &mut |_, _| {}).unwrap();
     let first = run(&mut sims);
     let second = run(&mut sims);
     assert_eq!(

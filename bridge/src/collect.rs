@@ -29,19 +29,37 @@ pub fn window_seed(seed: u64, split: Split, sim: usize, i: usize) -> u64 {
     r.next_u64()
 }
 
-/// Collects `windows` windows of `steps` transitions from every simulator in `sims`
+/// What to collect.
+#[derive(Clone, Debug)]
+pub struct CollectJob<'a> {
+    /// Input policy.
+    pub policy: &'a Policy,
+    /// Windows per simulator.
+    pub windows: usize,
+    /// Transitions per window.
+    pub steps: usize,
+    /// Data seed.
+    pub seed: u64,
+    /// Which split (keeps the splits' seeds independent).
+    pub split: Split,
+}
+
+/// Collects `job.windows` windows of `job.steps` transitions from every simulator in `sims`
 /// concurrently; returns one dataset per simulator. `progress(done, total)` is called after each
 /// window.
 pub fn collect(
     sims: &mut [SimClient],
-    policy: &Policy,
-    windows: usize,
-    steps: usize,
-    seed: u64,
-    split: Split,
+    job: &CollectJob<'_>,
     live: Option<&Liveliness>,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<Vec<Dataset>> {
+    let CollectJob {
+        policy,
+        windows,
+        steps,
+        seed,
+        split,
+    } = *job;
     let mut out: Vec<Dataset> = Vec::with_capacity(sims.len());
     for s in sims.iter() {
         let info = &s.info.sim;

@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::client::{Client, Liveliness, SimClient};
 use crate::codec::{SolveReply, SolveRequest};
-use crate::collect::{collect, Split};
+use crate::collect::{collect, CollectJob, Split};
 use crate::error::{Error, ErrorCode, Result};
 use crate::keyexpr::{fresh_session_id, Keys, Role};
 use crate::messages::ResetRequest;
@@ -294,18 +294,37 @@ impl Cluster {
     }
 }
 
-/// Closed-loop regulation of `sim` by the MPC service (lockstep): x_0 from `x0`, `steps` steps.
+/// A closed-loop regulation task for the MPC service.
+#[derive(Clone, Debug)]
+pub struct ControlTask<'a> {
+    /// MPC service id.
+    pub mpc_id: &'a str,
+    /// Model name (configured on the service).
+    pub model: &'a str,
+    /// Initial state.
+    pub x0: &'a [f64],
+    /// Reference state.
+    pub reference: &'a [f64],
+    /// Closed-loop steps.
+    pub steps: usize,
+}
+
+/// Closed-loop regulation of `sim` by the MPC service (lockstep): reset to `x0`, then `steps`
+/// times solve → apply the first input → step.
 pub fn closed_loop(
     client: &Client,
     live: &Liveliness,
     sim: &mut SimClient,
-    mpc_id: &str,
-    model: &str,
-    x0: &[f64],
-    reference: &[f64],
-    steps: usize,
+    task: &ControlTask<'_>,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<ControlReport> {
+    let ControlTask {
+        mpc_id,
+        model,
+        x0,
+        reference,
+        steps,
+    } = *task;
     let info = sim.info.sim.clone();
     let first = sim.reset(&ResetRequest {
         seed: None,
@@ -427,16 +446,16 @@ pub fn run_scenario(
         (Split::Val, "val", c.val_windows),
         (Split::Test, "test", c.test_windows),
     ] {
-        let ds = collect(
-            &mut clients,
-            &c.policy,
-            n,
-            c.steps,
-            c.seed,
+        let job = CollectJob {
+            policy: &c.policy,
+            windows: n,
+            steps: c.steps,
+            seed: c.seed,
             split,
-            Some(live),
-            &mut |d, t| on(Event::Collect(name, d, t)),
-        )?;
+        };
+        let ds = collect(&mut clients, &job, Some(live), &mut |d, t| {
+            on(Event::Collect(name, d, t))
+        })?;
         per_split.push(ds);
     }
     let seconds = tc.elapsed().as_secs_f64();
@@ -525,11 +544,13 @@ pub fn run_scenario(
             client,
             live,
             &mut clients[j],
-            SERVICES_ID,
-            &model,
-            &ctrl.x0,
-            &ctrl.reference,
-            ctrl.steps,
+            &ControlTask {
+                mpc_id: SERVICES_ID,
+                model: &model,
+                x0: &ctrl.x0,
+                reference: &ctrl.reference,
+                steps: ctrl.steps,
+            },
             &mut |k, n| on(Event::Control(k, n)),
         )?);
     }

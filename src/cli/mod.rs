@@ -1,9 +1,9 @@
 //! Subcommands of the `koopbridge` binary, one file each.
 
 pub mod bench;
-pub mod bench_mpc;
 pub mod bench_bridge;
 pub mod bench_edmd;
+pub mod bench_mpc;
 pub mod bench_train;
 pub mod control;
 pub mod data;

@@ -64,7 +64,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let mut last_phase = String::new();
     let report = run_scenario(&sc, &opts, &mut |e| match e {
         Event::Phase(p) => {
-            bar.println(format!("== {p}"));
+            if bar.is_hidden() {
+                eprintln!("== {p}");
+            } else {
+                bar.println(format!("== {p}"));
+            }
             last_phase = p.to_string();
         }
         Event::Collect(split, done, total) => {

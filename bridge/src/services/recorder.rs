@@ -113,6 +113,9 @@ enum Op {
     Data,
 }
 
+/// A recording in progress: what was received, the subscriber, transitions per window.
+type Active = (Arc<Mutex<Recording>>, zenoh::pubsub::Subscriber<()>, usize);
+
 /// Serves the recorder `id` (recordings written to `data_dir/{name}.npz`) until `stop` is set.
 pub fn serve(
     session: &Session,
@@ -134,8 +137,7 @@ pub fn serve(
         .declare_token(keys.alive(Role::Recorder, id)?)
         .wait()
         .map_err(Error::zenoh)?;
-    let mut active: HashMap<String, (Arc<Mutex<Recording>>, zenoh::pubsub::Subscriber<()>, usize)> =
-        HashMap::new();
+    let mut active: HashMap<String, Active> = HashMap::new();
     while !stop.load(Ordering::Relaxed) {
         let Some((op, q)) = inbox.next(Duration::from_millis(100)) else {
             continue;
