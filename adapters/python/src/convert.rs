@@ -14,20 +14,14 @@ pub fn vec_f64(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<Vec<f64>> {
     let arr = np
         .call_method1("asarray", (obj, "float64"))
         .map_err(|e| PyValueError::new_err(format!("{what}: not an array of numbers ({e})")))?;
-    let arr = arr.call_method0("ravel")?;
-    let a: PyReadonlyArray1<'_, f64> = arr.extract()?;
-    let v = a.as_array().to_vec();
-    if obj
-        .getattr("ndim")
-        .and_then(|n| n.extract::<usize>())
-        .unwrap_or(1)
-        > 1
-    {
+    let ndim: usize = arr.getattr("ndim")?.extract()?;
+    if ndim > 1 {
         return Err(PyValueError::new_err(format!(
-            "{what}: expected a 1-D array"
+            "{what}: expected a 1-D array, got {ndim}-D"
         )));
     }
-    Ok(v)
+    let a: PyReadonlyArray1<'_, f64> = arr.call_method0("ravel")?.extract()?;
+    Ok(a.as_array().to_vec())
 }
 
 /// A 1-D vector of exactly `n` finite floats.

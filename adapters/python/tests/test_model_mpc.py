@@ -108,3 +108,10 @@ def test_mpc_configuration_errors(model):
     mpc = koopbridge.Mpc(model, horizon=4)
     with pytest.raises(ValueError, match="reference: expected 2 .* or 8"):
         mpc.solve([0.0, 0.0], [0.0, 0.0, 0.0])
+
+
+def test_vectors_must_be_one_dimensional(model):
+    with pytest.raises(ValueError, match="expected a 1-D array, got 2-D"):
+        model.predict([[0.1, 0.2]], np.zeros((3, 1)))
+    sys_ = koopbridge.ReferenceSystem("damped-pendulum")
+    np.testing.assert_array_equal(sys_.step([0.1, 0.2], 0.0), sys_.step(np.array([0.1, 0.2]), [0.0]))
