@@ -36,7 +36,7 @@ struct GenArgs {
     /// Environment: damped-pendulum, double-pendulum or polynomial (aliases damped, double, poly).
     #[arg(long)]
     env: String,
-    /// Output directory (default: data/<env>-<pairing>).
+    /// Output directory (default: data/<env>-<pairing>; data/polynomial-npoly<N>-<pairing>).
     #[arg(long)]
     out: Option<PathBuf>,
     /// Total number of windows (train + val + test).
@@ -129,10 +129,21 @@ fn gen(a: GenArgs) -> anyhow::Result<()> {
         Pairing::Aligned => "aligned",
         Pairing::Reference => "reference",
     };
+    // Default directory: data/<env>[-<parameters>]-<pairing>, e.g. data/polynomial-npoly10-aligned.
+    let params: String = system
+        .parameters()
+        .chars()
+        .filter(|c| c.is_ascii_alphanumeric())
+        .collect();
+    let stem = if params.is_empty() {
+        system.name().to_string()
+    } else {
+        format!("{}-{params}", system.name())
+    };
     let out = a
         .out
         .clone()
-        .unwrap_or_else(|| PathBuf::from("data").join(format!("{}-{pairing_name}", system.name())));
+        .unwrap_or_else(|| PathBuf::from("data").join(format!("{stem}-{pairing_name}")));
     let bar = indicatif::ProgressBar::new(a.windows as u64);
     bar.set_style(
         indicatif::ProgressStyle::with_template(

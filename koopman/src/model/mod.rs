@@ -31,7 +31,7 @@ use crate::{Error, Result};
 use std::path::Path;
 
 /// Loads any saved lifted model from `dir`, dispatching on `config.json`'s `"kind"`
-/// (`koopman`; `edmd` once that model exists).
+/// (`koopman` or `edmd`).
 pub fn load_lifted(dir: &Path) -> Result<Box<dyn LiftedModel>> {
     match store::read_kind(dir)?.as_str() {
         "koopman" => Ok(Box::new(koopman::KoopmanModel::load(dir)?)),

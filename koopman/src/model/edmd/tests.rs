@@ -286,6 +286,13 @@ fn save_load_round_trip_and_errors() {
         back.lift(&[0.1, 0.2, 0.3, 0.4]),
         m.lift(&[0.1, 0.2, 0.3, 0.4])
     );
+    // The generic loader dispatches on "kind".
+    let any = crate::model::load_lifted(&dir).unwrap();
+    assert_eq!(
+        (any.nx(), any.nu(), any.latent_dim()),
+        (4, 2, m.latent_dim())
+    );
+    assert_eq!(any.a(), m.a);
     // Corrupted weights and a wrong kind are format errors.
     let w = std::fs::read(dir.join("model.safetensors")).unwrap();
     std::fs::write(dir.join("model.safetensors"), &w[..w.len() / 2]).unwrap();
