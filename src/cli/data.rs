@@ -105,9 +105,12 @@ fn split_sizes(a: &GenArgs) -> anyhow::Result<(usize, usize, usize)> {
     let test = a.test.unwrap_or(ninth);
     let train = match a.train {
         Some(t) => t,
-        None => a.windows.checked_sub(val + test).with_context(|| {
-            format!("--val {val} + --test {test} exceed --windows {}", a.windows)
-        })?,
+        None => val
+            .checked_add(test)
+            .and_then(|vt| a.windows.checked_sub(vt))
+            .with_context(|| {
+                format!("--val {val} + --test {test} exceed --windows {}", a.windows)
+            })?,
     };
     Ok((train, val, test))
 }

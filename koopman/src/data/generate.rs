@@ -49,8 +49,22 @@ pub fn generate_with_progress(
         ));
     }
     let (nx, nu) = (system.nx(), system.nu());
-    let sx = (steps + 1) * nx;
-    let su = steps * nu;
+    // Refuse sizes that cannot be allocated instead of aborting (16 GiB of values at most).
+    const MAX_VALUES: usize = 1 << 31;
+    let too_many = || {
+        Error::InvalidArgument(format!(
+            "{windows} windows of {steps} steps are too many (more than {MAX_VALUES} values)"
+        ))
+    };
+    let sx = steps
+        .checked_add(1)
+        .and_then(|t| t.checked_mul(nx))
+        .ok_or_else(too_many)?;
+    let su = steps.checked_mul(nu).ok_or_else(too_many)?;
+    sx.checked_add(su)
+        .and_then(|per| per.checked_mul(windows))
+        .filter(|&v| v <= MAX_VALUES)
+        .ok_or_else(too_many)?;
     let mut x = vec![0.0; windows * sx];
     let mut u = vec![0.0; windows * su];
     // Chunk both arrays by blocks of windows; zip keeps the blocks paired. For nu = 0 the input
@@ -230,5 +244,7 @@ mod tests {
         let s = by_name("damped").unwrap();
         assert!(generate(s.as_ref(), 0, 15, 1, Pairing::Aligned).is_err());
         assert!(generate(s.as_ref(), 5, 0, 1, Pairing::Aligned).is_err());
+        assert!(generate(s.as_ref(), usize::MAX / 2, 15, 1, Pairing::Aligned).is_err());
+        assert!(generate(s.as_ref(), 5, usize::MAX / 2, 1, Pairing::Aligned).is_err());
     }
 }

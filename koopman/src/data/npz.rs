@@ -153,7 +153,8 @@ fn read_member<R: std::io::Read + std::io::Seek>(
         Err(zip::result::ZipError::FileNotFound) => return Ok(None),
         Err(e) => return Err(Error::format(path, format!("member {name}: {e}"))),
     };
-    let mut bytes = Vec::with_capacity(f.size() as usize);
+    // The declared size only sizes the buffer (capped: a corrupt header must not abort).
+    let mut bytes = Vec::with_capacity((f.size() as usize).min(1 << 28));
     f.read_to_end(&mut bytes).map_err(|e| {
         Error::format(
             path,
