@@ -49,6 +49,11 @@ pub struct ControlArgs {
     /// many features, 2000 windows of aligned data, seed 42).
     #[arg(long, value_name = "FEATURES", conflicts_with = "model")]
     pub fit: Option<usize>,
+    /// Train a neural Koopman model in-process instead (SPEC settings except this many
+    /// iterations, 16000 aligned training windows, 2000 validation windows, data seed 42) and
+    /// save it under OUT/model: a quick stand-in when no trained model exists yet.
+    #[arg(long, value_name = "ITERATIONS", conflicts_with_all = ["model", "fit"])]
+    pub train: Option<usize>,
     /// Environment: damped-pendulum or double-pendulum.
     #[arg(long)]
     pub env: String,
@@ -93,7 +98,14 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
     if system.nu() == 0 {
         bail!("{} has no inputs: nothing to control", system.name());
     }
-    let model = load_model(&args, system.as_ref())?;
+    let task_name = match args.task {
+        TaskArg::Regulate => "regulate",
+        TaskArg::Track => "track",
+    };
+    let out = args.out.clone().unwrap_or_else(|| {
+        PathBuf::from("results/control").join(format!("{}-{task_name}", system.name()))
+    });
+    let model = load_model(&args, system.as_ref(), &out)?;
     if model.nx() != system.nx() || model.nu() != system.nu() {
         bail!(
             "model has nx = {}, nu = {} but {} has nx = {}, nu = {}",
@@ -175,7 +187,14 @@ fn controller_stem(c: ControllerChoice) -> &'static str {
     }
 }
 
-fn load_model(args: &ControlArgs, system: &dyn System) -> anyhow::Result<Box<dyn LiftedModel>> {
+fn load_model(
+    args: &ControlArgs,
+    system: &dyn System,
+    out: &Path,
+) -> anyhow::Result<Box<dyn LiftedModel>> {
+    if let Some(iterations) = args.train {
+        return train_stand_in(system, iterations, &out.join("model"));
+    }
     match (&args.model, args.fit) {
         (Some(dir), _) => koopman::model::load_lifted(dir)
             .with_context(|| format!("loading the model in {}", dir.display())),
@@ -196,6 +215,58 @@ fn load_model(args: &ControlArgs, system: &dyn System) -> anyhow::Result<Box<dyn
             bail!("give --model DIR (a trained model) or --fit FEATURES (an in-process stand-in)")
         }
     }
+}
+
+fn train_stand_in(
+    system: &dyn System,
+    iterations: usize,
+    dir: &Path,
+) -> anyhow::Result<Box<dyn LiftedModel>> {
+    use std::ops::ControlFlow;
+    eprintln!(
+        "generating 18000 aligned windows of {} (seed 42)…",
+        system.name()
+    );
+    let data = koopman::data::generate(
+        system,
+        18_000,
+        system.window_steps(),
+        42,
+        koopman::data::Pairing::Aligned,
+    )?;
+    let train = data.head(16_000)?;
+    let val = data.select(&(16_000..18_000).collect::<Vec<_>>())?;
+    let cfg = koopman::train::TrainConfig {
+        iterations,
+        validate_every: (iterations / 5).max(1),
+        ..koopman::train::TrainConfig::default()
+    };
+    let bar = indicatif::ProgressBar::new(iterations as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "training [{bar:30}] {pos}/{len} it {per_sec} {msg}",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let mut observer = |p: &koopman::train::Progress| {
+        bar.set_position(p.iteration as u64);
+        if let Some(v) = p.validation {
+            bar.set_message(format!("val {v:.4}"));
+        }
+        ControlFlow::Continue(())
+    };
+    let outcome = koopman::train::train(&cfg, &train, &val, None, &mut observer)?;
+    bar.finish_and_clear();
+    eprintln!(
+        "trained: best validation prediction error {:?} at iteration {:?}",
+        outcome.metrics.best_validation_prediction_error, outcome.metrics.best_iteration
+    );
+    outcome
+        .model
+        .save(dir)
+        .with_context(|| format!("saving the model to {}", dir.display()))?;
+    eprintln!("saved the model to {}", dir.display());
+    Ok(Box::new(outcome.model))
 }
 
 fn run_one(

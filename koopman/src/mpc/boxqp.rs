@@ -3,9 +3,9 @@
 
 use std::time::{Duration, Instant};
 
-use faer::linalg::solvers::{Llt, Solve};
-use faer::{ColMut, Mat, MatRef, Side};
+use faer::{Mat, MatRef, Side};
 
+use super::chol::SmallCholesky;
 use super::condensed::gemv_acc;
 use super::qp::{QpOutcome, QpSolver, QpStatus};
 use crate::error::{Error, Result};
@@ -30,7 +30,8 @@ pub struct BoxQp {
     rel_tol: f64,
     // Cached factorisation of H_FF for the free set `cached_free`.
     cached_free: Vec<usize>,
-    llt: Option<Llt<f64>>,
+    chol: SmallCholesky,
+    chol_valid: bool,
     // Workspace.
     g: Vec<f64>,
     d: Vec<f64>,
@@ -67,7 +68,8 @@ impl BoxQp {
             return Err(Error::InvalidArgument("max_iterations must be ≥ 1".into()));
         }
         let h = h.to_owned();
-        let llt = h.llt(Side::Lower).map_err(|_| {
+        // faer's factorisation (blocked, fast for large n) checks definiteness once up front.
+        h.llt(Side::Lower).map_err(|_| {
             Error::Numerical(
                 "the MPC Hessian is not positive definite; increase R or the regularization".into(),
             )
@@ -80,8 +82,9 @@ impl BoxQp {
             max_iterations,
             time_limit: time_limit.map(Duration::from_secs_f64),
             rel_tol: 1e-11,
-            cached_free: (0..n).collect(),
-            llt: Some(llt),
+            cached_free: Vec::new(),
+            chol: SmallCholesky::default(),
+            chol_valid: false,
             g: vec![0.0; n],
             d: vec![0.0; n],
             rhs: vec![0.0; n],
@@ -104,22 +107,13 @@ impl BoxQp {
 
     /// Factorises `H_FF` for the current free set unless the cached factor already is for it.
     fn factor_free(&mut self) -> bool {
-        if self.llt.is_some() && self.cached_free == self.free {
+        if self.chol_valid && self.cached_free == self.free {
             return true;
         }
-        let f = &self.free;
-        let hff = Mat::from_fn(f.len(), f.len(), |i, j| self.h[(f[i], f[j])]);
-        match hff.llt(Side::Lower) {
-            Ok(l) => {
-                self.llt = Some(l);
-                self.cached_free.clone_from(&self.free);
-                true
-            }
-            Err(_) => {
-                self.llt = None;
-                false
-            }
-        }
+        let (f, h) = (&self.free, &self.h);
+        self.chol_valid = self.chol.factor(f.len(), |i, j| h[(f[i], f[j])]);
+        self.cached_free.clone_from(&self.free);
+        self.chol_valid
     }
 }
 
@@ -187,8 +181,7 @@ impl QpSolver for BoxQp {
                 for (k, &i) in self.free.iter().enumerate() {
                     self.rhs[k] = -self.g[i];
                 }
-                let llt = self.llt.as_ref().expect("factor_free succeeded");
-                llt.solve_in_place(ColMut::from_slice_mut(&mut self.rhs[..nf]));
+                self.chol.solve_in_place(&mut self.rhs[..nf]);
                 for (k, &i) in self.free.iter().enumerate() {
                     self.d[i] = self.rhs[k];
                 }

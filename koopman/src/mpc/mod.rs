@@ -15,6 +15,7 @@
 //!   ([`SolveStatus::Fallback`]), never NaN; bad input is a typed [`crate::Error`].
 
 pub mod boxqp;
+pub mod chol;
 pub mod clarabel_qp;
 pub mod closed_form;
 pub mod closed_loop;
