@@ -62,7 +62,7 @@ impl Dataset {
 
     /// Reads a dataset written by [`Dataset::save_npz`] or by numpy (`np.savez(path, x=..., u=...)`).
     /// Metadata comes from the `meta.json` member, else from the sidecar, else defaults (`env`
-    /// "unknown", names `x0..`, `u0..`, pairing `aligned`). Shapes must be `x [n, T+1, nx]`,
+    /// "unknown", dt 0, names `x0..`, `u0..`, pairing `aligned`, seed 0). Shapes must be `x [n, T+1, nx]`,
     /// `u [n, T, nu]`; values must be finite.
     pub fn load_npz(path: &Path) -> Result<Dataset> {
         let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
