@@ -312,3 +312,31 @@ fn f32_gradient_agrees_with_f64() {
         (num / den).sqrt()
     );
 }
+
+#[test]
+fn row_parallel_evaluation_equals_the_sequential_one() {
+    let arch = Arch::new(2, 1, &[16, 16], 4).unwrap();
+    let mut rng = Rng::new(8);
+    let p = init_params(&arch, &mut rng).unwrap();
+    let (b, steps) = (7, 4);
+    let w = random_windows(b, steps, 2, 1, &mut rng);
+    let opts = LossOptions {
+        gamma: 0.8,
+        ctrl: true,
+        cov: true,
+    };
+    let mut seq = LossWs::<f64>::new(&arch, b, steps, Par::Seq);
+    fill(&mut seq, &w, 2, 1);
+    let mut gs = vec![0.0; p.len()];
+    let ls = seq.loss_and_grad(&p, &mut gs, &opts).unwrap();
+    for parts in [2, 3] {
+        let mut par = LossWs::<f64>::new(&arch, b, steps, Par::rayon(parts));
+        fill(&mut par, &w, 2, 1);
+        let mut gp = vec![0.0; p.len()];
+        let lp = par.loss_and_grad(&p, &mut gp, &opts).unwrap();
+        assert!((lp.total - ls.total).abs() <= 1e-13 * ls.total);
+        for (a, c) in gs.iter().zip(&gp) {
+            assert!((a - c).abs() <= 1e-12 * (1.0 + a.abs()), "{a} vs {c}");
+        }
+    }
+}

@@ -12,6 +12,7 @@ use crate::{Error, Result};
 use faer::linalg::matmul::matmul;
 use faer::reborrow::{Reborrow, ReborrowMut};
 use faer::{Accum, MatMut, MatRef, Par};
+use rayon::prelude::*;
 
 /// Which loss terms are on, and the discount.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -45,7 +46,14 @@ pub struct LossWs<T: Real> {
     pub b: usize,
     /// Transitions per window.
     pub steps: usize,
-    enc: EncoderWs<T>,
+    /// The batch's states (column-major, `n × nx`).
+    x: Vec<T>,
+    /// One encoder workspace per part of the rows (data parallelism over threads).
+    encs: Vec<EncoderWs<T>>,
+    /// First row of each part.
+    starts: Vec<usize>,
+    /// Encoder parameter gradient of each part, summed afterwards.
+    gparts: Vec<Vec<T>>,
     u: Vec<T>,
     z: Vec<T>,
     dz: Vec<T>,
@@ -60,18 +68,34 @@ pub struct LossWs<T: Real> {
 }
 
 impl<T: Real> LossWs<T> {
-    /// Buffers for batches of `b` windows of `steps` transitions; `par` for the encoder GEMMs.
+    /// Buffers for batches of `b` windows of `steps` transitions. With `Par::Rayon(k)` the
+    /// encoder's rows are split into `k` parts that run on `k` threads (each with sequential
+    /// GEMMs, so the threads never wait on each other inside a pass); `Par::Seq` runs one part.
     pub fn new(arch: &Arch, b: usize, steps: usize, par: Par) -> Self {
         let n = (steps + 1) * b;
         let nn = arch.latent_dim();
         let nu = arch.nu;
         let d = arch.n_enc();
+        let layout = arch.layout();
+        let parts = match par {
+            Par::Seq => 1,
+            Par::Rayon(k) => k.get().clamp(1, n.max(1)),
+        };
+        let starts: Vec<usize> = (0..=parts).map(|p| p * n / parts).collect();
+        let encs = starts
+            .windows(2)
+            .map(|w| EncoderWs::new(arch, w[1] - w[0], Par::Seq))
+            .collect();
+        let gparts = (0..parts).map(|_| vec![T::default(); layout.a]).collect();
         LossWs {
             arch: arch.clone(),
-            layout: arch.layout(),
+            layout,
             b,
             steps,
-            enc: EncoderWs::new(arch, n, par),
+            x: vec![T::default(); n * arch.nx],
+            encs,
+            starts,
+            gparts,
             u: vec![T::default(); steps * b * nu],
             z: vec![T::default(); n * nn],
             dz: vec![T::default(); n * nn],
@@ -89,8 +113,7 @@ impl<T: Real> LossWs<T> {
     /// The state buffer to fill: column-major `((T+1)·b) × nx`, row `t·b + i` = state t of
     /// window i.
     pub fn states_mut(&mut self) -> &mut [T] {
-        let n = (self.steps + 1) * self.b;
-        self.enc.input_mut(n)
+        &mut self.x
     }
 
     /// The input buffer to fill: column-major `(T·b) × nu`, row `t·b + i` = input t of window i.
@@ -124,14 +147,28 @@ impl<T: Real> LossWs<T> {
         let one = T::one();
         let zero = T::default();
 
-        // ψ(x) once for every state of the batch; Z = [x, ψ].
-        self.enc.forward(params);
+        // ψ(x) once for every state of the batch (the row parts in parallel); Z = [x, ψ].
         {
-            let x = self.enc.input();
-            let psi = self.enc.output();
+            let x = view(&self.x, n, nx);
+            for (e, w) in self.encs.iter_mut().zip(self.starts.windows(2)) {
+                let rows = w[1] - w[0];
+                view_mut(e.input_mut(rows), rows, nx).copy_from(x.subrows(w[0], rows));
+            }
+        }
+        if self.encs.len() == 1 {
+            self.encs[0].forward(params);
+        } else {
+            self.encs.par_iter_mut().for_each(|e| e.forward(params));
+        }
+        {
+            let x = view(&self.x, n, nx);
             let mut z = view_mut(&mut self.z, n, nn);
             z.rb_mut().subcols_mut(0, nx).copy_from(x);
-            z.subcols_mut(nx, d).copy_from(psi);
+            for (e, w) in self.encs.iter().zip(self.starts.windows(2)) {
+                z.rb_mut()
+                    .submatrix_mut(w[0], nx, w[1] - w[0], d)
+                    .copy_from(e.output());
+            }
         }
         self.dz.fill(zero);
         for v in &mut grad[lay.a..lay.len] {
@@ -146,7 +183,7 @@ impl<T: Real> LossWs<T> {
         let wsum: f64 = weights.iter().sum();
         let z = view(&self.z, n, nn);
         let u = view(&self.u, tb, nu);
-        let x = self.enc.input();
+        let x = view(&self.x, n, nx);
         let mut parts = LossParts::default();
 
         // Prediction: ẑ_0 = Φ(x_0), ẑ_{k+1} = A ẑ_k + B u_k.
@@ -419,11 +456,26 @@ impl<T: Real> LossWs<T> {
         // Back through the encoder with the gradient w.r.t. ψ of every state.
         {
             let dz = view(&self.dz, n, nn);
-            let mut top = self.enc.output_grad_mut();
-            top.copy_from(dz.subcols(nx, d));
+            for (e, w) in self.encs.iter_mut().zip(self.starts.windows(2)) {
+                e.output_grad_mut()
+                    .copy_from(dz.submatrix(w[0], nx, w[1] - w[0], d));
+            }
         }
-        let (genc, _) = grad.split_at_mut(lay.a);
-        self.enc.backward(params, genc);
+        let genc = &mut grad[..lay.a];
+        if self.encs.len() == 1 {
+            self.encs[0].backward(params, genc);
+        } else {
+            self.encs
+                .par_iter_mut()
+                .zip(self.gparts.par_iter_mut())
+                .for_each(|(e, g)| e.backward(params, g));
+            genc.copy_from_slice(&self.gparts[0]);
+            for gp in &self.gparts[1..] {
+                for (a, b) in genc.iter_mut().zip(gp) {
+                    *a += *b;
+                }
+            }
+        }
         Ok(parts)
     }
 }
