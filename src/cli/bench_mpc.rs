@@ -61,6 +61,12 @@ struct CaseResult {
 
 /// Runs `koopbridge bench mpc`.
 pub fn run(args: BenchMpcArgs) -> anyhow::Result<()> {
+    if args.steps == 0 {
+        anyhow::bail!("--steps must be at least 1");
+    }
+    if !(args.r.is_finite() && args.r >= 0.0) {
+        anyhow::bail!("--r must be finite and ≥ 0, got {}", args.r);
+    }
     if !args.json {
         println!(
             "{:>10} {:>5} {:>3} {:>3} {:>3} {:>10} {:>10} {:>6} {:>10} {:>7} {:>8}",

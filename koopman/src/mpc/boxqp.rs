@@ -127,6 +127,13 @@ impl QpSolver for BoxQp {
     fn solve(&mut self, q: &[f64], _h: &[f64], u: &mut [f64]) -> QpOutcome {
         let start = Instant::now();
         let n = self.n;
+        if q.len() != n || u.len() != n {
+            return QpOutcome {
+                status: QpStatus::Numerical,
+                iterations: 0,
+                feasible_iterate: false,
+            };
+        }
         for i in 0..n {
             let v = if u[i].is_finite() { u[i] } else { 0.0 };
             u[i] = v.clamp(self.lo[i], self.hi[i]);

@@ -40,6 +40,13 @@ impl QpSolver for ClampedClosedForm {
     }
 
     fn solve(&mut self, q: &[f64], _h: &[f64], u: &mut [f64]) -> QpOutcome {
+        if q.len() != self.lo.len() || u.len() != self.lo.len() {
+            return QpOutcome {
+                status: QpStatus::Numerical,
+                iterations: 0,
+                feasible_iterate: false,
+            };
+        }
         for (ui, qi) in u.iter_mut().zip(q) {
             *ui = -qi;
         }

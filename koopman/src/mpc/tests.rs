@@ -457,6 +457,18 @@ fn bad_input_gives_typed_errors_never_a_panic() {
         ..cfg.clone()
     };
     assert!(MpcController::new(&model, &zero_h).is_err());
+    // The solvers themselves reject mismatched vectors instead of indexing out of bounds.
+    let h = Mat::<f64>::identity(3, 3);
+    let mut bq = boxqp::BoxQp::new(h.as_ref(), &[-1.0; 3], &[1.0; 3], 10, None).unwrap();
+    assert_eq!(
+        bq.solve(&[0.0; 2], &[], &mut [0.0; 3]).status,
+        QpStatus::Numerical
+    );
+    let mut cf = closed_form::ClampedClosedForm::new(h.as_ref(), &[-1.0; 3], &[1.0; 3]).unwrap();
+    assert_eq!(
+        cf.solve(&[0.0; 3], &[], &mut [0.0; 4]).status,
+        QpStatus::Numerical
+    );
     let wrong_q = MpcConfig {
         q: Some(vec![1.0]),
         ..cfg.clone()
