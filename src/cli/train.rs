@@ -215,7 +215,10 @@ fn train_edmd(args: &TrainArgs, splits: &Splits) -> anyhow::Result<()> {
         "config": cfg,
         "fit": model.info,
     });
-    write_atomic(&args.out.join("metrics.json"), &serde_json::to_vec_pretty(&metrics)?)?;
+    write_atomic(
+        &args.out.join("metrics.json"),
+        &serde_json::to_vec_pretty(&metrics)?,
+    )?;
     println!(
         "fitted EDMD on {} ({m} windows, {:?} pairing) in {fit_seconds:.2} s: test prediction error {test:.6} over {} windows",
         splits.train.meta.env, splits.train.meta.pairing, splits.test.n
