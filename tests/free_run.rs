@@ -44,6 +44,8 @@ fn state_stream_is_ordered_without_gaps_and_commands_are_applied() {
             "--free-run",
             "--rate",
             "500",
+            "--wait-subscriber",
+            "30",
             "--steps",
             &steps.to_string(),
         ],
@@ -72,6 +74,12 @@ fn state_stream_is_ordered_without_gaps_and_commands_are_applied() {
     }
     assert!(!states.is_empty(), "no state received");
     assert_eq!(states.last().unwrap().k, steps, "stream ended early");
+    // The adapter waited for our subscriber: nothing was lost at the start either.
+    assert_eq!(
+        (states[0].seq, states[0].k),
+        (0, 0),
+        "the start of the stream was missed"
+    );
     // Ordering and completeness from the first received state on.
     for w in states.windows(2) {
         assert_eq!(

@@ -77,6 +77,9 @@ pub struct AdapterOptions {
     pub max_payload: usize,
     /// How many past step replies are kept for idempotent retries.
     pub cache_len: usize,
+    /// Free-run: wait up to this long for a subscriber of `state` before the first tick (so
+    /// that nobody misses the start of the stream); `None` = start at once.
+    pub wait_subscriber: Option<Duration>,
 }
 
 impl AdapterOptions {
@@ -90,6 +93,7 @@ impl AdapterOptions {
             free_run: None,
             max_payload: 1 << 20,
             cache_len: 16,
+            wait_subscriber: None,
         })
     }
 }
@@ -203,6 +207,15 @@ pub fn serve(
             let rate = fr.rate_hz.unwrap_or(1.0 / a.info.dt);
             if !(rate > 0.0 && rate.is_finite()) {
                 return Err(Error::Config(format!("free-run rate {rate} Hz")));
+            }
+            if let (Some(w), Some(p)) = (opts.wait_subscriber, &publisher) {
+                let until = Instant::now() + w;
+                while Instant::now() < until && !stop.load(Ordering::Relaxed) {
+                    if p.matching_status().wait().is_ok_and(|m| m.matching()) {
+                        break;
+                    }
+                    std::thread::sleep(Duration::from_millis(20));
+                }
             }
             let x = a
                 .reset_backend(&fr.reset)

@@ -279,6 +279,8 @@ fn free_run(
         &args.rate.to_string(),
         "--steps",
         &steps.to_string(),
+        "--wait-subscriber",
+        "30",
         "--stdin-lifeline",
         "--connect",
         &cluster.endpoint,

@@ -113,6 +113,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         println!("  model '{}' (job {}): {}", t.model, t.job, t.metrics);
     }
     if let Some(c) = &report.control {
+        let png = out_dir.join("control.png");
+        match plot_control(c, &png) {
+            Ok(()) => println!("  plot: {}", png.display()),
+            Err(e) => eprintln!("warning: could not draw {}: {e:#}", png.display()),
+        }
         println!(
             "  control of '{}': final error {:.4}, time to goal {:?} steps, solve median {:.0} µs, round trip median {:.0} µs",
             c.sim, c.final_error, c.time_to_goal_steps, c.solve_median_us, c.solve_round_trip_median_us
@@ -120,4 +125,40 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     }
     println!("  report: {}", path.display());
     Ok(())
+}
+
+/// States against their references, then inputs, of a closed-loop run.
+fn plot_control(
+    c: &bridge::orchestrator::ControlReport,
+    path: &std::path::Path,
+) -> anyhow::Result<()> {
+    use crate::plot::{time_series_png, Panel, Series};
+    let t: Vec<f64> = (0..c.x.len()).map(|k| k as f64 * c.dt).collect();
+    let mut panels = Vec::new();
+    for (i, name) in c.state_names.iter().enumerate() {
+        let y: Vec<f64> = c.x.iter().map(|x| x[i]).collect();
+        let r = vec![c.reference.get(i).copied().unwrap_or(f64::NAN); t.len()];
+        panels.push(Panel {
+            title: name.clone(),
+            y_label: name.clone(),
+            series: vec![
+                Series::new(name.clone(), &t, &y),
+                Series::new("reference", &t, &r).dashed(),
+            ],
+        });
+    }
+    for (j, name) in c.input_names.iter().enumerate() {
+        let y: Vec<f64> = c.u.iter().map(|u| u[j]).collect();
+        panels.push(Panel {
+            title: name.clone(),
+            y_label: name.clone(),
+            series: vec![Series::new(name.clone(), &t[..y.len()], &y)],
+        });
+    }
+    time_series_png(
+        path,
+        &format!("{}: MPC over Zenoh ({})", c.sim, c.model),
+        &panels,
+        900,
+    )
 }

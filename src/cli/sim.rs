@@ -34,6 +34,9 @@ pub struct SimArgs {
     /// Free-run: stop after this many steps and print the adapter's counters as JSON.
     #[arg(long, requires = "free_run")]
     pub steps: Option<u64>,
+    /// Free-run: wait up to this many seconds for a subscriber of `state` before starting.
+    #[arg(long, value_name = "SECONDS", requires = "free_run")]
+    pub wait_subscriber: Option<f64>,
     /// Free-run: seed of the initial-state draw.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -71,6 +74,7 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
                 x0: None,
             },
         });
+        opts.wait_subscriber = args.wait_subscriber.map(std::time::Duration::from_secs_f64);
     }
     let stop = if args.stdin_lifeline {
         stdin_lifeline()
