@@ -15,7 +15,7 @@ use crate::error::{Error, ErrorCode, Result};
 use crate::keyexpr::{fresh_session_id, Keys, Role};
 use crate::messages::ResetRequest;
 use crate::procs::ChildProc;
-use crate::scenario::Scenario;
+use crate::scenario::{Scenario, SimSpec};
 use crate::services::trainer::{submit_and_wait, DatasetRef, JobSpec};
 use crate::session::{free_loopback_endpoint, open_session, ZenohOptions};
 
@@ -153,6 +153,19 @@ pub fn state_error(x: &[f64], r: &[f64], angles: &[usize]) -> Vec<f64> {
         .collect()
 }
 
+/// The program of an external adapter command: `{python}` is the project's venv Python if it
+/// exists (`.venv/bin/python`), else `python3` from `PATH`.
+fn external_program(first: &str) -> PathBuf {
+    if first == "{python}" {
+        let venv = Path::new(".venv/bin/python");
+        if venv.exists() {
+            return venv.to_path_buf();
+        }
+        return PathBuf::from("python3");
+    }
+    PathBuf::from(first)
+}
+
 fn median(v: &mut [f64]) -> f64 {
     if v.is_empty() {
         return f64::NAN;
@@ -182,6 +195,20 @@ impl Cluster {
         sims: &[(String, String)],
         services: &[&str],
     ) -> Result<Self> {
+        let specs: Vec<SimSpec> = sims
+            .iter()
+            .map(|(id, env)| SimSpec::builtin(id, env))
+            .collect();
+        Self::start_sims(opts, session_id, &specs, services)
+    }
+
+    /// Like [`Cluster::start`], with simulators that may be external adapter commands.
+    pub fn start_sims(
+        opts: &RunOptions,
+        session_id: &str,
+        sims: &[SimSpec],
+        services: &[&str],
+    ) -> Result<Self> {
         let keys = Keys::new(session_id)?;
         let mut z = opts.zenoh.clone();
         let endpoint = match z.listen.first() {
@@ -209,24 +236,23 @@ impl Cluster {
         };
         let mut children = Vec::new();
         let logs = opts.out_dir.join("logs");
-        for (id, env) in sims {
-            let mut a: Vec<String> = [
-                "sim",
-                "--env",
-                env,
-                "--id",
-                id,
-                "--session",
-                session_id,
-                "--stdin-lifeline",
-            ]
-            .iter()
-            .map(|s| s.to_string())
-            .collect();
+        for spec in sims {
+            let id = &spec.id;
+            let (program, mut a) = match &spec.command {
+                Some(cmd) => match cmd.split_first() {
+                    Some((first, rest)) => (external_program(first), rest.to_vec()),
+                    None => return Err(Error::Config(format!("simulator '{id}': empty command"))),
+                },
+                None => (
+                    opts.exe.clone(),
+                    vec!["sim".into(), "--env".into(), spec.env.clone()],
+                ),
+            };
+            a.extend(["--id", id, "--session", session_id, "--stdin-lifeline"].map(String::from));
             zargs(&mut a);
             children.push(ChildProc::spawn(
                 &format!("simulator '{id}'"),
-                &opts.exe,
+                &program,
                 &a,
                 &logs.join(format!("sim-{id}.log")),
             )?);
@@ -261,8 +287,7 @@ impl Cluster {
             live,
             endpoint,
         };
-        let mut who: Vec<(Role, String)> =
-            sims.iter().map(|(id, _)| (Role::Sim, id.clone())).collect();
+        let mut who: Vec<(Role, String)> = sims.iter().map(|s| (Role::Sim, s.id.clone())).collect();
         for s in services {
             let role = match *s {
                 "trainer" => Role::Trainer,
@@ -416,11 +441,6 @@ pub fn run_scenario(
 ) -> Result<Report> {
     let t0 = Instant::now();
     let session_id = opts.session.clone().unwrap_or_else(fresh_session_id);
-    let sims: Vec<(String, String)> = sc
-        .sims
-        .iter()
-        .map(|s| (s.id.clone(), s.env.clone()))
-        .collect();
     let mut services = Vec::new();
     if sc.train.is_some() {
         services.extend(["trainer", "models"]);
@@ -429,7 +449,7 @@ pub fn run_scenario(
         services.push("mpc");
     }
     on(Event::Phase("starting simulators and services"));
-    let cluster = Cluster::start(opts, &session_id, &sims, &services)?;
+    let cluster = Cluster::start_sims(opts, &session_id, &sc.sims, &services)?;
     let (client, live) = (&cluster.client, &cluster.live);
     let mut clients: Vec<SimClient> = sc
         .sims

@@ -38,8 +38,25 @@ pub struct Scenario {
 pub struct SimSpec {
     /// Its id (`[a-z0-9_-]`).
     pub id: String,
-    /// The built-in system (`koopbridge sim --env`).
+    /// The built-in system (`koopbridge sim --env`), or, with `command`, the reference system the
+    /// external simulator implements (used in reports).
     pub env: String,
+    /// An external adapter to start instead of `koopbridge sim` (program and arguments). `{python}`
+    /// as the program means the project's venv Python (`.venv/bin/python`, else `python3`). The
+    /// orchestrator appends `--id ID --session S --stdin-lifeline --connect ENDPOINT`.
+    #[serde(default)]
+    pub command: Option<Vec<String>>,
+}
+
+impl SimSpec {
+    /// A built-in reference system served by `koopbridge sim --env ENV`.
+    pub fn builtin(id: impl Into<String>, env: impl Into<String>) -> Self {
+        SimSpec {
+            id: id.into(),
+            env: env.into(),
+            command: None,
+        }
+    }
 }
 
 /// How inputs are chosen during collection.

@@ -40,8 +40,6 @@ def test_scenario_runs_end_to_end_with_a_tiny_budget(tmp_path, damped_fmu):
     sc_file.write_text(text)
     out = tmp_path / "out"
     r = subprocess.run([str(exe), "run", str(sc_file), "--out", str(out)], cwd=ROOT, capture_output=True, text=True, timeout=600)
-    if r.returncode != 0 and "unknown field `command`" in r.stderr:
-        pytest.skip("the orchestrator (bridge::scenario::SimSpec) cannot start an adapter command yet")
     assert r.returncode == 0, r.stderr[-3000:]
     report = json.loads((out / "report.json").read_text())
     text = json.dumps(report)
