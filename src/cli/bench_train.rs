@@ -62,6 +62,9 @@ struct Report {
     precision: Precision,
     threads: usize,
     loadavg_1min: Option<f64>,
+    /// Process CPU time (user + system, all threads) per timed iteration, in ms: meaningful
+    /// even when other processes load the machine.
+    cpu_ms_per_iteration: Option<f64>,
 }
 
 /// Runs `koopbridge bench train`.
@@ -99,8 +102,13 @@ pub fn run(args: BenchTrainArgs) -> anyhow::Result<()> {
     }
     cfg.iterations = args.iters;
     cfg.validate_every = args.iters;
+    let cpu0 = cpu_seconds();
     let out = train(&cfg, &data, &val, None, &mut |_| ControlFlow::Continue(()))?;
     let ips = out.metrics.iterations_per_second;
+    let cpu_ms = match (cpu0, cpu_seconds()) {
+        (Some(a), Some(b)) => Some(1000.0 * (b - a) / args.iters as f64),
+        _ => None,
+    };
     let report = Report {
         bench: "train",
         system: args.system.clone(),
@@ -118,12 +126,13 @@ pub fn run(args: BenchTrainArgs) -> anyhow::Result<()> {
             args.threads
         },
         loadavg_1min: loadavg(),
+        cpu_ms_per_iteration: cpu_ms,
     };
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
     } else {
         println!(
-            "bench train: {} n_mult {} batch {} ctrl {} cov {} {:?}, {} iterations: {:.1} it/s ({:.2} ms/it), load {:?}",
+            "bench train: {} n_mult {} batch {} ctrl {} cov {} {:?}, {} iterations: {:.1} it/s ({:.2} ms/it wall, {:.2} ms/it CPU), load {:?}",
             report.system,
             report.n_mult,
             report.batch,
@@ -133,6 +142,7 @@ pub fn run(args: BenchTrainArgs) -> anyhow::Result<()> {
             report.iterations,
             ips,
             1000.0 / ips,
+            cpu_ms.unwrap_or(f64::NAN),
             report.loadavg_1min
         );
     }
@@ -152,4 +162,12 @@ fn loadavg() -> Option<f64> {
         .next()?
         .parse()
         .ok()
+}
+
+/// User + system CPU seconds of this process (Linux `/proc/self/stat`; 10 ms resolution).
+fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let fields: Vec<&str> = stat.rsplit(')').next()?.split_whitespace().collect();
+    let ticks: f64 = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
 }
