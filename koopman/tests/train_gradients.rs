@@ -1,6 +1,9 @@
 //! Checks the hand-written gradients of the three training losses against central finite
 //! differences of an independent, naive reference implementation (per-sample loops, pinv by SVD).
 
+// The reference implementation indexes like the formulas on purpose.
+#![allow(clippy::needless_range_loop, clippy::redundant_closure)]
+
 use faer::{Mat, Par};
 use koopman::model::arch::Arch;
 use koopman::model::init::init_params;

@@ -87,7 +87,7 @@ impl Arch {
                 self.widths[0],
             ));
         }
-        if self.widths.iter().any(|&w| w == 0) {
+        if self.widths.contains(&0) {
             return Err(Error::InvalidArgument("encoder widths must be > 0".into()));
         }
         Ok(())

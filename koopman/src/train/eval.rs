@@ -70,8 +70,8 @@ impl<T: Real> PredEval<T> {
             for (k, sum) in sums.iter_mut().enumerate() {
                 for i in 0..r {
                     let u = data.input(start + i, k);
-                    for j in 0..nu {
-                        self.uk[j * r + i] = T::from_f64(u[j]);
+                    for (j, &uj) in u.iter().enumerate() {
+                        self.uk[j * r + i] = T::from_f64(uj);
                     }
                 }
                 {

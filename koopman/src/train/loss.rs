@@ -327,8 +327,8 @@ impl<T: Real> LossWs<T> {
             }
             // E = dL/dû in place of û.
             let mut loss = 0.0;
-            for k in 0..steps {
-                let coef = weights[k] / (wsum * (b * nu) as f64);
+            for (k, &wk) in weights.iter().enumerate() {
+                let coef = wk / (wsum * (b * nu) as f64);
                 let c2 = T::from_f64(2.0 * coef);
                 for j in 0..nu {
                     let mut s = 0.0;
@@ -541,7 +541,7 @@ pub fn spd_inverse(m: &[f64], n: usize) -> Option<Vec<f64>> {
                 s -= l[i * n + k] * l[j * n + k];
             }
             if i == j {
-                if !(s > 1e-13 * scale) || !s.is_finite() {
+                if s.is_nan() || s <= 1e-13 * scale || !s.is_finite() {
                     return None;
                 }
                 l[i * n + i] = s.sqrt();

@@ -107,7 +107,13 @@ fn check_config(cfg: &TrainConfig) -> Result<()> {
     if !(cfg.gamma > 0.0 && cfg.gamma.is_finite()) {
         return bad("gamma must be a positive number");
     }
-    if !(cfg.clip > 0.0) || !(cfg.lr_decay > 0.0) || cfg.lr_step == 0 || cfg.validate_every == 0 {
+    if cfg.clip.is_nan()
+        || cfg.clip <= 0.0
+        || cfg.lr_decay.is_nan()
+        || cfg.lr_decay <= 0.0
+        || cfg.lr_step == 0
+        || cfg.validate_every == 0
+    {
         return bad("clip and lr_decay must be > 0, lr_step and validate_every ≥ 1");
     }
     Ok(())
