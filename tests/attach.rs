@@ -3,9 +3,8 @@
 
 mod common;
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use bridge::keyexpr::Role;
 use bridge::orchestrator::{Cluster, SERVICES_ID};
 use bridge::services::mpc::AttachStats;
 use koopman::model::arch::Arch;
@@ -44,38 +43,8 @@ fn attached_mpc_answers_every_state_of_a_free_running_simulator() {
         matches!(again, Err(bridge::Error::Remote { ref reply, .. }) if reply.code == bridge::ErrorCode::Busy)
     );
     let steps = 400;
-    let sim = common::spawn(
-        &c,
-        &opts,
-        "fr",
-        &[
-            "sim",
-            "--env",
-            "damped-pendulum",
-            "--id",
-            "fr",
-            "--session",
-            &session,
-            "--free-run",
-            "--rate",
-            "100",
-            "--steps",
-            &steps.to_string(),
-            "--wait-subscriber",
-            "30",
-        ],
-    );
-    c.live
-        .wait_for(&[(Role::Sim, "fr".into())], common::READY)
-        .unwrap();
-    let deadline = Instant::now() + Duration::from_secs(120);
-    while !c.live.is_gone(Role::Sim, "fr") {
-        assert!(
-            Instant::now() < deadline,
-            "free-run simulator did not finish"
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    let sim = common::spawn_free_run_pendulum(&c, &opts, &session, "fr", 100, steps, &[]);
+    common::wait_until_sim_finished(&c, "fr");
     std::thread::sleep(Duration::from_millis(300));
     let b = q("attach", serde_json::json!({"sim": "fr", "detach": true})).unwrap();
     let s: AttachStats = serde_json::from_slice(&b).unwrap();

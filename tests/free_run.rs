@@ -29,27 +29,7 @@ fn state_stream_is_ordered_without_gaps_and_commands_are_applied() {
         .wait()
         .unwrap();
     let steps = 1500u64;
-    let child = common::spawn(
-        &c,
-        &opts,
-        "fr",
-        &[
-            "sim",
-            "--env",
-            "damped-pendulum",
-            "--id",
-            "fr",
-            "--session",
-            &session,
-            "--free-run",
-            "--rate",
-            "500",
-            "--wait-subscriber",
-            "30",
-            "--steps",
-            &steps.to_string(),
-        ],
-    );
+    let child = common::spawn_free_run_pendulum(&c, &opts, &session, "fr", 500, steps, &[]);
     let mut states: Vec<StateMsg> = Vec::new();
     let deadline = Instant::now() + Duration::from_secs(120);
     let mut seq = 0;

@@ -3,9 +3,8 @@
 
 mod common;
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use bridge::keyexpr::Role;
 use bridge::orchestrator::SERVICES_ID;
 use bridge::services::recorder::RecordSummary;
 
@@ -23,41 +22,10 @@ fn a_free_run_stream_is_recorded_into_exact_windows() {
     };
     q(serde_json::json!({"action": "start", "sim": "fr", "window_steps": 15})).unwrap();
     let steps = 300;
-    let _sim = common::spawn(
-        &c,
-        &opts,
-        "fr",
-        &[
-            "sim",
-            "--env",
-            "damped-pendulum",
-            "--id",
-            "fr",
-            "--session",
-            &session,
-            "--free-run",
-            "--rate",
-            "400",
-            "--steps",
-            &steps.to_string(),
-            "--wait-subscriber",
-            "30",
-            "--seed",
-            "4",
-        ],
-    );
+    let _sim =
+        common::spawn_free_run_pendulum(&c, &opts, &session, "fr", 400, steps, &["--seed", "4"]);
     // The adapter keeps its token while serving; it returns (and exits) after its steps.
-    c.live
-        .wait_for(&[(Role::Sim, "fr".into())], common::READY)
-        .unwrap();
-    let deadline = Instant::now() + Duration::from_secs(120);
-    while !c.live.is_gone(Role::Sim, "fr") {
-        assert!(
-            Instant::now() < deadline,
-            "free-run simulator did not finish"
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    common::wait_until_sim_finished(&c, "fr");
     // Its info is needed for the dataset: restart a lockstep one with the same id to answer it.
     let _info = common::spawn(
         &c,

@@ -75,3 +75,50 @@ pub fn spawn(c: &Cluster, opts: &RunOptions, name: &str, args: &[&str]) -> Child
     )
     .unwrap()
 }
+
+/// Starts `koopbridge sim --env damped-pendulum --free-run` as simulator `id` at `rate` Hz for
+/// `steps` steps, waiting up to 30 s for a state subscriber; `extra` adds more arguments.
+pub fn spawn_free_run_pendulum(
+    c: &Cluster,
+    opts: &RunOptions,
+    session: &str,
+    id: &str,
+    rate: u32,
+    steps: u64,
+    extra: &[&str],
+) -> ChildProc {
+    let (rate, steps) = (rate.to_string(), steps.to_string());
+    let mut args = vec![
+        "sim",
+        "--env",
+        "damped-pendulum",
+        "--id",
+        id,
+        "--session",
+        session,
+        "--free-run",
+        "--rate",
+        &rate,
+        "--steps",
+        &steps,
+        "--wait-subscriber",
+        "30",
+    ];
+    args.extend_from_slice(extra);
+    spawn(c, opts, id, &args)
+}
+
+/// Waits until simulator `id` has announced itself and then withdrawn its liveliness token
+/// (a free-run simulator does so after its last step); panics after 120 s.
+pub fn wait_until_sim_finished(c: &Cluster, id: &str) {
+    use bridge::keyexpr::Role;
+    c.live.wait_for(&[(Role::Sim, id.into())], READY).unwrap();
+    let deadline = std::time::Instant::now() + Duration::from_secs(120);
+    while !c.live.is_gone(Role::Sim, id) {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "free-run simulator '{id}' did not finish"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
