@@ -5,14 +5,14 @@ use std::path::PathBuf;
 /// Everything that can go wrong in `koopman`, each with a message a user can act on.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    /// A file could not be read or written.
-    #[error("{path}: {source}")]
+    /// A file could not be read or written. The OS message is part of the display text and is
+    /// deliberately not also exposed as `source()`, so that `anyhow`'s `{:#}` prints it once.
+    #[error("{}: {cause}", path.display())]
     Io {
         /// The file concerned.
         path: PathBuf,
         /// The underlying I/O error.
-        #[source]
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// A file exists but its content is not what was expected (truncated, wrong format, ...).
     #[error("{path}: {message}")]
@@ -64,7 +64,7 @@ impl Error {
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         Error::Io {
             path: path.into(),
-            source,
+            cause: source,
         }
     }
 
@@ -92,5 +92,25 @@ pub fn ensure_finite(what: &str, values: &[f64]) -> Result<()> {
         Ok(())
     } else {
         Err(Error::NonFinite(what.to_string()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn io_error_names_the_path_and_the_os_message_exactly_once_in_the_chain() {
+        let os = std::io::Error::new(std::io::ErrorKind::NotFound, "no such file");
+        let e = Error::io("data/x.npz", os);
+        // Walk the chain as `anyhow`'s `{:#}` does: each level's Display, joined.
+        let mut chain = vec![e.to_string()];
+        let mut next = std::error::Error::source(&e);
+        while let Some(s) = next {
+            chain.push(s.to_string());
+            next = s.source();
+        }
+        let full = chain.join(": ");
+        assert_eq!(full, "data/x.npz: no such file");
     }
 }

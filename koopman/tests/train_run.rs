@@ -112,6 +112,16 @@ fn save_load_round_trip_keeps_predictions_exactly() {
     );
     // The lifting's first nx coordinates are x itself.
     assert_eq!(&back.lift(&x)[..2], &x);
+    // The checked lifting agrees, and refuses wrong lengths and NaN with typed errors.
+    assert_eq!(dynm.try_lift(&x).unwrap(), out.model.lift(&x));
+    assert!(matches!(
+        dynm.try_lift(&[0.3]),
+        Err(Error::Dimension { .. })
+    ));
+    assert!(matches!(
+        dynm.try_lift(&[0.3, f64::NAN]),
+        Err(Error::NonFinite(_))
+    ));
     // A truncated weights file is a typed error, not a panic.
     let st = dir.join("model.safetensors");
     let bytes = std::fs::read(&st).unwrap();

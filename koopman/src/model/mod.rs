@@ -16,7 +16,20 @@ pub trait LiftedModel: Send + Sync {
     /// The latent input matrix B (N × nu), in f64.
     fn b(&self) -> Mat<f64>;
     /// Lifts a state: `z = Φ(x)`, `N` values.
+    ///
+    /// Precondition: `x.len() == self.nx()` (implementations panic otherwise, like slice
+    /// indexing). Use [`LiftedModel::try_lift`] for states that come from outside the program.
     fn lift(&self, x: &[f64]) -> Vec<f64>;
+
+    /// Checked [`LiftedModel::lift`]: a typed error for a state of the wrong length or with a
+    /// non-finite value, instead of a panic or a NaN latent state.
+    fn try_lift(&self, x: &[f64]) -> crate::Result<Vec<f64>> {
+        if x.len() != self.nx() {
+            return Err(crate::Error::dimension("state", self.nx(), x.len()));
+        }
+        crate::error::ensure_finite("state", x)?;
+        Ok(self.lift(x))
+    }
 }
 
 pub mod arch;
@@ -24,6 +37,7 @@ pub mod edmd;
 pub mod encoder;
 pub mod init;
 pub mod koopman;
+pub mod nndm;
 pub mod scalar;
 pub mod store;
 
@@ -40,6 +54,19 @@ pub fn load_lifted(dir: &Path) -> Result<Box<dyn LiftedModel>> {
             kind: "lifted model kind",
             name: other.to_string(),
             known: "koopman, edmd".into(),
+        }),
+    }
+}
+
+/// Loads a saved one-step model `x⁺ = f(x, u)` (for random-shooting MPC) from `dir`,
+/// dispatching on `config.json`'s `"kind"` (`nndm`).
+pub fn load_one_step(dir: &Path) -> Result<Box<dyn crate::mpc::OneStepModel>> {
+    match store::read_kind(dir)?.as_str() {
+        "nndm" => Ok(Box::new(nndm::NndmModel::load(dir)?)),
+        other => Err(Error::UnknownName {
+            kind: "one-step model kind",
+            name: other.to_string(),
+            known: "nndm".into(),
         }),
     }
 }
