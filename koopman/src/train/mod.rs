@@ -4,6 +4,7 @@
 pub mod adam;
 pub mod eval;
 pub mod loss;
+pub mod nndm;
 mod run;
 
 pub use run::train;
