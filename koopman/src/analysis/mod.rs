@@ -2,9 +2,11 @@
 //! matrix, κ(BᵀB)), spectra of A, and the scaling-law fit `E = A·D^(−α) + C`.
 
 pub mod conditioning;
+pub mod gain;
 pub mod prediction;
 pub mod scaling;
 
 pub use conditioning::{bbt_condition, eigenvalues, gram_condition, spd_condition};
+pub use gain::{gain_agreement, model_input_gain, system_input_gain, GainAgreement, InputGain};
 pub use prediction::prediction_error;
 pub use scaling::{fit_scaling_law, ScalingFit};
