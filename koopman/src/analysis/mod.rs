@@ -1,5 +1,6 @@
 //! Diagnostics of lifted models: the SPEC prediction error, conditioning (κ of the latent Gram
-//! matrix, κ(BᵀB)), spectra of A, and the scaling-law fit `E = A·D^(−α) + C`.
+//! matrix, κ(BᵀB)), spectra of A, control authority (the
+//! model's input gains against the true system's), and the scaling-law fit `E = A·D^(−α) + C`.
 
 pub mod conditioning;
 pub mod gain;
