@@ -30,6 +30,16 @@ impl Rng {
         Rng::new(seed ^ index.wrapping_mul(0xD1B5_4A32_D192_ED03).rotate_left(17))
     }
 
+    /// The generator's whole state (`s` words, cached normal draw), e.g. to checkpoint a run.
+    pub fn state(&self) -> ([u64; 4], Option<f64>) {
+        (self.s, self.spare_normal)
+    }
+
+    /// A generator that continues exactly where the one whose [`Rng::state`] this was stopped.
+    pub fn from_state(s: [u64; 4], spare_normal: Option<f64>) -> Self {
+        Rng { s, spare_normal }
+    }
+
     /// The next 64 random bits.
     pub fn next_u64(&mut self) -> u64 {
         let s = &mut self.s;
@@ -117,6 +127,12 @@ mod tests {
         let var = s2 / n as f64 - mean * mean;
         assert!(mean.abs() < 0.01, "mean {mean}");
         assert!((var - 1.0).abs() < 0.02, "var {var}");
+        let mut c = Rng::new(5);
+        c.normal();
+        let (s, spare) = c.state();
+        let mut d = Rng::from_state(s, spare);
+        assert_eq!(c.normal(), d.normal());
+        assert_eq!(c.next_u64(), d.next_u64());
         let mut u = Rng::new(9);
         let m: f64 = (0..n).map(|_| u.uniform(-2.0, 4.0)).sum::<f64>() / n as f64;
         assert!((m - 1.0).abs() < 0.02, "uniform mean {m}");

@@ -34,6 +34,22 @@ impl<T: Real> Adam<T> {
         self.t
     }
 
+    /// The moments `(m, v)` (to checkpoint a run).
+    pub fn moments(&self) -> (&[T], &[T]) {
+        (&self.m, &self.v)
+    }
+
+    /// Adam with the given moments after `t` steps (restores a checkpoint); `None` if the
+    /// moments' lengths differ.
+    pub fn from_state(m: Vec<T>, v: Vec<T>, t: u64) -> Option<Self> {
+        (m.len() == v.len()).then(|| Adam {
+            m,
+            v,
+            t,
+            ..Adam::new(0)
+        })
+    }
+
     /// One step with learning rate `lr`: `p −= lr/(1−β1ᵗ) · m / (√v/√(1−β2ᵗ) + ε)`.
     pub fn step(&mut self, params: &mut [T], grad: &[T], lr: f64) {
         self.t += 1;

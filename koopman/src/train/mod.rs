@@ -2,12 +2,14 @@
 //! Adam with step decay and gradient clipping, validation and best-checkpoint selection.
 
 pub mod adam;
+pub mod checkpoint;
 pub mod eval;
 pub mod loss;
 pub mod nndm;
 mod run;
 
-pub use run::train;
+pub use checkpoint::Checkpoint;
+pub use run::{train, train_resumable};
 
 use crate::data::Dataset;
 use crate::model::koopman::KoopmanModel;

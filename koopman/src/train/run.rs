@@ -1,6 +1,7 @@
 //! The training loop: sampling, loss and gradient, clipping, Adam, validation, checkpoints.
 
 use super::adam::{clip_grad_norm, step_lr, Adam};
+use super::checkpoint::{data_fingerprint, Checkpoint};
 use super::eval::{check_dataset, PredEval};
 use super::loss::{LossOptions, LossParts, LossWs};
 use super::{Precision, Progress, TrainConfig, TrainMetrics, TrainOutcome};
@@ -24,6 +25,23 @@ pub fn train(
     val: &Dataset,
     test: Option<&Dataset>,
     observer: &mut dyn FnMut(&Progress) -> ControlFlow<()>,
+) -> Result<TrainOutcome> {
+    train_resumable(cfg, train, val, test, None, observer, &mut |_| {})
+}
+
+/// [`train`] that can be interrupted and continued: `on_checkpoint` receives a [`Checkpoint`]
+/// after every validation (every `validate_every` iterations and the last one), and a run given
+/// `resume: Some(checkpoint)` continues from it. With the same `threads`, a resumed run ends with
+/// bit-for-bit the model and metrics (timings aside) of an uninterrupted one. A checkpoint of
+/// another configuration or other data is refused with [`Error::InvalidArgument`].
+pub fn train_resumable(
+    cfg: &TrainConfig,
+    train: &Dataset,
+    val: &Dataset,
+    test: Option<&Dataset>,
+    resume: Option<&Checkpoint>,
+    observer: &mut dyn FnMut(&Progress) -> ControlFlow<()>,
+    on_checkpoint: &mut dyn FnMut(&Checkpoint),
 ) -> Result<TrainOutcome> {
     check_config(cfg)?;
     let (nx, nu) = (train.nx, train.nu);
@@ -54,10 +72,22 @@ pub fn train(
         )));
     }
     let arch = Arch::new(nx, nu, &cfg.hidden, cfg.n_mult)?;
+    let fingerprint = data_fingerprint(train, m, val);
+    if let Some(ck) = resume {
+        ck.check_compatible(cfg, arch.num_params(), fingerprint)?;
+    }
     let start = Instant::now();
+    let ctx = LoopCtx {
+        cfg,
+        arch: &arch,
+        train,
+        m,
+        val,
+        fingerprint,
+    };
     let (best, best_val, best_it, its, last) = match cfg.precision {
-        Precision::F32 => run_loop::<f32>(cfg, &arch, train, m, val, observer)?,
-        Precision::F64 => run_loop::<f64>(cfg, &arch, train, m, val, observer)?,
+        Precision::F32 => run_loop::<f32>(&ctx, resume, observer, on_checkpoint)?,
+        Precision::F64 => run_loop::<f64>(&ctx, resume, observer, on_checkpoint)?,
     };
     let train_secs = its;
     let mut model = KoopmanModel::from_params(arch.clone(), best)?;
@@ -123,35 +153,83 @@ fn check_config(cfg: &TrainConfig) -> Result<()> {
 /// last batch's losses)
 type LoopResult = (Vec<f64>, f64, usize, f64, LossParts);
 
-fn run_loop<T: Real>(
-    cfg: &TrainConfig,
-    arch: &Arch,
-    train: &Dataset,
+/// What the loop trains on.
+struct LoopCtx<'a> {
+    cfg: &'a TrainConfig,
+    arch: &'a Arch,
+    train: &'a Dataset,
     m: usize,
-    val: &Dataset,
+    val: &'a Dataset,
+    fingerprint: u64,
+}
+
+fn to_t<T: Real>(v: &[f64]) -> Vec<T> {
+    v.iter().map(|&x| T::from_f64(x)).collect()
+}
+
+fn to_f64<T: Real>(v: &[T]) -> Vec<f64> {
+    v.iter().map(|x| x.to_f64()).collect()
+}
+
+fn run_loop<T: Real>(
+    ctx: &LoopCtx<'_>,
+    resume: Option<&Checkpoint>,
     observer: &mut dyn FnMut(&Progress) -> ControlFlow<()>,
+    on_checkpoint: &mut dyn FnMut(&Checkpoint),
 ) -> Result<LoopResult> {
+    let LoopCtx {
+        cfg,
+        arch,
+        train,
+        m,
+        val,
+        fingerprint,
+    } = *ctx;
     let par = Par::rayon(cfg.threads);
-    let init = init_params(arch, &mut Rng::new(cfg.seed))?;
-    let mut params: Vec<T> = init.iter().map(|&v| T::from_f64(v)).collect();
+    let mut params: Vec<T> = match resume {
+        Some(ck) => to_t(&ck.params),
+        None => to_t(&init_params(arch, &mut Rng::new(cfg.seed))?),
+    };
     let mut grad = vec![T::default(); params.len()];
-    let mut best: Vec<T> = params.clone();
-    let mut adam = Adam::<T>::new(params.len());
+    let mut best: Vec<T> = match resume {
+        Some(ck) => to_t(&ck.best),
+        None => params.clone(),
+    };
+    let mut adam = match resume {
+        Some(ck) => Adam::<T>::from_state(to_t(&ck.adam_m), to_t(&ck.adam_v), ck.adam_steps)
+            .filter(|a| a.moments().0.len() == params.len())
+            .ok_or_else(|| {
+                Error::InvalidArgument(
+                    "cannot resume: the checkpoint's Adam moments do not match the parameters"
+                        .into(),
+                )
+            })?,
+        None => Adam::<T>::new(params.len()),
+    };
     let (b, steps, nx, nu) = (cfg.batch, train.steps, arch.nx, arch.nu);
     let mut ws = LossWs::<T>::new(arch, b, steps, par);
     let mut eval = PredEval::<T>::new(arch, 2048, par);
-    let mut rng = Rng::derive(cfg.seed, 1);
+    let mut rng = match resume {
+        Some(ck) => Rng::from_state(ck.rng, ck.rng_spare),
+        None => Rng::derive(cfg.seed, 1),
+    };
     let mut idx = vec![0usize; b];
     let opts = LossOptions {
         gamma: cfg.gamma,
         ctrl: cfg.ctrl,
         cov: cfg.cov,
     };
-    let (mut best_val, mut best_it) = (f64::INFINITY, 0);
-    let mut iter_secs = 0.0;
-    let mut last = LossParts::default();
+    let (mut best_val, mut best_it) = match resume {
+        Some(ck) => (
+            ck.best_validation.unwrap_or(f64::INFINITY),
+            ck.best_iteration,
+        ),
+        None => (f64::INFINITY, 0),
+    };
+    let mut iter_secs = resume.map_or(0.0, |ck| ck.iter_seconds);
+    let mut last = resume.map_or(LossParts::default(), |ck| ck.last_loss);
     let n = (steps + 1) * b;
-    for it in 0..cfg.iterations {
+    for it in resume.map_or(0, |ck| ck.iteration)..cfg.iterations {
         let t0 = Instant::now();
         for v in idx.iter_mut() {
             *v = rng.below(m);
@@ -214,6 +292,26 @@ fn run_loop<T: Real>(
         };
         if observer(&progress).is_break() {
             return Err(Error::Cancelled);
+        }
+        if validation.is_some() {
+            let (am, av) = adam.moments();
+            let (state, spare) = rng.state();
+            on_checkpoint(&Checkpoint {
+                iteration: done,
+                config: cfg.clone(),
+                data_fingerprint: fingerprint,
+                params: to_f64(&params),
+                adam_m: to_f64(am),
+                adam_v: to_f64(av),
+                adam_steps: adam.steps(),
+                rng: state,
+                rng_spare: spare,
+                best: to_f64(&best),
+                best_validation: best_val.is_finite().then_some(best_val),
+                best_iteration: best_it,
+                iter_seconds: iter_secs,
+                last_loss: last,
+            });
         }
     }
     if !best_val.is_finite() {
