@@ -49,7 +49,10 @@ pub fn holding_input(
     let residual_at = |u: &[f64]| {
         let mut next = vec![0.0; nx];
         system.step(x_ref, u, &mut next);
-        next.iter().zip(x_ref).map(|(a, b)| a - b).collect::<Vec<_>>()
+        next.iter()
+            .zip(x_ref)
+            .map(|(a, b)| a - b)
+            .collect::<Vec<_>>()
     };
     let norm = |v: &[f64]| v.iter().map(|e| e * e).sum::<f64>().sqrt();
     let mut u = vec![0.0; nu];
@@ -154,7 +157,10 @@ mod tests {
         // At rest C = 0, so τ = G (SPEC): G1 = 2·9.8 cos θ1 + 9.8 cos(θ1 + θ2), G2 = 9.8 cos(θ1 + θ2).
         let g1 = 2.0 * 9.8 * t1.cos() + 9.8 * (t1 + t2).cos();
         let g2 = 9.8 * (t1 + t2).cos();
-        assert!((h.u[0] - g1).abs() < 1e-5 && (h.u[1] - g2).abs() < 1e-5, "{h:?}");
+        assert!(
+            (h.u[0] - g1).abs() < 1e-5 && (h.u[1] - g2).abs() < 1e-5,
+            "{h:?}"
+        );
         assert!(h.residual < 1e-9);
         assert!(!h.within_bounds && h.bound_ratio > 2.0, "{h:?}");
     }

@@ -29,7 +29,9 @@ impl InputGain {
             .first()
             .map(|g| (g.nrows(), g.ncols()))
             .unwrap_or((0, 0));
-        Mat::from_fn(self.gains.len() * nx, nu, |i, j| self.gains[i / nx][(i % nx, j)])
+        Mat::from_fn(self.gains.len() * nx, nu, |i, j| {
+            self.gains[i / nx][(i % nx, j)]
+        })
     }
 }
 
@@ -129,7 +131,11 @@ pub fn gain_agreement(model: &InputGain, reference: &InputGain) -> Result<GainAg
             "the reference gain is zero: the input does not move the state".into(),
         ));
     }
-    let cosine = if mm == 0.0 { 0.0 } else { dot / (mm * rr).sqrt() };
+    let cosine = if mm == 0.0 {
+        0.0
+    } else {
+        dot / (mm * rr).sqrt()
+    };
     Ok(GainAgreement {
         projection: dot / rr,
         cosine,
@@ -226,7 +232,11 @@ mod tests {
         let down = at(0.0).unwrap();
         let over = at(-2.5).unwrap();
         // θ̇ one step after u: ≈ dt·cos θ (dt = 0.02).
-        assert!((down.gains[0][(1, 0)] - 0.02).abs() < 2e-3, "{:?}", down.gains[0]);
+        assert!(
+            (down.gains[0][(1, 0)] - 0.02).abs() < 2e-3,
+            "{:?}",
+            down.gains[0]
+        );
         assert!(over.gains[0][(1, 0)] < 0.0 && down.gains[0][(1, 0)] > 0.0);
         let agree = gain_agreement(&over, &down).unwrap();
         assert!(agree.cosine < -0.5, "{agree:?}");
