@@ -36,7 +36,7 @@ pub use config::{MpcConfig, SolverKind};
 pub use controller::{FallbackReason, MpcController, MpcSolution, SolveStatus};
 pub use lqr::Lqr;
 pub use matrix_model::{Activation, MatrixModel};
-pub use policy::{Action, LqrPolicy, Policy, ShootingPolicy};
+pub use policy::{Action, ConstantPolicy, LqrPolicy, Policy, ShootingPolicy};
 pub use qp::{QpOutcome, QpSolver, QpStatus};
 pub use shooting::{OneStepModel, RandomShooting, SystemAsModel};
 

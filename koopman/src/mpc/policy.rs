@@ -140,3 +140,43 @@ impl Policy for ShootingPolicy<'_> {
         })
     }
 }
+
+/// Applies a constant input (zero by default): the "do nothing" baseline every controller must
+/// beat — on the damped pendulum gravity and damping alone bring the state towards rest.
+pub struct ConstantPolicy {
+    u: Vec<f64>,
+}
+
+impl ConstantPolicy {
+    /// A policy that always applies `u`; errors on a non-finite value.
+    pub fn new(u: Vec<f64>) -> Result<Self> {
+        crate::error::ensure_finite("constant input", &u)?;
+        Ok(ConstantPolicy { u })
+    }
+
+    /// The zero input of dimension `nu`.
+    pub fn zero(nu: usize) -> Self {
+        ConstantPolicy { u: vec![0.0; nu] }
+    }
+}
+
+impl Policy for ConstantPolicy {
+    fn name(&self) -> String {
+        if self.u.iter().all(|&v| v == 0.0) {
+            "zero-input".into()
+        } else {
+            "constant-input".into()
+        }
+    }
+    fn horizon(&self) -> usize {
+        1
+    }
+    fn act(&mut self, x: &[f64], _current: &[f64], _future: &[f64]) -> Result<Action> {
+        crate::error::ensure_finite("state", x)?;
+        Ok(Action {
+            u: self.u.clone(),
+            solve_time: Duration::ZERO,
+            fallback: false,
+        })
+    }
+}

@@ -223,3 +223,34 @@ fn fitted_model_mpc_brings_the_damped_pendulum_closer_without_violations() {
         .all(|v| v.is_finite() && v.abs() <= 8.0));
     assert!(m.final_error < 2.5, "{m:?}");
 }
+
+#[test]
+fn zero_input_baseline_is_the_free_response_of_the_system() {
+    let sys = crate::systems::by_name("damped-pendulum").unwrap();
+    let (lo, hi) = sys.input_bounds();
+    let task = Task::standard(sys.as_ref(), TaskKind::Regulate).unwrap();
+    let mut pol = super::ConstantPolicy::zero(1);
+    let (m, tr) = run_closed_loop(
+        sys.as_ref(),
+        &mut pol,
+        &task,
+        &lo,
+        &hi,
+        &GoalSpec::default(),
+        |_, _| {},
+    )
+    .unwrap();
+    // Independent: step the system with u = 0 by hand.
+    let mut x = task.x0.clone();
+    let mut next = vec![0.0; 2];
+    for _ in 0..task.steps {
+        sys.step(&x, &[0.0], &mut next);
+        std::mem::swap(&mut x, &mut next);
+    }
+    assert_eq!(tr.x.last().unwrap(), &x);
+    assert!(tr.u.iter().all(|u| u == &[0.0]));
+    assert_eq!(m.controller, "zero-input");
+    // Gravity and damping alone leave the pendulum swinging (|θ| ≈ 0.3 after 4 s from −2.5).
+    assert!(m.final_error > 0.05, "{m:?}");
+    assert!(super::ConstantPolicy::new(vec![f64::NAN]).is_err());
+}
