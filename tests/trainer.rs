@@ -48,6 +48,7 @@ fn jobs_train_store_models_and_resume_after_a_restart() {
         metrics: None,
         error: None,
         attempts: 1,
+        resumed_from: 0,
     };
     std::fs::write(
         jobs.join("j0000-stale.json"),

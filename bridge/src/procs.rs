@@ -18,6 +18,17 @@ pub struct ChildProc {
 impl ChildProc {
     /// Starts `exe args…` with stdin piped (the lifeline) and output to `log`.
     pub fn spawn(name: &str, exe: &Path, args: &[String], log: &Path) -> Result<Self> {
+        Self::spawn_env(name, exe, args, &[], log)
+    }
+
+    /// [`ChildProc::spawn`] with extra environment variables `env` (name, value).
+    pub fn spawn_env(
+        name: &str,
+        exe: &Path,
+        args: &[String],
+        env: &[(&str, &str)],
+        log: &Path,
+    ) -> Result<Self> {
         let io = |p: &Path, e| Error::Io {
             path: p.to_path_buf(),
             source: e,
@@ -29,6 +40,7 @@ impl ChildProc {
         let err = out.try_clone().map_err(|e| io(log, e))?;
         let child = Command::new(exe)
             .args(args)
+            .envs(env.iter().copied())
             .stdin(Stdio::piped())
             .stdout(Stdio::from(out))
             .stderr(Stdio::from(err))

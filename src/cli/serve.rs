@@ -46,6 +46,12 @@ pub struct ServeArgs {
     /// Trainer: how many jobs run at the same time.
     #[arg(long, default_value_t = 1)]
     pub max_jobs: usize,
+    /// Trainer: threads of a job whose config does not set `threads`. The gradient is summed
+    /// over one row part per thread, so a model's bits depend on this number: keeping it fixed
+    /// (rather than "all cores") makes the same job give the same model on every machine.
+    #[arg(long, default_value_t = bridge::services::koopman_trainer::DEFAULT_TRAIN_THREADS,
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
+    pub train_threads: usize,
     /// Exit when standard input closes (used by `koopbridge run`).
     #[arg(long)]
     pub stdin_lifeline: bool,
@@ -85,7 +91,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
             args.state_dir.clone(),
             stop.clone(),
         );
-        let max_jobs = args.max_jobs;
+        let (max_jobs, train_threads) = (args.max_jobs, args.train_threads);
         threads.push((
             s,
             std::thread::spawn(move || -> bridge::Result<()> {
@@ -103,6 +109,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
                         &store,
                         &state.join("trainer"),
                         max_jobs,
+                        train_threads,
                         &stop,
                     ),
                     Service::Recorder => bridge::services::recorder::serve(

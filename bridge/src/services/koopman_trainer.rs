@@ -1,5 +1,6 @@
 //! The trainer service's [`Trainer`] for the neural Koopman model of `koopman::train`: loads the
-//! job's datasets (files or recordings fetched over Zenoh), trains, saves the model.
+//! job's datasets (files or recordings fetched over Zenoh), trains from scratch or from the job's
+//! checkpoint, checkpoints at every validation, saves the model.
 
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
@@ -8,7 +9,9 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use koopman::data::Dataset;
-use koopman::train::{train, TrainConfig};
+use koopman::model::arch::Arch;
+use koopman::train::checkpoint::data_fingerprint;
+use koopman::train::{train_resumable, Checkpoint, TrainConfig};
 use zenoh::Session;
 
 use super::trainer::{serve_with, DatasetRef, JobSpec, Trainer};
@@ -16,16 +19,35 @@ use crate::client::Client;
 use crate::error::{Error, Result};
 use crate::keyexpr::{validate_chunk, Keys};
 
+/// Threads (and so row parts of the gradient) of a job that does not set `threads`. The
+/// gradient is summed over one row part per thread, so the bits of a trained model depend on this
+/// number; the service fixes it (instead of "all cores") so that the same job gives the same
+/// model on every machine.
+pub const DEFAULT_TRAIN_THREADS: usize = 2;
+
 /// Trains `koopman::model::koopman::KoopmanModel`s.
 pub struct KoopmanTrainer {
     client: Client,
     fetch_dir: PathBuf,
+    threads: usize,
 }
 
 impl KoopmanTrainer {
-    /// A trainer that fetches recordings through `client` into `fetch_dir`.
+    /// A trainer that fetches recordings through `client` into `fetch_dir` and trains jobs that
+    /// do not set `threads` with [`DEFAULT_TRAIN_THREADS`].
     pub fn new(client: Client, fetch_dir: PathBuf) -> Self {
-        KoopmanTrainer { client, fetch_dir }
+        KoopmanTrainer {
+            client,
+            fetch_dir,
+            threads: DEFAULT_TRAIN_THREADS,
+        }
+    }
+
+    /// The same trainer with another default thread count (≥ 1) for jobs that do not set
+    /// `threads`.
+    pub fn with_threads(mut self, threads: usize) -> Self {
+        self.threads = threads.max(1);
+        self
     }
 
     fn load(&self, r: &DatasetRef) -> Result<Dataset> {
@@ -52,7 +74,39 @@ impl KoopmanTrainer {
     }
 }
 
+/// The checkpoint in `path` if it can continue this job; `None` (with a warning) if there is none,
+/// it is damaged, or it belongs to another configuration or other data.
+fn usable_checkpoint(
+    path: &Path,
+    cfg: &TrainConfig,
+    tr: &Dataset,
+    va: &Dataset,
+) -> Option<Checkpoint> {
+    if !path.exists() {
+        return None;
+    }
+    let check = || -> koopman::Result<Checkpoint> {
+        let ck = Checkpoint::load(path)?;
+        let arch = Arch::new(tr.nx, tr.nu, &cfg.hidden, cfg.n_mult)?;
+        let m = cfg.train_samples.unwrap_or(tr.n).min(tr.n);
+        ck.check_compatible(cfg, arch.num_params(), data_fingerprint(tr, m, va))?;
+        Ok(ck)
+    };
+    match check() {
+        Ok(ck) => Some(ck),
+        Err(e) => {
+            tracing::warn!(
+                "ignoring checkpoint {}: {e}; the job starts from scratch",
+                path.display()
+            );
+            None
+        }
+    }
+}
+
 /// `TrainConfig` from SPEC defaults overlaid with the job's fields (unknown fields are an error).
+/// `threads` keeps its default (0 = all cores) here; the service fills it in, see
+/// [`DEFAULT_TRAIN_THREADS`].
 pub fn train_config(fields: &serde_json::Map<String, serde_json::Value>) -> Result<TrainConfig> {
     let mut v =
         serde_json::to_value(TrainConfig::default()).map_err(|e| Error::Config(e.to_string()))?;
@@ -73,21 +127,58 @@ impl Trainer for KoopmanTrainer {
         &self,
         spec: &JobSpec,
         out_dir: &Path,
+        checkpoint: &Path,
         progress: &mut dyn FnMut(serde_json::Value) -> ControlFlow<()>,
     ) -> Result<serde_json::Value> {
-        let cfg = train_config(&spec.config)?;
+        let mut cfg = train_config(&spec.config)?;
+        if !spec.config.contains_key("threads") {
+            cfg.threads = self.threads;
+        }
         let tr = self.load(&spec.train)?;
         let va = self.load(&spec.val)?;
         let te = spec.test.as_ref().map(|t| self.load(t)).transpose()?;
-        let mut obs =
-            |p: &koopman::train::Progress| progress(serde_json::to_value(p).unwrap_or_default());
-        let outcome = train(&cfg, &tr, &va, te.as_ref(), &mut obs)?;
+        let resume = usable_checkpoint(checkpoint, &cfg, &tr, &va);
+        let resumed_from = resume.as_ref().map_or(0, |c| c.iteration);
+        if resumed_from > 0 {
+            tracing::info!(
+                "resuming job for model '{}' at iteration {resumed_from}",
+                spec.model
+            );
+        }
+        let mut obs = |p: &koopman::train::Progress| {
+            let mut v = serde_json::to_value(p).unwrap_or_default();
+            if let Some(o) = v.as_object_mut() {
+                o.insert("resumed_from".into(), resumed_from.into());
+            }
+            progress(v)
+        };
+        let mut save = |c: &Checkpoint| {
+            if let Err(e) = c.save(checkpoint) {
+                tracing::warn!("could not write checkpoint {}: {e}", checkpoint.display());
+            }
+        };
+        let outcome = train_resumable(
+            &cfg,
+            &tr,
+            &va,
+            te.as_ref(),
+            resume.as_ref(),
+            &mut obs,
+            &mut save,
+        )?;
         outcome.model.save(out_dir)?;
-        serde_json::to_value(&outcome.metrics).map_err(|e| Error::Config(e.to_string()))
+        let mut metrics =
+            serde_json::to_value(&outcome.metrics).map_err(|e| Error::Config(e.to_string()))?;
+        if let Some(o) = metrics.as_object_mut() {
+            o.insert("resumed_from".into(), resumed_from.into());
+        }
+        Ok(metrics)
     }
 }
 
-/// Serves trainer `id` with the Koopman trainer (see [`serve_with`]).
+/// Serves trainer `id` with the Koopman trainer (see [`serve_with`]); jobs that do not set
+/// `threads` train with `threads` threads.
+#[allow(clippy::too_many_arguments)]
 pub fn serve(
     session: &Session,
     keys: &Keys,
@@ -95,9 +186,11 @@ pub fn serve(
     store: &Path,
     state_dir: &Path,
     max_jobs: usize,
+    threads: usize,
     stop: &AtomicBool,
 ) -> Result<()> {
     let client = Client::new(session.clone(), keys.clone());
-    let trainer = Arc::new(KoopmanTrainer::new(client, state_dir.join("fetched")));
+    let trainer =
+        Arc::new(KoopmanTrainer::new(client, state_dir.join("fetched")).with_threads(threads));
     serve_with(session, keys, id, store, state_dir, max_jobs, trainer, stop)
 }

@@ -1,6 +1,7 @@
 //! The trainer service: accepts training jobs at `…/trainer/{id}/jobs`, runs up to `max_jobs` of
-//! them at once on worker threads, publishes progress, persists every job spec so that a restarted
-//! service re-runs its unfinished jobs from scratch, and stores finished models in the store.
+//! them at once on worker threads, publishes progress, persists every job spec and a checkpoint at
+//! every validation so that a restarted service resumes its unfinished jobs where they were, and
+//! stores finished models in the store.
 
 use std::collections::{HashMap, VecDeque};
 use std::ops::ControlFlow;
@@ -84,9 +85,13 @@ pub struct JobRecord {
     /// Error message when failed.
     #[serde(default)]
     pub error: Option<String>,
-    /// How many times the job was started (a restarted service re-runs unfinished jobs).
+    /// How many times the job was started (a restarted service resumes unfinished jobs).
     #[serde(default)]
     pub attempts: u32,
+    /// Iteration the latest attempt started from (0 = from scratch; > 0 = resumed from the
+    /// job's checkpoint).
+    #[serde(default)]
+    pub resumed_from: u64,
 }
 
 /// The `jobs` reply to a submission.
@@ -100,11 +105,15 @@ pub struct SubmitReply {
 
 /// What actually trains: loads the data, trains, writes the model into `out_dir`, returns metrics.
 pub trait Trainer: Send + Sync {
-    /// Runs one job. `progress` receives JSON progress messages and may cancel with `Break`.
+    /// Runs one job. `checkpoint` is the job's checkpoint file: continue from it if it exists
+    /// and fits the job, and (re)write it atomically as training goes; the service deletes it
+    /// when the job ends. `progress` receives JSON progress messages (a `resumed_from` field is
+    /// copied into the job record) and may cancel with `Break`.
     fn train(
         &self,
         spec: &JobSpec,
         out_dir: &Path,
+        checkpoint: &Path,
         progress: &mut dyn FnMut(serde_json::Value) -> ControlFlow<()>,
     ) -> Result<serde_json::Value>;
 }
@@ -145,7 +154,9 @@ fn new_job_id(n: usize) -> String {
 }
 
 /// Serves trainer `id` with any [`Trainer`]. Unfinished jobs found in `state_dir/jobs` are queued
-/// again first (re-run from their persisted spec).
+/// again first (resumed from their checkpoint `jobs/{job}.ckpt` when there is one). Submitting a
+/// spec equal to that of a queued or running job returns that job (idempotent submission, so a
+/// restarted client finds its job again).
 #[allow(clippy::too_many_arguments)]
 pub fn serve_with(
     session: &Session,
@@ -187,10 +198,7 @@ pub fn serve_with(
     let mut counter = found.len();
     for mut r in found {
         if matches!(r.state, JobState::Queued | JobState::Running) {
-            tracing::info!(
-                "trainer '{id}': resuming unfinished job {} (re-run from its spec)",
-                r.job
-            );
+            tracing::info!("trainer '{id}': resuming unfinished job {}", r.job);
             r.state = JobState::Queued;
             write_record(&dir, &r);
             shared
@@ -297,6 +305,20 @@ pub fn serve_with(
             }
             let spec: JobSpec = parse_json("job", &body)?;
             validate_chunk("model name", &spec.model).map_err(|e| e.to_reply())?;
+            let same = shared
+                .jobs
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .values()
+                .filter(|r| {
+                    matches!(r.state, JobState::Queued | JobState::Running) && r.spec == spec
+                })
+                .min_by(|a, b| a.job.cmp(&b.job))
+                .map(|r| (r.job.clone(), r.state));
+            if let Some((job, state)) = same {
+                tracing::info!("trainer '{id}': submission equals unfinished job {job}");
+                return to_json(&SubmitReply { job, state });
+            }
             counter += 1;
             let job = new_job_id(counter);
             let r = JobRecord {
@@ -307,6 +329,7 @@ pub fn serve_with(
                 metrics: None,
                 error: None,
                 attempts: 0,
+                resumed_from: 0,
             };
             write_record(&dir, &r);
             shared
@@ -373,6 +396,7 @@ fn worker(
             if r.state == JobState::Queued {
                 r.state = JobState::Running;
                 r.attempts += 1;
+                r.resumed_from = 0;
             }
         }) else {
             continue;
@@ -390,6 +414,7 @@ fn worker(
             .insert(job.clone(), flag.clone());
         let progress_key = keys.trainer_progress(id, &job).ok();
         let tmp = store.join(format!(".{}.tmp-{job}", rec.spec.model));
+        let checkpoint = shared.dir.join(format!("{job}.ckpt"));
         let _ = std::fs::remove_dir_all(&tmp);
         let mut last_put = std::time::Instant::now() - Duration::from_secs(1);
         let outcome = std::fs::create_dir_all(&tmp)
@@ -398,7 +423,7 @@ fn worker(
                 source: e,
             })
             .and_then(|_| {
-                trainer.train(&rec.spec, &tmp, &mut |p| {
+                trainer.train(&rec.spec, &tmp, &checkpoint, &mut |p| {
                     let last = p.get("iteration").and_then(|v| v.as_u64())
                         == p.get("total").and_then(|v| v.as_u64());
                     if last_put.elapsed() > Duration::from_millis(200)
@@ -415,7 +440,11 @@ fn worker(
                                 .put(k, serde_json::to_vec(&msg).unwrap_or_default())
                                 .wait();
                         }
-                        shared.update(&job, |r| r.progress = Some(p));
+                        let from = p.get("resumed_from").and_then(|v| v.as_u64());
+                        shared.update(&job, |r| {
+                            r.resumed_from = from.unwrap_or(r.resumed_from);
+                            r.progress = Some(p);
+                        });
                     }
                     if flag.load(Ordering::Relaxed) {
                         ControlFlow::Break(())
@@ -474,6 +503,8 @@ fn worker(
             }
         };
         if let Some(r) = finished {
+            // The job has ended (done, failed or cancelled): its checkpoint is of no more use.
+            let _ = std::fs::remove_file(&checkpoint);
             tracing::info!("trainer '{id}': job {} {:?}", r.job, r.state);
             write_record(&shared.dir, &r);
             if let Some(k) = &progress_key {
