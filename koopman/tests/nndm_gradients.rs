@@ -14,7 +14,9 @@ fn random_data(n: usize, steps: usize, nx: usize, nu: usize, rng: &mut Rng) -> D
     let x = (0..n * (steps + 1) * nx)
         .map(|_| rng.uniform(-2.0, 2.0))
         .collect();
-    let u = (0..n * steps * nu).map(|_| rng.uniform(-1.5, 1.5)).collect();
+    let u = (0..n * steps * nu)
+        .map(|_| rng.uniform(-1.5, 1.5))
+        .collect();
     Dataset {
         n,
         steps,
@@ -114,7 +116,10 @@ fn check(nx: usize, nu: usize, hidden: &[usize], par: Par, seed: u64) {
                 .sum::<f64>()
                 .sqrt();
             let norm: f64 = fd.iter().map(|v| v * v).sum::<f64>().sqrt();
-            assert!(norm > 1e-8, "layer {l} {name}: zero gradient, test is vacuous");
+            assert!(
+                norm > 1e-8,
+                "layer {l} {name}: zero gradient, test is vacuous"
+            );
             assert!(
                 diff / norm <= 1e-6,
                 "layer {l} {name}: relative error {:.3e} (‖fd‖ = {norm:.3e})",

@@ -117,10 +117,7 @@ fn save_load_round_trip_keeps_predictions_and_step_matches_the_batched_rollout()
     one.predict(&x, &u, &mut next);
     assert_eq!(next.to_vec(), out.model.step(&x, &u).unwrap());
     // load_lifted stays for lifted models.
-    assert!(matches!(
-        load_lifted(&dir),
-        Err(Error::UnknownName { .. })
-    ));
+    assert!(matches!(load_lifted(&dir), Err(Error::UnknownName { .. })));
     // The batched rollout (training/eval path) agrees with repeated single steps.
     let mut manual = 0.0;
     let (gamma, steps) = (0.8f64, va.steps);
@@ -129,12 +126,17 @@ fn save_load_round_trip_keeps_predictions_and_step_matches_the_batched_rollout()
         let mut xh = va.state(i, 0).to_vec();
         for t in 0..steps {
             xh = back.step(&xh, va.input(i, t)).unwrap();
-            let e: f64 = (0..2).map(|j| (xh[j] - va.state(i, t + 1)[j]).powi(2)).sum();
+            let e: f64 = (0..2)
+                .map(|j| (xh[j] - va.state(i, t + 1)[j]).powi(2))
+                .sum();
             manual += gamma.powi(t as i32) * e / (va.n * 2) as f64;
         }
     }
     let batched = prediction_error(&back, &va, gamma).unwrap();
-    assert!((manual / wsum - batched).abs() <= 1e-12 * batched, "{manual} vs {batched}");
+    assert!(
+        (manual / wsum - batched).abs() <= 1e-12 * batched,
+        "{manual} vs {batched}"
+    );
     // A corrupt config is a typed error.
     std::fs::write(dir.join("config.json"), b"{\"kind\": \"nndm\", \"nx\": 2}").unwrap();
     assert!(matches!(NndmModel::load(&dir), Err(Error::Format { .. })));
@@ -160,7 +162,9 @@ fn bad_input_gives_typed_errors() {
         Err(Error::NonFinite(_))
     ));
     let other = generate(
-        koopman::systems::by_name("double-pendulum").unwrap().as_ref(),
+        koopman::systems::by_name("double-pendulum")
+            .unwrap()
+            .as_ref(),
         20,
         15,
         1,

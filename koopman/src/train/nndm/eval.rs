@@ -62,7 +62,7 @@ impl<T: Real> NndmEval<T> {
         let sums: Vec<Vec<f64>> = self.workers[..k]
             .par_iter_mut()
             .zip(bounds.par_windows(2))
-            .map(|(w, range)| w.sums(params, data, range[0], range[1], chunk, nx, nu))
+            .map(|(w, range)| w.sums(params, data, range[0], range[1], chunk, nx))
             .collect();
         let wsum: f64 = (0..steps).map(|k| gamma.powi(k as i32)).sum();
         let denom = (data.n * nx) as f64;
@@ -81,7 +81,6 @@ impl<T: Real> NndmEval<T> {
 
 impl<T: Real> Worker<T> {
     /// Per step t, `Σ (x̂_{t+1} − x_{t+1})²` over windows `lo..hi` and every state dimension.
-    #[allow(clippy::too_many_arguments)]
     fn sums(
         &mut self,
         params: &[T],
@@ -90,7 +89,6 @@ impl<T: Real> Worker<T> {
         hi: usize,
         chunk: usize,
         nx: usize,
-        nu: usize,
     ) -> Vec<f64> {
         let steps = data.steps;
         let mut sums = vec![0.0; steps];
@@ -99,9 +97,8 @@ impl<T: Real> Worker<T> {
         while start < hi {
             let r = chunk.min(hi - start);
             for i in 0..r {
-                let s = data.state(start + i, 0);
-                for j in 0..nx {
-                    self.xh[j * r + i] = T::from_f64(s[j]);
+                for (j, &v) in data.state(start + i, 0).iter().enumerate() {
+                    self.xh[j * r + i] = T::from_f64(v);
                 }
             }
             for (t, sum) in sums.iter_mut().enumerate() {
@@ -110,9 +107,8 @@ impl<T: Real> Worker<T> {
                     for j in 0..nx {
                         inp[j * ld + i] = self.xh[j * r + i];
                     }
-                    let u = data.input(start + i, t);
-                    for j in 0..nu {
-                        inp[(nx + j) * ld + i] = T::from_f64(u[j]);
+                    for (j, &v) in data.input(start + i, t).iter().enumerate() {
+                        inp[(nx + j) * ld + i] = T::from_f64(v);
                     }
                 }
                 self.mlp.forward_block(params, 0, r);

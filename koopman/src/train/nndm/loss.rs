@@ -105,15 +105,13 @@ impl<T: Real> NndmLossWs<T> {
             let inp = part.mlp.input_mut();
             for (i, &w) in windows[*s..*s + bp].iter().enumerate() {
                 for t in 0..=steps {
-                    let st = data.state(w, t);
-                    for j in 0..nx {
-                        part.x[j * rows + t * bp + i] = T::from_f64(st[j]);
+                    for (j, &v) in data.state(w, t).iter().enumerate() {
+                        part.x[j * rows + t * bp + i] = T::from_f64(v);
                     }
                 }
                 for t in 0..steps {
-                    let u = data.input(w, t);
-                    for j in 0..nu {
-                        inp[(nx + j) * ld + t * bp + i] = T::from_f64(u[j]);
+                    for (j, &v) in data.input(w, t).iter().enumerate() {
+                        inp[(nx + j) * ld + t * bp + i] = T::from_f64(v);
                     }
                 }
             }

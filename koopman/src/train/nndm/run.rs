@@ -103,7 +103,8 @@ fn check_config(cfg: &TrainConfig) -> Result<()> {
     if cfg.iterations == 0 || cfg.batch == 0 {
         return bad("iterations and batch must be ≥ 1");
     }
-    if !(cfg.lr > 0.0 && cfg.lr.is_finite()) || !(cfg.gamma > 0.0 && cfg.gamma.is_finite()) {
+    let positive = |v: f64| v > 0.0 && v.is_finite();
+    if !positive(cfg.lr) || !positive(cfg.gamma) {
         return bad("lr and gamma must be positive numbers");
     }
     if cfg.clip.is_nan()
