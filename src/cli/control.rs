@@ -1,14 +1,15 @@
-//! `koopbridge control`: closed-loop control of a reference system with a lifted model —
-//! prints the SPEC metrics, writes them as JSON and draws states, references and inputs.
+//! `koopbridge control`: closed-loop control of a reference system with a lifted model or an
+//! NNDM — prints the SPEC metrics, writes them as JSON and draws states, references and inputs.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
+use koopman::model::nndm::NndmModel;
 use koopman::model::LiftedModel;
 use koopman::mpc::metrics::GoalSpec;
 use koopman::mpc::{
-    run_closed_loop, ClosedLoopMetrics, Lqr, LqrPolicy, MpcConfig, MpcController, Policy,
-    RandomShooting, ShootingPolicy, SolverKind, SystemAsModel, Task, TaskKind, Trajectory,
+    run_closed_loop, ClosedLoopMetrics, Lqr, LqrPolicy, MpcConfig, MpcController, OneStepModel,
+    Policy, RandomShooting, ShootingPolicy, SolverKind, SystemAsModel, Task, TaskKind, Trajectory,
 };
 use koopman::systems::System;
 
@@ -25,26 +26,37 @@ pub enum ControllerChoice {
     ClosedForm,
     /// LQR on the lifted model with feed-forward, clamped.
     Lqr,
-    /// Random-shooting MPC (1000 samples) on the true system as its own one-step model.
+    /// Random-shooting MPC (1000 samples) on the NNDM (--model of kind nndm, or --nndm).
     Shooting,
-    /// Every controller above, one after the other, as one comparison table.
+    /// Random-shooting MPC (1000 samples) on the true system as its own one-step model (oracle).
+    ShootingOracle,
+    /// Every controller above that the given models allow, one after the other, as one table.
     All,
 }
 
 /// Arguments of `koopbridge control`.
 #[derive(clap::Args, Debug)]
 #[command(
-    about = "Closed-loop control of a reference system with a lifted (Koopman/EDMD) model",
+    about = "Closed-loop control of a reference system with a lifted (Koopman/EDMD) model or an NNDM",
     long_about = "Runs the SPEC control task (regulation: damped pendulum from [-2.5, 0.1] to 0, \
 double pendulum from 0 to [1.2, -0.8, 0, 0]; tracking: a smooth sine reference) for 200 steps \
 with the chosen controller, prints the metrics (final error with wrapped angles, time to goal, \
 tracking RMS/Frobenius, solve time, input-bound violations), writes metrics.json and plot.png \
-under --out.\n\nExample:\n  koopbridge control --model models/damped --env damped-pendulum --task regulate --solver all"
+under --out.\n\nThe lifted-model controllers (dedicated, clarabel, closed-form, lqr) need a Koopman or EDMD \
+model; --solver shooting is random-shooting MPC (1000 samples) on an NNDM (--model DIR of kind nndm, or \
+--nndm DIR next to a lifted --model); --solver shooting-oracle uses the true system as its model. \
+--solver all runs every controller the given models allow.\n\nExamples:\n  koopbridge control --model models/damped --env damped-pendulum --task regulate --solver all\n  \
+koopbridge control --model models/damped --nndm models/damped-nndm --env damped-pendulum --solver all\n  \
+koopbridge control --model models/damped-nndm --env damped-pendulum --solver shooting"
 )]
 pub struct ControlArgs {
-    /// Model directory (config.json with "kind": koopman | edmd). Without it, --fit is required.
+    /// Model directory (config.json with "kind": koopman | edmd | nndm). A lifted model
+    /// (koopman, edmd) or --fit/--train is needed for every controller except the shooting ones.
     #[arg(long)]
     pub model: Option<PathBuf>,
+    /// NNDM model directory (kind nndm) for --solver shooting/all next to a lifted --model.
+    #[arg(long, value_name = "DIR")]
+    pub nndm: Option<PathBuf>,
     /// Fit an in-process stand-in model instead (least squares on random tanh features, this
     /// many features, 2000 windows of aligned data, seed 42).
     #[arg(long, value_name = "FEATURES", conflicts_with = "model")]
@@ -105,16 +117,75 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
     let out = args.out.clone().unwrap_or_else(|| {
         PathBuf::from("results/control").join(format!("{}-{task_name}", system.name()))
     });
-    let model = load_model(&args, system.as_ref(), &out)?;
-    if model.nx() != system.nx() || model.nu() != system.nu() {
-        bail!(
-            "model has nx = {}, nu = {} but {} has nx = {}, nu = {}",
-            model.nx(),
-            model.nu(),
-            system.name(),
-            system.nx(),
-            system.nu()
-        );
+    let model_is_nndm = match &args.model {
+        Some(dir) => koopman::model::store::read_kind(dir)? == "nndm",
+        None => false,
+    };
+    let nndm_dir = match (model_is_nndm, &args.nndm) {
+        (true, Some(_)) => bail!("--model is already an NNDM: leave out --nndm"),
+        (true, None) => args.model.clone(),
+        (false, dir) => dir.clone(),
+    };
+    let nndm = match &nndm_dir {
+        Some(dir) => Some(
+            NndmModel::load(dir)
+                .with_context(|| format!("loading the NNDM in {}", dir.display()))?,
+        ),
+        None => None,
+    };
+    let lifted_given =
+        !model_is_nndm && (args.model.is_some() || args.fit.is_some() || args.train.is_some());
+    let choices = match args.solver {
+        ControllerChoice::All => {
+            let mut c = Vec::new();
+            if lifted_given {
+                c.extend([
+                    ControllerChoice::Dedicated,
+                    ControllerChoice::Clarabel,
+                    ControllerChoice::ClosedForm,
+                    ControllerChoice::Lqr,
+                ]);
+            }
+            c.push(ControllerChoice::ShootingOracle);
+            if nndm.is_some() {
+                c.push(ControllerChoice::Shooting);
+            }
+            c
+        }
+        ControllerChoice::Shooting if nndm.is_none() => bail!(
+            "--solver shooting plans on an NNDM: give --model DIR of kind nndm or --nndm DIR \
+             (random shooting on the true system is --solver shooting-oracle)"
+        ),
+        ControllerChoice::ShootingOracle | ControllerChoice::Shooting => vec![args.solver],
+        c if !lifted_given => bail!(
+            "--solver {} needs a lifted model: --model DIR of kind koopman or edmd, --fit or --train{}",
+            controller_stem(c),
+            if model_is_nndm {
+                " (the given model is an NNDM: use --solver shooting)"
+            } else {
+                ""
+            }
+        ),
+        c => vec![c],
+    };
+    let model = if lifted_given {
+        Some(load_model(&args, system.as_ref(), &out)?)
+    } else {
+        None
+    };
+    let dims = [
+        model.as_ref().map(|m| ("model", m.nx(), m.nu())),
+        nndm.as_ref().map(|m| ("NNDM", m.arch().nx, m.arch().nu)),
+    ];
+    for (what, nx, nu) in dims.into_iter().flatten() {
+        if nx != system.nx() || nu != system.nu() {
+            bail!(
+                "{what} has nx = {nx}, nu = {nu} but {} has nx = {}, nu = {}",
+                system.name(),
+                system.nx(),
+                system.nu()
+            );
+        }
     }
     let kind = match args.task {
         TaskArg::Regulate => TaskKind::Regulate,
@@ -126,16 +197,6 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
         Some(b) if b.is_finite() && b > 0.0 => (vec![-b; system.nu()], vec![b; system.nu()]),
         Some(b) => bail!("--u-bound must be a positive number, got {b}"),
         None => system.input_bounds(),
-    };
-    let choices = match args.solver {
-        ControllerChoice::All => vec![
-            ControllerChoice::Dedicated,
-            ControllerChoice::Clarabel,
-            ControllerChoice::ClosedForm,
-            ControllerChoice::Lqr,
-            ControllerChoice::Shooting,
-        ],
-        c => vec![c],
     };
     let task_name = match kind {
         TaskKind::Regulate => "regulate",
@@ -153,7 +214,8 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
             &args,
             choice,
             system.as_ref(),
-            model.as_ref(),
+            model.as_deref(),
+            nndm.as_ref().map(|m| m as &dyn OneStepModel),
             &task,
             &lo,
             &hi,
@@ -183,6 +245,7 @@ fn controller_stem(c: ControllerChoice) -> &'static str {
         ControllerChoice::ClosedForm => "closed-form",
         ControllerChoice::Lqr => "lqr",
         ControllerChoice::Shooting => "shooting",
+        ControllerChoice::ShootingOracle => "shooting-oracle",
         ControllerChoice::All => "all",
     }
 }
@@ -273,11 +336,13 @@ fn run_one(
     args: &ControlArgs,
     choice: ControllerChoice,
     system: &dyn System,
-    model: &dyn LiftedModel,
+    model: Option<&dyn LiftedModel>,
+    nndm: Option<&dyn OneStepModel>,
     task: &Task,
     lo: &[f64],
     hi: &[f64],
 ) -> anyhow::Result<(ClosedLoopMetrics, Trajectory)> {
+    let lifted = || model.context("this controller needs a lifted model (koopman or edmd)");
     let nu = system.nu();
     let bar = indicatif::ProgressBar::new(task.steps as u64);
     bar.set_style(
@@ -301,9 +366,10 @@ fn run_one(
                 solver,
                 ..MpcConfig::with_bounds(lo.to_vec(), hi.to_vec())
             };
-            Box::new(MpcController::new(model, &cfg)?)
+            Box::new(MpcController::new(lifted()?, &cfg)?)
         }
         ControllerChoice::Lqr => {
+            let model = lifted()?;
             let lqr = Lqr::new(
                 model,
                 &vec![1.0; system.nx()],
@@ -319,7 +385,7 @@ fn run_one(
             }
             Box::new(LqrPolicy::new(lqr, model, lo.to_vec(), hi.to_vec())?)
         }
-        ControllerChoice::Shooting => {
+        ControllerChoice::Shooting | ControllerChoice::ShootingOracle => {
             let planner = RandomShooting::new(
                 1000,
                 args.horizon,
@@ -328,7 +394,12 @@ fn run_one(
                 hi.to_vec(),
                 1,
             )?;
-            Box::new(ShootingPolicy::new(planner, &oracle, "true-system"))
+            if choice == ControllerChoice::Shooting {
+                let nndm = nndm.context("--solver shooting needs an NNDM model")?;
+                Box::new(ShootingPolicy::new(planner, nndm, "nndm"))
+            } else {
+                Box::new(ShootingPolicy::new(planner, &oracle, "true-system"))
+            }
         }
         ControllerChoice::All => unreachable!("expanded by the caller"),
     };

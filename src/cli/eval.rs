@@ -3,6 +3,7 @@
 use anyhow::Context;
 use koopman::data::Dataset;
 use koopman::model::koopman::KoopmanModel;
+use koopman::model::nndm::NndmModel;
 use koopman::model::{load_lifted, store, LiftedModel};
 use serde::Serialize;
 use std::path::PathBuf;
@@ -14,7 +15,8 @@ use std::path::PathBuf;
     long_about = "Evaluate a saved model (a folder written by 'koopbridge train') on a dataset file (.npz from \
         'koopbridge data gen'): SPEC's prediction error (discounted multi-step L_pred, every window encoded once \
         at its first state), the condition numbers κ(G) of the latent Gram matrix on the data and κ(BᵀB), and the \
-        spectral radius of A.\n\nExample: koopbridge eval --model models/damped --data data/damped/test.npz"
+        spectral radius of A. For an NNDM (kind nndm) only the prediction error, by rolling the \
+        one-step model out from every window's first state with the window's inputs (same γ and normalisation).\n\nExample: koopbridge eval --model models/damped --data data/damped/test.npz"
 )]
 pub struct EvalArgs {
     /// Model folder (config.json + weights).
@@ -31,6 +33,8 @@ pub struct EvalArgs {
     pub json: bool,
 }
 
+/// What `eval` reports; the lifted-model diagnostics are `None` for an NNDM, whose
+/// `latent_dim` is nx (it predicts the state itself).
 #[derive(Serialize)]
 struct EvalReport {
     kind: String,
@@ -48,6 +52,9 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let data = Dataset::load_npz(&args.data)
         .with_context(|| format!("loading {}", args.data.display()))?;
     let kind = store::read_kind(&args.model)?;
+    if kind == "nndm" {
+        return eval_nndm(&args, &data);
+    }
     let model: Box<dyn LiftedModel> = load_lifted(&args.model)?;
     if data.nx != model.nx() || data.nu != model.nu() {
         anyhow::bail!(
@@ -88,8 +95,39 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         spectral_radius,
         latent_dim: model.latent_dim(),
     };
+    print_report(&args, &rep)
+}
+
+/// An NNDM (one-step MLP): the prediction error by rollout from every window's first state.
+fn eval_nndm(args: &EvalArgs, data: &Dataset) -> anyhow::Result<()> {
+    let model = NndmModel::load(&args.model)?;
+    let nx = model.arch().nx;
+    if data.nx != nx || data.nu != model.arch().nu {
+        anyhow::bail!(
+            "the model expects nx = {}, nu = {} but {} has nx = {}, nu = {}",
+            nx,
+            model.arch().nu,
+            args.data.display(),
+            data.nx,
+            data.nu
+        );
+    }
+    let rep = EvalReport {
+        kind: "nndm".into(),
+        windows: data.n,
+        pairing: data.meta.pairing,
+        prediction_error: koopman::train::nndm::prediction_error(&model, data, args.gamma)?,
+        gram_condition: None,
+        bbt_condition: None,
+        spectral_radius: None,
+        latent_dim: nx,
+    };
+    print_report(args, &rep)
+}
+
+fn print_report(args: &EvalArgs, rep: &EvalReport) -> anyhow::Result<()> {
     if args.json {
-        println!("{}", serde_json::to_string(&rep)?);
+        println!("{}", serde_json::to_string(rep)?);
     } else {
         let f = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.4e}"));
         println!(
