@@ -214,8 +214,10 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
             &args,
             choice,
             system.as_ref(),
-            model.as_deref(),
-            nndm.as_ref().map(|m| m as &dyn OneStepModel),
+            Models {
+                lifted: model.as_deref(),
+                nndm: nndm.as_ref().map(|m| m as &dyn OneStepModel),
+            },
             &task,
             &lo,
             &hi,
@@ -332,16 +334,27 @@ fn train_stand_in(
     Ok(Box::new(outcome.model))
 }
 
+/// The models a controller may plan on: a lifted model (Koopman MPC, LQR) and an NNDM
+/// (random shooting).
+#[derive(Clone, Copy)]
+struct Models<'m> {
+    lifted: Option<&'m dyn LiftedModel>,
+    nndm: Option<&'m dyn OneStepModel>,
+}
+
 fn run_one(
     args: &ControlArgs,
     choice: ControllerChoice,
     system: &dyn System,
-    model: Option<&dyn LiftedModel>,
-    nndm: Option<&dyn OneStepModel>,
+    models: Models<'_>,
     task: &Task,
     lo: &[f64],
     hi: &[f64],
 ) -> anyhow::Result<(ClosedLoopMetrics, Trajectory)> {
+    let Models {
+        lifted: model,
+        nndm,
+    } = models;
     let lifted = || model.context("this controller needs a lifted model (koopman or edmd)");
     let nu = system.nu();
     let bar = indicatif::ProgressBar::new(task.steps as u64);

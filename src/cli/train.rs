@@ -18,7 +18,9 @@ pub enum ModelKind {
     Koopman,
     /// EDMD with control (polynomial dictionary, least squares).
     Edmd,
-    /// NNDM baseline: an MLP x⁺ = f(x, u).
+    /// NNDM baseline: an MLP x⁺ = x + g([x, u]) with equal hidden layers (as many as --hidden)
+    /// sized to the parameter count of the Koopman model of --n-mult/--hidden, trained on the same
+    /// prediction loss and recipe (--no-ctrl/--no-cov do not apply).
     Nndm,
 }
 
