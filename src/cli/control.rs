@@ -8,11 +8,13 @@ use koopman::model::nndm::NndmModel;
 use koopman::model::LiftedModel;
 use koopman::mpc::metrics::GoalSpec;
 use koopman::mpc::{
-    run_closed_loop, ClosedLoopMetrics, Lqr, LqrPolicy, MpcConfig, MpcController, OneStepModel,
-    Policy, RandomShooting, ShootingPolicy, SolverKind, SystemAsModel, Task, TaskKind, Trajectory,
+    run_closed_loop, ClosedLoopMetrics, ConstantPolicy, Lqr, LqrPolicy, MpcConfig, MpcController,
+    OneStepModel, Policy, RandomShooting, ShootingPolicy, SolverKind, SystemAsModel, Task,
+    TaskKind, Trajectory,
 };
 use koopman::systems::System;
 
+use super::control_diagnostics::diagnose;
 use crate::plot::{time_series_png, Panel, Series};
 
 /// Controller choices of `--solver`.
@@ -30,6 +32,8 @@ pub enum ControllerChoice {
     Shooting,
     /// Random-shooting MPC (1000 samples) on the true system as its own one-step model (oracle).
     ShootingOracle,
+    /// u = 0 throughout: the free response every controller must beat.
+    ZeroInput,
     /// Every controller above that the given models allow, one after the other, as one table.
     All,
 }
@@ -84,6 +88,14 @@ pub struct ControlArgs {
     /// Diagonal input weight R (SPEC: 0; LQR uses max(R, 1e-6)).
     #[arg(long, default_value_t = 0.0)]
     pub r: f64,
+    /// Initial state overriding the task's (comma separated, nx values), e.g. `-1.0,0.1`.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        allow_hyphen_values = true,
+        value_name = "X0"
+    )]
+    pub x0: Option<Vec<f64>>,
     /// Symmetric input bound |u| ≤ B overriding the system's data-collection bounds.
     #[arg(long, value_name = "B")]
     pub u_bound: Option<f64>,
@@ -150,13 +162,16 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
             if nndm.is_some() {
                 c.push(ControllerChoice::Shooting);
             }
+            c.push(ControllerChoice::ZeroInput);
             c
         }
         ControllerChoice::Shooting if nndm.is_none() => bail!(
             "--solver shooting plans on an NNDM: give --model DIR of kind nndm or --nndm DIR \
              (random shooting on the true system is --solver shooting-oracle)"
         ),
-        ControllerChoice::ShootingOracle | ControllerChoice::Shooting => vec![args.solver],
+        ControllerChoice::ShootingOracle
+        | ControllerChoice::Shooting
+        | ControllerChoice::ZeroInput => vec![args.solver],
         c if !lifted_given => bail!(
             "--solver {} needs a lifted model: --model DIR of kind koopman or edmd, --fit or --train{}",
             controller_stem(c),
@@ -193,24 +208,38 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
     };
     let mut task = Task::standard(system.as_ref(), kind)?;
     task.steps = args.steps;
+    if let Some(x0) = &args.x0 {
+        if x0.len() != system.nx() || x0.iter().any(|v| !v.is_finite()) {
+            bail!(
+                "--x0 needs {} finite values for {}, got {x0:?}",
+                system.nx(),
+                system.name()
+            );
+        }
+        task.x0 = x0.clone();
+    }
     let (lo, hi) = match args.u_bound {
         Some(b) if b.is_finite() && b > 0.0 => (vec![-b; system.nu()], vec![b; system.nu()]),
         Some(b) => bail!("--u-bound must be a positive number, got {b}"),
         None => system.input_bounds(),
     };
-    let task_name = match kind {
-        TaskKind::Regulate => "regulate",
-        TaskKind::Track => "track",
-    };
-    let out = args.out.clone().unwrap_or_else(|| {
-        PathBuf::from("results/control").join(format!("{}-{task_name}", system.name()))
-    });
+    let diagnostics = diagnose(
+        system.as_ref(),
+        model.as_deref(),
+        &task.reference(task.steps),
+        &lo,
+        &hi,
+        args.horizon,
+    );
+    diagnostics.print();
+    write_json_atomic(&out.join("diagnostics.json"), &diagnostics)?;
     let mut all = Vec::new();
     if !args.json {
         print_header();
     }
+    let several = choices.len() > 1;
     for choice in choices {
-        let (metrics, traj) = run_one(
+        let run = run_one(
             &args,
             choice,
             system.as_ref(),
@@ -221,7 +250,17 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
             &task,
             &lo,
             &hi,
-        )?;
+        );
+        let (metrics, traj) = match run {
+            Ok(r) => r,
+            // In a comparison one controller that cannot be built (e.g. LQR on a model with
+            // unstabilisable modes) is a row of the report, not the end of it.
+            Err(e) if several => {
+                eprintln!("{}: failed: {e:#}", controller_stem(choice));
+                continue;
+            }
+            Err(e) => return Err(e),
+        };
         let stem = controller_stem(choice);
         write_json_atomic(&out.join(format!("metrics-{stem}.json")), &metrics)?;
         let png = out.join(format!("plot-{stem}.png"));
@@ -248,6 +287,7 @@ fn controller_stem(c: ControllerChoice) -> &'static str {
         ControllerChoice::Lqr => "lqr",
         ControllerChoice::Shooting => "shooting",
         ControllerChoice::ShootingOracle => "shooting-oracle",
+        ControllerChoice::ZeroInput => "zero-input",
         ControllerChoice::All => "all",
     }
 }
@@ -414,6 +454,7 @@ fn run_one(
                 Box::new(ShootingPolicy::new(planner, &oracle, "true-system"))
             }
         }
+        ControllerChoice::ZeroInput => Box::new(ConstantPolicy::zero(nu)),
         ControllerChoice::All => unreachable!("expanded by the caller"),
     };
     let result = run_closed_loop(system, policy.as_mut(), task, lo, hi, &goal, progress);

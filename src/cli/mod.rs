@@ -6,6 +6,7 @@ pub mod bench_edmd;
 pub mod bench_mpc;
 pub mod bench_train;
 pub mod control;
+pub mod control_diagnostics;
 pub mod data;
 pub mod eval;
 pub mod run;
