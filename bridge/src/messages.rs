@@ -24,6 +24,11 @@ pub struct SimInfo {
     /// Indices of angle components of the state (wrapped when measuring errors).
     #[serde(default)]
     pub angle_indices: Vec<usize>,
+    /// What the backend says about itself beyond the fields above, free-form JSON (e.g. an FMU
+    /// adapter's `{"fmu": {"fmi_version", "units", "start", "variables": [...]}}`); absent for
+    /// the built-in systems. Orchestrators pass it through and never depend on it.
+    #[serde(default, skip_serializing_if = "serde_json::Map::is_empty")]
+    pub extra: serde_json::Map<String, serde_json::Value>,
 }
 
 impl SimInfo {
@@ -48,6 +53,7 @@ impl SimInfo {
             u_min,
             u_max,
             angle_indices: sys.angle_indices(),
+            extra: serde_json::Map::new(),
         }
     }
 }
@@ -106,4 +112,40 @@ pub struct ResetRequest {
     /// Explicit initial state (`nx` values).
     #[serde(default)]
     pub x0: Option<Vec<f64>>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn extra_info_travels_and_is_absent_when_empty() {
+        let sys = koopman::systems::by_name("damped-pendulum").unwrap();
+        let mut info = SimInfo::from_system(sys.as_ref());
+        let reply = |sim: SimInfo| InfoReply {
+            protocol_version: 1,
+            id: "p".into(),
+            mode: "lockstep".into(),
+            k: 0,
+            sim,
+            stats: AdapterStats::default(),
+        };
+        let plain = serde_json::to_value(reply(info.clone())).unwrap();
+        assert!(plain.get("extra").is_none(), "{plain}");
+        assert_eq!(
+            plain["state_names"],
+            serde_json::json!(["theta", "theta_dot"])
+        );
+        info.extra.insert(
+            "fmu".into(),
+            serde_json::json!({"fmi_version": "2.0", "units": {"outputs": ["rad", "rad/s"]}}),
+        );
+        let text = serde_json::to_string(&reply(info.clone())).unwrap();
+        let back: InfoReply = serde_json::from_str(&text).unwrap();
+        assert_eq!(back.sim, info);
+        assert_eq!(back.sim.extra["fmu"]["fmi_version"], "2.0");
+        // A reply without the field (an older adapter) still decodes.
+        let old: InfoReply = serde_json::from_value(plain).unwrap();
+        assert!(old.sim.extra.is_empty());
+    }
 }

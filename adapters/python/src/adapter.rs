@@ -24,7 +24,9 @@ use crate::errors::{bridge_err, InvalidInput, Unsupported};
 /// Base class of simulators written in Python. Subclass it and implement:
 ///
 /// - ``info(self) -> dict`` with keys ``env``, ``dt``, ``state_names``, ``input_names``,
-///   ``u_min``, ``u_max`` and optionally ``kind``, ``version``, ``angle_indices``;
+///   ``u_min``, ``u_max`` and optionally ``kind``, ``version``, ``angle_indices``; any other key
+///   (e.g. ``fmu``: units, start values, FMI version) must hold JSON-serialisable values and
+///   travels in the ``info`` reply's ``extra`` object;
 /// - ``reset(self, seed=None, x0=None) -> array`` returning the first state (``nx`` values);
 ///   ``seed`` asks for a random initial state, ``x0`` for a given one, neither for the default;
 /// - ``step(self, u) -> array`` applying ``u`` (``nu`` values, held over one ``dt``) and
@@ -302,6 +304,48 @@ fn sim_error(py: Python<'_>, e: PyErr, what: &str) -> SimError {
     SimError::Failed(msg)
 }
 
+/// Keys of `info()`'s dict that are fields of `SimInfo`; every other key goes to `extra`.
+const INFO_KEYS: [&str; 9] = [
+    "env",
+    "kind",
+    "version",
+    "dt",
+    "state_names",
+    "input_names",
+    "u_min",
+    "u_max",
+    "angle_indices",
+];
+
+/// The keys of `info()`'s dict that are not `SimInfo` fields, as JSON (through Python's `json`
+/// module, so anything it can encode is accepted; NaN and infinities are refused).
+fn extra_info(d: &Bound<'_, PyAny>) -> PyResult<serde_json::Map<String, serde_json::Value>> {
+    let py = d.py();
+    let dumps = py.import("json")?.getattr("dumps")?;
+    let kwargs = PyDict::new(py);
+    kwargs.set_item("allow_nan", false)?;
+    let mut out = serde_json::Map::new();
+    for item in d.try_iter()? {
+        let key = item?;
+        let name: String = key
+            .extract()
+            .map_err(|_| PyValueError::new_err("info(): the dict's keys must be strings"))?;
+        if INFO_KEYS.contains(&name.as_str()) {
+            continue;
+        }
+        let text: String = dumps
+            .call((d.get_item(&key)?,), Some(&kwargs))
+            .map_err(|e| {
+                PyValueError::new_err(format!("info(): '{name}' is not JSON-serialisable: {e}"))
+            })?
+            .extract()?;
+        let v = serde_json::from_str(&text)
+            .map_err(|e| PyValueError::new_err(format!("info(): '{name}': {e}")))?;
+        out.insert(name, v);
+    }
+    Ok(out)
+}
+
 /// The `SimInfo` described by the dict returned from `info()`.
 fn sim_info(d: &Bound<'_, PyAny>) -> PyResult<SimInfo> {
     let get = |k: &str| -> PyResult<Bound<'_, PyAny>> {
@@ -333,6 +377,7 @@ fn sim_info(d: &Bound<'_, PyAny>) -> PyResult<SimInfo> {
             Some(v) => v.extract()?,
             None => Vec::new(),
         },
+        extra: extra_info(d)?,
     };
     if !(info.dt > 0.0 && info.dt.is_finite()) {
         return Err(PyValueError::new_err(format!(

@@ -81,3 +81,55 @@ def test_killed_adapter_is_named_within_a_second(tmp_path, damped_fmu, session_i
             with pytest.raises(koopbridge.GoneError, match="simulator 'victim'"):
                 c.step("victim", [0.0])
             assert time.perf_counter() - t0 < 1.0
+
+
+def double_adapter_cmd(fmu, session: str, sim_id: str, *extra: str) -> list[str]:
+    """The command line of the double-pendulum (FMI 3.0) FMU adapter as a child process."""
+    return [
+        sys.executable, "-m", "koopbridge.adapters.fmu", str(fmu),
+        "--inputs", "u1,u2", "--outputs", "theta1,theta2,omega1,omega2", "--dt", "0.01",
+        "--initial", "theta1_0,theta2_0,omega1_0,omega2_0", "--u-min=-5,-5", "--u-max=5,5",
+        "--session", session, "--id", sim_id, *extra,
+    ]  # fmt: skip
+
+
+@pytest.mark.parametrize("which", ["damped", "double"])
+def test_info_over_zenoh_carries_units_start_values_and_fmi_version(tmp_path, damped_fmu, double_fmu, session_id, which):
+    ep = free_endpoint()
+    if which == "damped":
+        cmd, version = fmu_adapter_cmd(damped_fmu, session_id, "fmu0", "--listen", ep), "2.0"
+        units = {"inputs": ["N"], "outputs": ["rad", "rad/s"]}
+        start = {"g": 9.8, "max_substep": 0.001, "u": 0.0}
+    else:
+        cmd, version = double_adapter_cmd(double_fmu, session_id, "fmu0", "--listen", ep), "3.0"
+        units = {"inputs": ["N.m", "N.m"], "outputs": ["rad", "rad", "rad/s", "rad/s"]}
+        start = {"g": 9.8, "l1": 1.0, "m2": 1.0, "u2": 0.0}
+    with Child(cmd, tmp_path / "adapter.log") as child:
+        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+            info = c.connect_sim("fmu0", timeout=20)
+        assert child.p.poll() is None, child.output()
+    # What travelled over Zenoh, not what the Python object holds: the reply's `extra` object.
+    fmu = info["extra"]["fmu"]
+    assert fmu["fmi_version"] == version
+    assert fmu["units"] == units
+    by_name = {v["name"]: v for v in fmu["variables"]}
+    for name, value in start.items():
+        assert by_name[name]["start"] == value, (name, by_name[name])
+    assert by_name[info["input_names"][0]]["causality"] == "input"
+    assert all(by_name[n]["unit"] == u for n, u in zip(info["state_names"], units["outputs"]))
+    assert info["version"].startswith(f"FMI {version}")
+
+
+def test_info_extra_must_be_json(session_id):
+    class Odd(koopbridge.Adapter):
+        def info(self):
+            return dict(env="odd", dt=0.1, state_names=["x"], input_names=[], u_min=[], u_max=[], blob=object())
+
+        def reset(self, seed=None, x0=None):
+            return np.zeros(1)
+
+        def step(self, u):
+            return np.zeros(1)
+
+    with pytest.raises(ValueError, match="'blob' is not JSON-serialisable"):
+        Odd().serve(session=session_id, id="odd")

@@ -18,6 +18,25 @@ class FmuError(KoopbridgeError):
     """A problem with an FMU; the message names the FMU file and the cause."""
 
 
+def _start_value(type_name: str | None, start: Any) -> Any:
+    """A variable's start value as JSON: a number for numeric types, a bool for Boolean, the
+    model description's text otherwise (None when there is none)."""
+    if start is None:
+        return None
+    text = str(start).strip()
+    if type_name == "Boolean":
+        return text in ("true", "1")
+    if type_name in ("String", "Binary", "Clock"):
+        return text
+    try:
+        value = float(text)
+    except ValueError:
+        return text
+    if type_name and ("Int" in type_name or type_name == "Enumeration") and value.is_integer():
+        return int(value)
+    return value
+
+
 class FmuSimulator:
     """One FMU instance driven step by step.
 
@@ -139,14 +158,16 @@ class FmuSimulator:
                     variability=v.variability,
                     type=v.type,
                     unit=v.unit or (v.declaredType.unit if getattr(v, "declaredType", None) is not None else None),
-                    start=v.start,
+                    start=_start_value(v.type, v.start),
                     description=v.description,
                 )
             )
         return out
 
     def info(self) -> dict[str, Any]:
-        """The simulator description for koopbridge (``Adapter.info``) plus the FMU's own."""
+        """The simulator description for koopbridge (``Adapter.info``) plus the FMU's own under
+        ``fmu`` (FMI version, units and start values of the inputs and outputs, every variable);
+        ``fmu`` is plain JSON and reaches clients in the ``info`` reply's ``extra`` object."""
         units = {v["name"]: v["unit"] for v in self.variables()}
         starts = {v["name"]: v["start"] for v in self.variables()}
         return dict(
