@@ -5,31 +5,19 @@
 mod common;
 
 use bridge::orchestrator::{Cluster, SERVICES_ID};
-use bridge::services::trainer::{submit_and_wait, DatasetRef, JobRecord, JobSpec, JobState};
-use koopman::data::{generate, Pairing};
+use bridge::services::trainer::{submit_and_wait, JobRecord, JobSpec, JobState};
 
 fn tiny_config() -> serde_json::Map<String, serde_json::Value> {
-    serde_json::json!({"iterations": 40, "hidden": [16], "n_mult": 2, "batch": 16, "validate_every": 20})
-        .as_object()
-        .unwrap()
-        .clone()
+    common::config(
+        serde_json::json!({"iterations": 40, "hidden": [16], "n_mult": 2, "batch": 16, "validate_every": 20}),
+    )
 }
 
 #[test]
 fn jobs_train_store_models_and_resume_after_a_restart() {
     let (opts, session) = common::options("trainer");
-    let sys = koopman::systems::by_name("damped-pendulum").unwrap();
     let dir = opts.out_dir.join("data");
-    std::fs::create_dir_all(&dir).unwrap();
-    for (name, n, seed) in [("train", 64, 1), ("val", 16, 2), ("test", 16, 3)] {
-        generate(sys.as_ref(), n, 15, seed, Pairing::Aligned)
-            .unwrap()
-            .save_npz(&dir.join(format!("{name}.npz")))
-            .unwrap();
-    }
-    let r = |n: &str| DatasetRef::Path {
-        path: dir.join(format!("{n}.npz")),
-    };
+    let r = common::pendulum_data(&dir, &[("train", 64, 1), ("val", 16, 2), ("test", 16, 3)]);
     let spec = |model: &str| JobSpec {
         model: model.into(),
         train: r("train"),

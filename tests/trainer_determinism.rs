@@ -7,34 +7,22 @@ mod common;
 use bridge::keyexpr::Role;
 use bridge::orchestrator::Cluster;
 use bridge::procs::ChildProc;
-use bridge::services::trainer::{submit_and_wait, DatasetRef, JobSpec, JobState};
-use koopman::data::{generate, Pairing};
+use bridge::services::trainer::{submit_and_wait, JobSpec, JobState};
 
 #[test]
 fn the_same_job_gives_the_same_model_bits_on_different_thread_pools() {
     let (opts, session) = common::options("trainer-det");
-    let sys = koopman::systems::by_name("damped-pendulum").unwrap();
-    let dir = opts.out_dir.join("data");
-    std::fs::create_dir_all(&dir).unwrap();
-    for (name, n, seed) in [("train", 128, 1), ("val", 32, 2)] {
-        generate(sys.as_ref(), n, 15, seed, Pairing::Aligned)
-            .unwrap()
-            .save_npz(&dir.join(format!("{name}.npz")))
-            .unwrap();
-    }
-    let r = |n: &str| DatasetRef::Path {
-        path: dir.join(format!("{n}.npz")),
-    };
+    let r = common::pendulum_data(
+        &opts.out_dir.join("data"),
+        &[("train", 128, 1), ("val", 32, 2)],
+    );
     let spec = JobSpec {
         model: "same".into(),
         train: r("train"),
         val: r("val"),
         test: None,
-        config: serde_json::json!({"iterations": 300, "hidden": [16, 16], "n_mult": 4,
-                                   "batch": 64, "validate_every": 100})
-        .as_object()
-        .unwrap()
-        .clone(),
+        config: common::config(serde_json::json!({"iterations": 300, "hidden": [16, 16],
+            "n_mult": 4, "batch": 64, "validate_every": 100})),
     };
     let c = Cluster::start(&opts, &session, &[], &[]).unwrap();
     let (mut models, mut threads) = (Vec::new(), Vec::new());

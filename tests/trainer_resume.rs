@@ -9,36 +9,23 @@ use std::time::{Duration, Instant};
 use bridge::keyexpr::fresh_session_id;
 use bridge::orchestrator::{Cluster, SERVICES_ID};
 use bridge::services::koopman_trainer::{train_config, DEFAULT_TRAIN_THREADS};
-use bridge::services::trainer::{
-    submit_and_wait, DatasetRef, JobRecord, JobSpec, JobState, SubmitReply,
-};
-use koopman::data::{generate, Dataset, Pairing};
+use bridge::services::trainer::{submit_and_wait, JobRecord, JobSpec, JobState, SubmitReply};
+use koopman::data::Dataset;
 
 /// Long enough (a few seconds) that the service can be killed between its first checkpoint
 /// (iteration 200) and the end.
 fn config() -> serde_json::Map<String, serde_json::Value> {
-    serde_json::json!({"iterations": 3000, "hidden": [64, 64], "n_mult": 8, "batch": 64,
-                       "validate_every": 200})
-    .as_object()
-    .unwrap()
-    .clone()
+    common::config(
+        serde_json::json!({"iterations": 3000, "hidden": [64, 64], "n_mult": 8,
+                                      "batch": 64, "validate_every": 200}),
+    )
 }
 
 #[test]
 fn a_killed_trainer_resumes_its_job_from_the_checkpoint() {
     let (opts, session) = common::options("trainer-resume");
-    let sys = koopman::systems::by_name("damped-pendulum").unwrap();
     let dir = opts.out_dir.join("data");
-    std::fs::create_dir_all(&dir).unwrap();
-    for (name, n, seed) in [("train", 256, 1), ("val", 32, 2)] {
-        generate(sys.as_ref(), n, 15, seed, Pairing::Aligned)
-            .unwrap()
-            .save_npz(&dir.join(format!("{name}.npz")))
-            .unwrap();
-    }
-    let r = |n: &str| DatasetRef::Path {
-        path: dir.join(format!("{n}.npz")),
-    };
+    let r = common::pendulum_data(&dir, &[("train", 256, 1), ("val", 32, 2)]);
     let spec = JobSpec {
         model: "resumed".into(),
         train: r("train"),

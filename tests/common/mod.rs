@@ -122,3 +122,28 @@ pub fn wait_until_sim_finished(c: &Cluster, id: &str) {
         std::thread::sleep(Duration::from_millis(100));
     }
 }
+
+/// Writes damped-pendulum datasets (aligned pairing, 15 steps) `dir/{name}.npz` for each
+/// `(name, windows, seed)`, and returns a function giving the job reference of a name.
+pub fn pendulum_data(
+    dir: &std::path::Path,
+    sets: &[(&str, usize, u64)],
+) -> impl Fn(&str) -> bridge::services::trainer::DatasetRef {
+    let sys = koopman::systems::by_name("damped-pendulum").unwrap();
+    std::fs::create_dir_all(dir).unwrap();
+    for &(name, n, seed) in sets {
+        koopman::data::generate(sys.as_ref(), n, 15, seed, koopman::data::Pairing::Aligned)
+            .unwrap()
+            .save_npz(&dir.join(format!("{name}.npz")))
+            .unwrap();
+    }
+    let dir = dir.to_path_buf();
+    move |n: &str| bridge::services::trainer::DatasetRef::Path {
+        path: dir.join(format!("{n}.npz")),
+    }
+}
+
+/// A training config (JSON object) from a `json!` literal.
+pub fn config(v: serde_json::Value) -> serde_json::Map<String, serde_json::Value> {
+    v.as_object().expect("a JSON object").clone()
+}

@@ -7,6 +7,7 @@ pub mod mpc;
 pub mod recorder;
 pub mod trainer;
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::time::Duration;
 
@@ -14,6 +15,7 @@ use zenoh::query::Query;
 use zenoh::{Session, Wait};
 
 use crate::error::{Error, ErrorCode, ErrorReply, Result};
+use crate::keyexpr::{validate_chunk, Keys, Role};
 
 /// Largest request payload a service accepts by default (1 MiB).
 pub const DEFAULT_MAX_PAYLOAD: usize = 1 << 20;
@@ -103,4 +105,43 @@ pub fn respond(q: &Query, result: std::result::Result<Vec<u8>, ErrorReply>) {
     if let Err(e) = sent {
         tracing::warn!(key = %q.key_expr(), "could not send a reply: {e}");
     }
+}
+
+/// The result of handling one query: the reply payload or a typed error.
+pub type Reply = std::result::Result<Vec<u8>, ErrorReply>;
+
+/// The loop every service runs: holds the liveliness token `…/alive/{role}/{id}`, then answers
+/// each query of `inbox` with `handle(tag, query, body)` (`body` = the payload, refused with
+/// `too_large` above [`DEFAULT_MAX_PAYLOAD`]) until `stop` is set.
+pub fn serve_queries<T: Copy + Send + Sync + 'static>(
+    session: &Session,
+    keys: &Keys,
+    role: Role,
+    id: &str,
+    inbox: &Inbox<T>,
+    stop: &AtomicBool,
+    mut handle: impl FnMut(T, &Query, Vec<u8>) -> Reply,
+) -> Result<()> {
+    let _token = session
+        .liveliness()
+        .declare_token(keys.alive(role, id)?)
+        .wait()
+        .map_err(Error::zenoh)?;
+    tracing::info!("{role:?} service '{id}' ready");
+    while !stop.load(Ordering::Relaxed) {
+        let Some((tag, q)) = inbox.next(Duration::from_millis(100)) else {
+            continue;
+        };
+        let result = payload(&q, DEFAULT_MAX_PAYLOAD).and_then(|body| handle(tag, &q, body));
+        respond(&q, result);
+    }
+    Ok(())
+}
+
+/// The last chunk of the query's key (the `{name}` of `…/models/{name}`), checked as an id
+/// chunk; `what` names it in the `bad_request` error.
+pub fn key_tail(q: &Query, what: &str) -> std::result::Result<String, ErrorReply> {
+    let name = q.key_expr().as_str().rsplit('/').next().unwrap_or("");
+    validate_chunk(what, name).map_err(|e| e.to_reply())?;
+    Ok(name.to_string())
 }

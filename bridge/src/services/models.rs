@@ -2,13 +2,13 @@
 //! small archive (JSON header + the files), and unpacks such archives on the client side.
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 use zenoh::Session;
 
-use super::{respond, Inbox};
+use super::{key_tail, serve_queries, Inbox};
 use crate::client::Client;
 use crate::error::{Error, ErrorCode, ErrorReply, Result};
 use crate::keyexpr::{validate_chunk, Keys, Role};
@@ -156,41 +156,26 @@ pub fn serve(
 ) -> Result<()> {
     let mut inbox = Inbox::new();
     inbox.declare(session, &keys.under(&["models", "*"]), ())?;
-    let _token = zenoh::Wait::wait(
-        session
-            .liveliness()
-            .declare_token(keys.alive(Role::Models, id)?),
-    )
-    .map_err(Error::zenoh)?;
     tracing::info!("model store '{id}' serving {}", store.display());
-    while !stop.load(Ordering::Relaxed) {
-        let Some(((), q)) = inbox.next(Duration::from_millis(100)) else {
-            continue;
-        };
-        let name = q
-            .key_expr()
-            .as_str()
-            .rsplit('/')
-            .next()
-            .unwrap_or("")
-            .to_string();
-        let result = match validate_chunk("model name", &name) {
-            Err(e) => Err(e.to_reply()),
-            Ok(()) => {
-                let dir = store.join(&name);
-                if !dir.join("config.json").is_file() {
-                    Err(ErrorReply::new(
-                        ErrorCode::NotFound,
-                        format!("no model '{name}' in this store"),
-                    ))
-                } else {
-                    pack(&name, &dir).map_err(|e| e.to_reply())
-                }
+    serve_queries(
+        session,
+        keys,
+        Role::Models,
+        id,
+        &inbox,
+        stop,
+        |(), q, _body| {
+            let name = key_tail(q, "model name")?;
+            let dir = store.join(&name);
+            if !dir.join("config.json").is_file() {
+                return Err(ErrorReply::new(
+                    ErrorCode::NotFound,
+                    format!("no model '{name}' in this store"),
+                ));
             }
-        };
-        respond(&q, result);
-    }
-    Ok(())
+            pack(&name, &dir).map_err(|e| e.to_reply())
+        },
+    )
 }
 
 #[cfg(test)]

@@ -11,7 +11,7 @@ use koopman::mpc::{MpcConfig, MpcController, SolveStatus as KStatus};
 use serde::{Deserialize, Serialize};
 use zenoh::{Session, Wait};
 
-use super::{parse_json, payload, respond, to_json, Inbox, DEFAULT_MAX_PAYLOAD};
+use super::{parse_json, serve_queries, to_json, Inbox};
 use crate::client::Client;
 use crate::codec::{CommandMsg, SolveReply, SolveRequest, SolveStatus, StateMsg};
 use crate::error::{Error, ErrorCode, ErrorReply, Result};
@@ -150,113 +150,106 @@ pub fn serve(
         Op::Configure,
     )?;
     inbox.declare(session, &keys.mpc_attach(id)?, Op::Attach)?;
-    let _token = session
-        .liveliness()
-        .declare_token(keys.alive(Role::Mpc, id)?)
-        .wait()
-        .map_err(Error::zenoh)?;
-    tracing::info!("MPC service '{id}' ready");
     let mut controllers: HashMap<String, MpcController<'static>> = HashMap::new();
     let mut configs: HashMap<String, ConfigureRequest> = HashMap::new();
     let mut default_model: Option<String> = None;
     let mut attached: HashMap<String, Attached> = HashMap::new();
-    while !stop.load(Ordering::Relaxed) {
-        let Some((op, q)) = inbox.next(Duration::from_millis(100)) else {
-            continue;
-        };
-        let result = (|| -> std::result::Result<Vec<u8>, ErrorReply> {
-            let body = payload(&q, DEFAULT_MAX_PAYLOAD)?;
-            match op {
-                Op::Solve => {
-                    let req = SolveRequest::decode(&body).map_err(|e| e.to_reply())?;
-                    let name = if req.model.is_empty() {
-                        default_model.clone().ok_or_else(|| {
-                            ErrorReply::new(
-                                ErrorCode::NotFound,
-                                "no model configured; send `configure` first",
-                            )
-                        })?
-                    } else {
-                        req.model.clone()
+    serve_queries(
+        session,
+        keys,
+        Role::Mpc,
+        id,
+        &inbox,
+        stop,
+        |op, _q, body| match op {
+            Op::Solve => {
+                let req = SolveRequest::decode(&body).map_err(|e| e.to_reply())?;
+                let name = if req.model.is_empty() {
+                    default_model.clone().ok_or_else(|| {
+                        ErrorReply::new(
+                            ErrorCode::NotFound,
+                            "no model configured; send `configure` first",
+                        )
+                    })?
+                } else {
+                    req.model.clone()
+                };
+                if !controllers.contains_key(&name) {
+                    let creq = ConfigureRequest {
+                        model: name.clone(),
+                        mpc: None,
                     };
-                    if !controllers.contains_key(&name) {
-                        let creq = ConfigureRequest {
-                            model: name.clone(),
-                            mpc: None,
-                        };
-                        let (c, _) = build(&client, store, &creq).map_err(|e| e.to_reply())?;
-                        controllers.insert(name.clone(), c);
-                        configs.insert(name.clone(), creq);
-                    }
-                    let c = controllers.get_mut(&name).ok_or_else(|| {
-                        ErrorReply::new(ErrorCode::Internal, "controller vanished")
-                    })?;
-                    let sol = c
-                        .solve(&req.x, &req.reference)
-                        .map_err(|e| Error::from(e).to_reply())?;
-                    Ok(SolveReply {
-                        status: wire_status(&sol.status),
-                        iterations: sol.iterations as u32,
-                        solve_time_ns: sol.solve_time.as_nanos() as u64,
-                        u: sol.u,
-                    }
-                    .encode())
-                }
-                Op::Configure => {
-                    let req: ConfigureRequest = parse_json("configure", &body)?;
-                    let (c, reply) = build(&client, store, &req).map_err(|e| e.to_reply())?;
-                    controllers.insert(req.model.clone(), c);
-                    configs.insert(req.model.clone(), req.clone());
-                    default_model = Some(req.model.clone());
-                    to_json(&reply)
-                }
-                Op::Attach => {
-                    let req: AttachRequest = parse_json("attach", &body)?;
-                    validate_chunk("sim id", &req.sim).map_err(|e| e.to_reply())?;
-                    if req.detach {
-                        let a = attached.remove(&req.sim).ok_or_else(|| {
-                            ErrorReply::new(
-                                ErrorCode::NotFound,
-                                format!("not attached to '{}'", req.sim),
-                            )
-                        })?;
-                        a.stop.store(true, Ordering::Relaxed);
-                        let stats = a.thread.join().map_err(|_| {
-                            ErrorReply::new(ErrorCode::Internal, "attachment thread panicked")
-                        })?;
-                        return to_json(&stats);
-                    }
-                    if attached.contains_key(&req.sim) {
-                        return Err(ErrorReply::new(
-                            ErrorCode::Busy,
-                            format!("already attached to '{}'", req.sim),
-                        ));
-                    }
-                    let creq = configs
-                        .get(&req.model)
-                        .cloned()
-                        .unwrap_or(ConfigureRequest {
-                            model: req.model.clone(),
-                            mpc: None,
-                        });
                     let (c, _) = build(&client, store, &creq).map_err(|e| e.to_reply())?;
-                    let flag = Arc::new(AtomicBool::new(false));
-                    let thread = attach(
-                        session.clone(),
-                        keys.clone(),
-                        req.sim.clone(),
-                        c,
-                        req.reference.clone(),
-                        flag.clone(),
-                    )
-                    .map_err(|e| e.to_reply())?;
-                    attached.insert(req.sim.clone(), Attached { stop: flag, thread });
-                    to_json(&serde_json::json!({"attached": req.sim}))
+                    controllers.insert(name.clone(), c);
+                    configs.insert(name.clone(), creq);
                 }
+                let c = controllers
+                    .get_mut(&name)
+                    .ok_or_else(|| ErrorReply::new(ErrorCode::Internal, "controller vanished"))?;
+                let sol = c
+                    .solve(&req.x, &req.reference)
+                    .map_err(|e| Error::from(e).to_reply())?;
+                Ok(SolveReply {
+                    status: wire_status(&sol.status),
+                    iterations: sol.iterations as u32,
+                    solve_time_ns: sol.solve_time.as_nanos() as u64,
+                    u: sol.u,
+                }
+                .encode())
             }
-        })();
-        respond(&q, result);
-    }
+            Op::Configure => {
+                let req: ConfigureRequest = parse_json("configure", &body)?;
+                let (c, reply) = build(&client, store, &req).map_err(|e| e.to_reply())?;
+                controllers.insert(req.model.clone(), c);
+                configs.insert(req.model.clone(), req.clone());
+                default_model = Some(req.model.clone());
+                to_json(&reply)
+            }
+            Op::Attach => {
+                let req: AttachRequest = parse_json("attach", &body)?;
+                validate_chunk("sim id", &req.sim).map_err(|e| e.to_reply())?;
+                if req.detach {
+                    let a = attached.remove(&req.sim).ok_or_else(|| {
+                        ErrorReply::new(
+                            ErrorCode::NotFound,
+                            format!("not attached to '{}'", req.sim),
+                        )
+                    })?;
+                    a.stop.store(true, Ordering::Relaxed);
+                    let stats = a.thread.join().map_err(|_| {
+                        ErrorReply::new(ErrorCode::Internal, "attachment thread panicked")
+                    })?;
+                    return to_json(&stats);
+                }
+                if attached.contains_key(&req.sim) {
+                    return Err(ErrorReply::new(
+                        ErrorCode::Busy,
+                        format!("already attached to '{}'", req.sim),
+                    ));
+                }
+                let creq = configs
+                    .get(&req.model)
+                    .cloned()
+                    .unwrap_or(ConfigureRequest {
+                        model: req.model.clone(),
+                        mpc: None,
+                    });
+                let (c, _) = build(&client, store, &creq).map_err(|e| e.to_reply())?;
+                let flag = Arc::new(AtomicBool::new(false));
+                let thread = attach(
+                    session.clone(),
+                    keys.clone(),
+                    req.sim.clone(),
+                    c,
+                    req.reference.clone(),
+                    flag.clone(),
+                )
+                .map_err(|e| e.to_reply())?;
+                attached.insert(req.sim.clone(), Attached { stop: flag, thread });
+                to_json(&serde_json::json!({"attached": req.sim}))
+            }
+        },
+    )?;
     for (_, a) in attached {
         a.stop.store(true, Ordering::Relaxed);
         let _ = a.thread.join();

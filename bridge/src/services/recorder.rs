@@ -4,7 +4,7 @@
 
 use std::collections::HashMap;
 use std::path::Path;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -12,7 +12,7 @@ use koopman::data::{Dataset, DatasetMeta, Pairing};
 use serde::{Deserialize, Serialize};
 use zenoh::{Session, Wait};
 
-use super::{parse_json, payload, respond, to_json, Inbox, DEFAULT_MAX_PAYLOAD};
+use super::{key_tail, parse_json, serve_queries, to_json, Inbox};
 use crate::codec::StateMsg;
 use crate::error::{Error, ErrorCode, ErrorReply, Result};
 use crate::keyexpr::{validate_chunk, Keys, Role, SimLeaf};
@@ -132,134 +132,116 @@ pub fn serve(
     let mut inbox = Inbox::new();
     inbox.declare(session, &keys.recorder(id)?, Op::Record)?;
     inbox.declare(session, &keys.under(&["data", "*"]), Op::Data)?;
-    let _token = session
-        .liveliness()
-        .declare_token(keys.alive(Role::Recorder, id)?)
-        .wait()
-        .map_err(Error::zenoh)?;
     let mut active: HashMap<String, Active> = HashMap::new();
-    while !stop.load(Ordering::Relaxed) {
-        let Some((op, q)) = inbox.next(Duration::from_millis(100)) else {
-            continue;
-        };
-        let result = (|| -> std::result::Result<Vec<u8>, ErrorReply> {
-            let body = payload(&q, DEFAULT_MAX_PAYLOAD)?;
-            match op {
-                Op::Data => {
-                    let name = q
-                        .key_expr()
-                        .as_str()
-                        .rsplit('/')
-                        .next()
-                        .unwrap_or("")
-                        .to_string();
-                    validate_chunk("dataset name", &name).map_err(|e| e.to_reply())?;
-                    let p = data_dir.join(format!("{name}.npz"));
-                    std::fs::read(&p).map_err(|_| {
-                        ErrorReply::new(ErrorCode::NotFound, format!("no dataset '{name}'"))
-                    })
-                }
-                Op::Record => {
-                    let req: RecordRequest = parse_json("record", &body)?;
-                    validate_chunk("sim id", &req.sim).map_err(|e| e.to_reply())?;
-                    match req.action.as_str() {
-                        "start" => {
-                            if active.contains_key(&req.sim) {
-                                return Err(ErrorReply::new(
-                                    ErrorCode::Busy,
-                                    format!("already recording '{}'", req.sim),
-                                ));
-                            }
-                            let rec = Arc::new(Mutex::new(Recording::default()));
-                            let r2 = rec.clone();
-                            let sub = session
-                                .declare_subscriber(
-                                    keys.sim(&req.sim, SimLeaf::State)
-                                        .map_err(|e| e.to_reply())?,
-                                )
-                                .callback(move |s| {
-                                    let mut r = r2.lock().unwrap_or_else(|e| e.into_inner());
-                                    match StateMsg::decode(&s.payload().to_bytes()) {
-                                        Ok(m) => r.states.push(m),
-                                        Err(_) => r.bad += 1,
-                                    }
-                                })
-                                .wait()
-                                .map_err(|e| Error::zenoh(e).to_reply())?;
-                            active.insert(
-                                req.sim.clone(),
-                                (rec, sub, req.window_steps.unwrap_or(15)),
-                            );
-                            to_json(&serde_json::json!({"recording": req.sim}))
+    serve_queries(
+        session,
+        keys,
+        Role::Recorder,
+        id,
+        &inbox,
+        stop,
+        |op, q, body| match op {
+            Op::Data => {
+                let name = key_tail(q, "dataset name")?;
+                let p = data_dir.join(format!("{name}.npz"));
+                std::fs::read(&p).map_err(|_| {
+                    ErrorReply::new(ErrorCode::NotFound, format!("no dataset '{name}'"))
+                })
+            }
+            Op::Record => {
+                let req: RecordRequest = parse_json("record", &body)?;
+                validate_chunk("sim id", &req.sim).map_err(|e| e.to_reply())?;
+                match req.action.as_str() {
+                    "start" => {
+                        if active.contains_key(&req.sim) {
+                            return Err(ErrorReply::new(
+                                ErrorCode::Busy,
+                                format!("already recording '{}'", req.sim),
+                            ));
                         }
-                        "stop" => {
-                            validate_chunk("dataset name", &req.name).map_err(|e| e.to_reply())?;
-                            let (rec, sub, steps) = active.remove(&req.sim).ok_or_else(|| {
-                                ErrorReply::new(
-                                    ErrorCode::NotFound,
-                                    format!("not recording '{}'", req.sim),
-                                )
-                            })?;
-                            drop(sub);
-                            let info: InfoReply = {
-                                let key = keys
-                                    .sim(&req.sim, SimLeaf::Info)
-                                    .map_err(|e| e.to_reply())?;
-                                let b = client
-                                    .query(
-                                        &key,
-                                        Vec::new(),
-                                        Duration::from_secs(10),
-                                        &format!("simulator '{}'", req.sim),
-                                    )
-                                    .map_err(|e| e.to_reply())?;
-                                parse_json("info", &b)?
-                            };
-                            let rec = rec.lock().unwrap_or_else(|e| e.into_inner());
-                            let (nx, nu) = (info.sim.nx(), info.sim.nu());
-                            let (x, u, n, gaps, ooo) =
-                                windows_from_stream(&rec.states, steps, nx, nu);
-                            let d = Dataset {
-                                n,
-                                steps,
-                                nx,
-                                nu,
-                                x,
-                                u,
-                                meta: DatasetMeta {
-                                    env: info.sim.env.clone(),
-                                    dt: info.sim.dt,
-                                    state_names: info.sim.state_names.clone(),
-                                    input_names: info.sim.input_names.clone(),
-                                    pairing: Pairing::Aligned,
-                                    seed: 0,
-                                    source: format!("zenoh:sim/{} (free-run recording)", req.sim),
-                                    policy: "recorded".into(),
-                                },
-                            };
-                            if n > 0 {
-                                d.save_npz(&data_dir.join(format!("{}.npz", req.name)))
-                                    .map_err(|e| Error::from(e).to_reply())?;
-                            }
-                            to_json(&RecordSummary {
-                                name: req.name.clone(),
-                                states: rec.states.len() as u64,
-                                gaps,
-                                out_of_order: ooo,
-                                windows: n,
+                        let rec = Arc::new(Mutex::new(Recording::default()));
+                        let r2 = rec.clone();
+                        let sub = session
+                            .declare_subscriber(
+                                keys.sim(&req.sim, SimLeaf::State)
+                                    .map_err(|e| e.to_reply())?,
+                            )
+                            .callback(move |s| {
+                                let mut r = r2.lock().unwrap_or_else(|e| e.into_inner());
+                                match StateMsg::decode(&s.payload().to_bytes()) {
+                                    Ok(m) => r.states.push(m),
+                                    Err(_) => r.bad += 1,
+                                }
                             })
-                        }
-                        other => Err(ErrorReply::new(
-                            ErrorCode::BadRequest,
-                            format!("action '{other}': expected start or stop"),
-                        )),
+                            .wait()
+                            .map_err(|e| Error::zenoh(e).to_reply())?;
+                        active.insert(req.sim.clone(), (rec, sub, req.window_steps.unwrap_or(15)));
+                        to_json(&serde_json::json!({"recording": req.sim}))
                     }
+                    "stop" => {
+                        validate_chunk("dataset name", &req.name).map_err(|e| e.to_reply())?;
+                        let (rec, sub, steps) = active.remove(&req.sim).ok_or_else(|| {
+                            ErrorReply::new(
+                                ErrorCode::NotFound,
+                                format!("not recording '{}'", req.sim),
+                            )
+                        })?;
+                        drop(sub);
+                        let info: InfoReply = {
+                            let key = keys
+                                .sim(&req.sim, SimLeaf::Info)
+                                .map_err(|e| e.to_reply())?;
+                            let b = client
+                                .query(
+                                    &key,
+                                    Vec::new(),
+                                    Duration::from_secs(10),
+                                    &format!("simulator '{}'", req.sim),
+                                )
+                                .map_err(|e| e.to_reply())?;
+                            parse_json("info", &b)?
+                        };
+                        let rec = rec.lock().unwrap_or_else(|e| e.into_inner());
+                        let (nx, nu) = (info.sim.nx(), info.sim.nu());
+                        let (x, u, n, gaps, ooo) = windows_from_stream(&rec.states, steps, nx, nu);
+                        let d = Dataset {
+                            n,
+                            steps,
+                            nx,
+                            nu,
+                            x,
+                            u,
+                            meta: DatasetMeta {
+                                env: info.sim.env.clone(),
+                                dt: info.sim.dt,
+                                state_names: info.sim.state_names.clone(),
+                                input_names: info.sim.input_names.clone(),
+                                pairing: Pairing::Aligned,
+                                seed: 0,
+                                source: format!("zenoh:sim/{} (free-run recording)", req.sim),
+                                policy: "recorded".into(),
+                            },
+                        };
+                        if n > 0 {
+                            d.save_npz(&data_dir.join(format!("{}.npz", req.name)))
+                                .map_err(|e| Error::from(e).to_reply())?;
+                        }
+                        to_json(&RecordSummary {
+                            name: req.name.clone(),
+                            states: rec.states.len() as u64,
+                            gaps,
+                            out_of_order: ooo,
+                            windows: n,
+                        })
+                    }
+                    other => Err(ErrorReply::new(
+                        ErrorCode::BadRequest,
+                        format!("action '{other}': expected start or stop"),
+                    )),
                 }
             }
-        })();
-        respond(&q, result);
-    }
-    Ok(())
+        },
+    )
 }
 
 #[cfg(test)]
