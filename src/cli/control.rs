@@ -227,8 +227,8 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
         system.as_ref(),
         model.as_deref(),
         &task.reference(task.steps),
-        &lo,
-        &hi,
+        kind == TaskKind::Regulate,
+        (&lo, &hi),
         args.horizon,
     );
     diagnostics.print();

@@ -25,18 +25,22 @@ pub struct ControlDiagnostics {
     pub warnings: Vec<String>,
 }
 
-/// Runs the checks; failures of the checks themselves become warnings, never errors.
+/// Runs the checks; failures of the checks themselves become warnings, never errors. `hold`
+/// says whether the task must hold `target` (regulation) or only pass near it (tracking: the
+/// holding check is skipped and the gains are compared at `target` with zero nominal input).
 pub fn diagnose(
     system: &dyn System,
     model: Option<&dyn LiftedModel>,
     target: &[f64],
-    u_min: &[f64],
-    u_max: &[f64],
+    hold: bool,
+    bounds: (&[f64], &[f64]),
     horizon: usize,
 ) -> ControlDiagnostics {
+    let (u_min, u_max) = bounds;
     let mut warnings = Vec::new();
-    let holding = match holding_input(system, target, u_min, u_max) {
-        Ok(h) => {
+    let holding = match hold.then(|| holding_input(system, target, u_min, u_max)) {
+        None => None,
+        Some(Ok(h)) => {
             if h.residual > 1e-6 {
                 warnings.push(format!(
                     "the target {target:?} is not an equilibrium of {} for any constant input \
@@ -56,7 +60,7 @@ pub fn diagnose(
             }
             Some(h)
         }
-        Err(e) => {
+        Some(Err(e)) => {
             warnings.push(format!("could not compute the holding input: {e}"));
             None
         }
