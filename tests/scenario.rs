@@ -69,3 +69,128 @@ fn a_tiny_scenario_runs_end_to_end_and_repeats_its_data() {
         );
     }
 }
+
+/// Long enough training (a few seconds) that the simulator can be killed between the first
+/// checkpoint and the end.
+const SLOW_TRAIN: &str = r#"
+name = "restart"
+[[sims]]
+id = "pend"
+env = "damped-pendulum"
+[collect]
+policy = { kind = "uniform" }
+train_windows = 200
+val_windows = 40
+test_windows = 40
+steps = 15
+seed = 3
+[train]
+config = { iterations = 3000, hidden = [64, 64], n_mult = 8, batch = 64, validate_every = 200 }
+[control]
+x0 = [-1.0, 0.1]
+reference = [0.0, 0.0]
+steps = 10
+"#;
+
+/// The child process of `parent` whose command line has the argument `arg`.
+fn child_with_arg(parent: u32, arg: &str) -> Option<u32> {
+    for e in std::fs::read_dir("/proc").ok()?.flatten() {
+        let Ok(pid) = e.file_name().to_string_lossy().parse::<u32>() else {
+            continue;
+        };
+        let stat = std::fs::read_to_string(e.path().join("stat")).unwrap_or_default();
+        // pid (comm) state ppid …; comm may hold spaces, so split after the last ')'.
+        let ppid = stat
+            .rsplit(')')
+            .next()
+            .and_then(|r| r.split_whitespace().nth(1))
+            .and_then(|p| p.parse::<u32>().ok());
+        let cmd = std::fs::read(e.path().join("cmdline")).unwrap_or_default();
+        if ppid == Some(parent) && cmd.split(|&b| b == 0).any(|a| a == arg.as_bytes()) {
+            return Some(pid);
+        }
+    }
+    None
+}
+
+#[test]
+fn a_simulator_killed_in_training_ends_the_run_at_once_and_the_rerun_resumes() {
+    use std::time::{Duration, Instant};
+    let dir = common::scratch("scn-restart");
+    let sc = dir.join("restart.toml");
+    std::fs::write(&sc, SLOW_TRAIN).unwrap();
+    let out = dir.join("out");
+    let args = ["run", sc.to_str().unwrap(), "--out", out.to_str().unwrap()];
+    let mut run = Command::new(common::exe())
+        .args(args)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Wait until training has written its first checkpoint, then kill the simulator.
+    let jobs = out.join("state/trainer/jobs");
+    let deadline = Instant::now() + common::READY;
+    let ckpt = loop {
+        let found = std::fs::read_dir(&jobs).ok().and_then(|d| {
+            d.flatten()
+                .map(|e| e.path())
+                .find(|p| p.extension().is_some_and(|x| x == "ckpt"))
+        });
+        if let Some(p) = found {
+            break p;
+        }
+        assert!(run.try_wait().unwrap().is_none(), "the run ended early");
+        assert!(Instant::now() < deadline, "training never checkpointed");
+        std::thread::sleep(Duration::from_millis(5));
+    };
+    let sim = child_with_arg(run.id(), "sim").expect("the simulator child process");
+    let t0 = Instant::now();
+    assert!(Command::new("kill")
+        .args(["-9", &sim.to_string()])
+        .status()
+        .unwrap()
+        .success());
+    let status = loop {
+        if let Some(s) = run.try_wait().unwrap() {
+            break s;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "the run did not end after its simulator died"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    };
+    let ended = t0.elapsed();
+    eprintln!("the run ended {ended:?} after its simulator was killed");
+    let mut stderr = String::new();
+    std::io::Read::read_to_string(run.stderr.as_mut().unwrap(), &mut stderr).unwrap();
+    assert!(!status.success());
+    assert!(stderr.contains("simulator 'pend'"), "{stderr}");
+    assert!(
+        ended < Duration::from_secs(1),
+        "the run took {ended:?} to end"
+    );
+    // The job was interrupted mid-training: its checkpoint is still there.
+    assert!(ckpt.is_file(), "the interrupted job kept its checkpoint");
+    assert!(!out.join("report.json").exists());
+
+    // The same command again, same output folder, nothing cleaned: it succeeds, and the
+    // training continues from the interrupted job's checkpoint.
+    let o = Command::new(common::exe()).args(args).output().unwrap();
+    assert!(
+        o.status.success(),
+        "the rerun failed:\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let r: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    let job = ckpt.file_stem().unwrap().to_str().unwrap();
+    assert_eq!(
+        r["train"][0]["job"], job,
+        "the rerun found the interrupted job"
+    );
+    let from = r["train"][0]["metrics"]["resumed_from"].as_u64().unwrap();
+    assert!(from >= 200, "resumed_from = {from}");
+    assert_eq!(r["control"]["x"].as_array().unwrap().len(), 11);
+    assert!(!ckpt.exists());
+}

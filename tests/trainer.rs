@@ -1,6 +1,7 @@
 //! The trainer service over Zenoh: a submitted job trains a real (tiny) model whose reported test
-//! error matches an independent evaluation of the stored model, and a job left unfinished by a
-//! previous service run is re-run from its persisted spec when the service starts again.
+//! error matches an independent evaluation of the stored model, a job left unfinished by a
+//! previous service run (without a checkpoint) is re-run from its persisted spec when the service
+//! starts again, and a new spec for the same model supersedes an unfinished job.
 
 mod common;
 
@@ -106,4 +107,47 @@ fn jobs_train_store_models_and_resume_after_a_restart() {
         "{bad:?}"
     );
     let _ = progress;
+
+    // A new spec for the same model supersedes an unfinished job with another spec.
+    let long = JobSpec {
+        config: common::config(serde_json::json!({"iterations": 100000, "hidden": [16],
+            "n_mult": 2, "batch": 16, "validate_every": 1000})),
+        ..spec("shared")
+    };
+    let b = c
+        .client
+        .query(
+            &c.client.keys.trainer_jobs(SERVICES_ID).unwrap(),
+            serde_json::to_vec(&long).unwrap(),
+            std::time::Duration::from_secs(30),
+            "trainer",
+        )
+        .unwrap();
+    let old = serde_json::from_slice::<bridge::services::trainer::SubmitReply>(&b)
+        .unwrap()
+        .job;
+    let newer = submit_and_wait(
+        &c.client,
+        &c.live,
+        SERVICES_ID,
+        &spec("shared"),
+        &mut |_| {},
+    )
+    .unwrap();
+    assert_ne!(newer.job, old);
+    let b = c
+        .client
+        .query(
+            &c.client.keys.trainer_job(SERVICES_ID, &old).unwrap(),
+            vec![],
+            std::time::Duration::from_secs(30),
+            "trainer",
+        )
+        .unwrap();
+    let r: JobRecord = serde_json::from_slice(&b).unwrap();
+    assert_eq!(r.state, JobState::Cancelled, "{r:?}");
+    assert!(r
+        .error
+        .unwrap()
+        .contains(&format!("superseded by job {}", newer.job)));
 }

@@ -16,7 +16,7 @@ use crate::keyexpr::{fresh_session_id, Keys, Role};
 use crate::messages::ResetRequest;
 use crate::procs::ChildProc;
 use crate::scenario::{Scenario, SimSpec};
-use crate::services::trainer::{submit_and_wait, DatasetRef, JobSpec};
+use crate::services::trainer::{submit_and_wait_watching, DatasetRef, JobSpec};
 use crate::session::{free_loopback_endpoint, open_session, ZenohOptions};
 
 /// Id of the services process started by the orchestrator.
@@ -523,9 +523,13 @@ pub fn run_scenario(
                 test: (c.test_windows > 0).then(|| abs("test")),
                 config: t.config.clone(),
             };
-            let rec = submit_and_wait(client, live, SERVICES_ID, &spec, &mut |p| {
-                on(Event::Train(p))
-            })?;
+            // The simulators are needed again after training: a lost one ends the run now.
+            let sims: Vec<(Role, String)> =
+                sc.sims.iter().map(|s| (Role::Sim, s.id.clone())).collect();
+            let rec =
+                submit_and_wait_watching(client, live, SERVICES_ID, &spec, &sims, &mut |p| {
+                    on(Event::Train(p))
+                })?;
             train_reports.push(TrainReport {
                 sim: s.id.clone(),
                 model,

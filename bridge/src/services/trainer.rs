@@ -145,6 +145,43 @@ impl Shared {
     }
 }
 
+/// Cancels the unfinished jobs for the same model as `spec` but with another spec: the newer
+/// submission `by` would overwrite their model anyway (e.g. a scenario restarted with changed
+/// settings must not first finish the stale job of its previous run).
+fn supersede(shared: &Shared, spec: &JobSpec, by: &str) {
+    let stale: Vec<String> = shared
+        .jobs
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .values()
+        .filter(|r| {
+            matches!(r.state, JobState::Queued | JobState::Running)
+                && r.spec.model == spec.model
+                && r.spec != *spec
+        })
+        .map(|r| r.job.clone())
+        .collect();
+    for job in stale {
+        tracing::info!("job {job} is superseded by job {by} (same model, another spec)");
+        if let Some(f) = shared
+            .cancel
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(&job)
+        {
+            f.store(true, Ordering::Relaxed);
+        }
+        if let Some(r) = shared.update(&job, |r| {
+            r.error = Some(format!("superseded by job {by}"));
+            if r.state == JobState::Queued {
+                r.state = JobState::Cancelled;
+            }
+        }) {
+            write_record(&shared.dir, &r);
+        }
+    }
+}
+
 fn new_job_id(n: usize) -> String {
     let t = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -321,6 +358,7 @@ pub fn serve_with(
             }
             counter += 1;
             let job = new_job_id(counter);
+            supersede(&shared, &spec, &job);
             let r = JobRecord {
                 job: job.clone(),
                 spec,
@@ -498,7 +536,10 @@ fn worker(
                     } else {
                         JobState::Failed
                     };
-                    r.error = Some(e.to_string());
+                    // A cancelled job keeps the reason it was cancelled for, if it has one.
+                    if !(cancelled && r.error.is_some()) {
+                        r.error = Some(e.to_string());
+                    }
                 })
             }
         };
@@ -527,6 +568,20 @@ pub fn submit_and_wait(
     spec: &JobSpec,
     on_progress: &mut dyn FnMut(&serde_json::Value),
 ) -> Result<JobRecord> {
+    submit_and_wait_watching(client, live, id, spec, &[], on_progress)
+}
+
+/// [`submit_and_wait`] that also fails with [`Error::Gone`] naming the participant as soon as one
+/// of `watch` (role, id) withdraws its liveliness token (e.g. the simulators of a scenario, which
+/// the run needs after training).
+pub fn submit_and_wait_watching(
+    client: &crate::client::Client,
+    live: &crate::client::Liveliness,
+    id: &str,
+    spec: &JobSpec,
+    watch: &[(Role, String)],
+    on_progress: &mut dyn FnMut(&serde_json::Value),
+) -> Result<JobRecord> {
     let who = format!("trainer '{id}'");
     let body = serde_json::to_vec(spec).map_err(|e| Error::Config(e.to_string()))?;
     let b = client.query(
@@ -551,13 +606,20 @@ pub fn submit_and_wait(
     let status_key = client.keys.trainer_job(id, &sub.job)?;
     let mut last_poll = std::time::Instant::now();
     loop {
-        if let Ok(v) = rx.recv_timeout(Duration::from_millis(200)) {
+        if let Ok(v) = rx.recv_timeout(Duration::from_millis(50)) {
             if v.get("state").is_none() {
                 on_progress(&v);
             }
         }
         if live.is_gone(Role::Trainer, id) {
             return Err(Error::Gone(who));
+        }
+        if let Some((role, other)) = watch.iter().find(|(r, i)| live.is_gone(*r, i)) {
+            let what = match role {
+                Role::Sim => "simulator",
+                r => r.as_str(),
+            };
+            return Err(Error::Gone(format!("{what} '{other}'")));
         }
         if last_poll.elapsed() > Duration::from_millis(500) {
             last_poll = std::time::Instant::now();
