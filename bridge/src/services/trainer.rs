@@ -13,7 +13,7 @@ use std::time::Duration;
 use serde::{Deserialize, Serialize};
 use zenoh::{Session, Wait};
 
-use super::{parse_json, payload, respond, to_json, Inbox, DEFAULT_MAX_PAYLOAD};
+use super::{key_tail, parse_json, serve_queries, to_json, Inbox};
 use crate::error::{Error, ErrorCode, ErrorReply, Result};
 use crate::keyexpr::{validate_chunk, Keys, Role};
 
@@ -279,27 +279,17 @@ pub fn serve_with(
     let mut inbox = Inbox::new();
     inbox.declare(session, &keys.trainer_jobs(id)?, false)?;
     inbox.declare(session, &keys.under(&["trainer", id, "jobs", "*"]), true)?;
-    let _token = session
-        .liveliness()
-        .declare_token(keys.alive(Role::Trainer, id)?)
-        .wait()
-        .map_err(Error::zenoh)?;
-    tracing::info!("trainer '{id}' ready ({} concurrent jobs)", max_jobs.max(1));
-    while !stop.load(Ordering::Relaxed) {
-        let Some((is_status, q)) = inbox.next(Duration::from_millis(100)) else {
-            continue;
-        };
-        let result = (|| -> std::result::Result<Vec<u8>, ErrorReply> {
-            let body = payload(&q, DEFAULT_MAX_PAYLOAD)?;
+    tracing::info!("trainer '{id}': {} concurrent jobs", max_jobs.max(1));
+    let served = serve_queries(
+        session,
+        keys,
+        Role::Trainer,
+        id,
+        &inbox,
+        stop,
+        |is_status, q, body| {
             if is_status {
-                let job = q
-                    .key_expr()
-                    .as_str()
-                    .rsplit('/')
-                    .next()
-                    .unwrap_or("")
-                    .to_string();
-                validate_chunk("job id", &job).map_err(|e| e.to_reply())?;
+                let job = key_tail(q, "job id")?;
                 if !body.is_empty() {
                     #[derive(Deserialize)]
                     #[serde(deny_unknown_fields)]
@@ -385,9 +375,8 @@ pub fn serve_with(
                 job,
                 state: JobState::Queued,
             })
-        })();
-        respond(&q, result);
-    }
+        },
+    );
     done.store(true, Ordering::Relaxed);
     for f in shared
         .cancel
@@ -401,7 +390,7 @@ pub fn serve_with(
     for w in workers {
         let _ = w.join();
     }
-    Ok(())
+    served
 }
 
 fn worker(
