@@ -15,7 +15,10 @@ use bridge::session::ZenohOptions;
     after_help = "Example:\n  koopbridge run scenarios/damped-pendulum.toml\n\n\
     Nothing has to be started by hand: the simulators (`koopbridge sim`) and services\n\
     (`koopbridge serve`) are started from this executable, connect to this process on a free\n\
-    loopback port, and exit with it. Logs: results/{scenario}/logs/."
+    loopback port, and exit with it. Logs: results/{scenario}/logs/.\n\n\
+    A simulator that dies ends the run at once, naming it. Running the same scenario again into\n\
+    the same output folder needs no cleaning: an interrupted training resumes from its checkpoint\n\
+    (results/{scenario}/state/trainer/jobs/)."
 )]
 pub struct RunArgs {
     /// The scenario file (TOML, see scenarios/).
