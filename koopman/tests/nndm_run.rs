@@ -116,6 +116,17 @@ fn save_load_round_trip_keeps_predictions_and_step_matches_the_batched_rollout()
     let mut next = [0.0; 2];
     one.predict(&x, &u, &mut next);
     assert_eq!(next.to_vec(), out.model.step(&x, &u).unwrap());
+    // The batched one-step prediction (random shooting's path) equals single steps.
+    let xs = [0.3, -1.2, 2.0, 0.5, -3.0, 7.0];
+    let us = [2.5, -8.0, 0.1];
+    let mut rows = [0.0; 6];
+    one.predict_rows(&xs, &us, &mut rows);
+    for i in 0..3 {
+        let single = back.step(&xs[2 * i..2 * i + 2], &us[i..i + 1]).unwrap();
+        for j in 0..2 {
+            assert!((rows[2 * i + j] - single[j]).abs() <= 1e-12 * (1.0 + single[j].abs()));
+        }
+    }
     // load_lifted stays for lifted models.
     assert!(matches!(load_lifted(&dir), Err(Error::UnknownName { .. })));
     // The batched rollout (training/eval path) agrees with repeated single steps.

@@ -15,7 +15,20 @@ pub trait OneStepModel: Send + Sync {
     fn nu(&self) -> usize;
     /// Writes `x⁺ = f(x, u)` into `next`.
     fn predict(&self, x: &[f64], u: &[f64], next: &mut [f64]);
+
+    /// Predicts `rows` transitions at once: `xs` (rows × nx), `us` (rows × nu) and `next`
+    /// (rows × nx) are row-major. The default calls [`OneStepModel::predict`] row by row;
+    /// models with a batched forward pass (the NNDM: one GEMM per layer) override it.
+    fn predict_rows(&self, xs: &[f64], us: &[f64], next: &mut [f64]) {
+        let (nx, nu) = (self.nx(), self.nu());
+        for (i, out) in next.chunks_exact_mut(nx).enumerate() {
+            self.predict(&xs[i * nx..(i + 1) * nx], &us[i * nu..(i + 1) * nu], out);
+        }
+    }
 }
+
+/// Rollouts per batched prediction in [`RandomShooting::plan`] (and per parallel task).
+const ROLLOUT_CHUNK: usize = 128;
 
 /// The true system used as its own one-step model (an oracle upper bound for the baseline).
 pub struct SystemAsModel<'s>(pub &'s dyn System);
@@ -118,23 +131,29 @@ impl RandomShooting {
             })
             .collect();
         let (horizon, q) = (self.horizon, &self.q);
+        // Roll out chunks of sequences in parallel, each chunk one batched prediction per step.
         let costs: Vec<f64> = seqs
-            .par_iter()
-            .map(|seq| {
-                let (mut cur, mut next) = (x.to_vec(), vec![0.0; nx]);
-                let mut cost = 0.0;
+            .par_chunks(ROLLOUT_CHUNK)
+            .flat_map_iter(|chunk| {
+                let rows = chunk.len();
+                let mut cur: Vec<f64> = x.repeat(rows);
+                let mut next = vec![0.0; rows * nx];
+                let mut inputs = vec![0.0; rows * nu];
+                let mut cost = vec![0.0; rows];
                 for t in 0..horizon {
-                    model.predict(&cur, &seq[t * nu..(t + 1) * nu], &mut next);
-                    for i in 0..nx {
-                        cost += q[i] * (next[i] - r[t * nx + i]).powi(2);
+                    for (dst, seq) in inputs.chunks_exact_mut(nu.max(1)).zip(chunk) {
+                        dst.copy_from_slice(&seq[t * nu..(t + 1) * nu]);
+                    }
+                    model.predict_rows(&cur, &inputs, &mut next);
+                    for (c, xn) in cost.iter_mut().zip(next.chunks_exact(nx)) {
+                        for i in 0..nx {
+                            *c += q[i] * (xn[i] - r[t * nx + i]).powi(2);
+                        }
                     }
                     std::mem::swap(&mut cur, &mut next);
                 }
-                if cost.is_nan() {
-                    f64::INFINITY
-                } else {
-                    cost
-                }
+                cost.into_iter()
+                    .map(|c| if c.is_nan() { f64::INFINITY } else { c })
             })
             .collect();
         let (i_best, &c_best) = costs

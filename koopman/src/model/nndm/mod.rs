@@ -264,4 +264,31 @@ impl OneStepModel for NndmModel {
     fn predict(&self, x: &[f64], u: &[f64], next: &mut [f64]) {
         self.step_into(x, u, next);
     }
+
+    /// All rows through the MLP at once (one GEMM per layer, sequential: callers parallelise
+    /// over chunks); allocates the activation buffers of `rows` rows per call.
+    fn predict_rows(&self, xs: &[f64], us: &[f64], next: &mut [f64]) {
+        let (nx, nu) = (self.arch.nx, self.arch.nu);
+        let rows = next.len() / nx.max(1);
+        if rows == 0 {
+            return;
+        }
+        let mut bufs = mlp::MlpBufs::<f64>::new(&self.arch, rows, rows);
+        let input = bufs.input_mut(); // column-major rows × (nx + nu)
+        for i in 0..rows {
+            for j in 0..nx {
+                input[j * rows + i] = xs[i * nx + j];
+            }
+            for j in 0..nu {
+                input[(nx + j) * rows + i] = us[i * nu + j];
+            }
+        }
+        bufs.forward_block(&self.params, 0, rows);
+        let out = bufs.output(); // column-major rows × nx: the increment g
+        for i in 0..rows {
+            for j in 0..nx {
+                next[i * nx + j] = xs[i * nx + j] + out[j * rows + i];
+            }
+        }
+    }
 }
