@@ -82,8 +82,10 @@ pub struct TrainArgs {
     /// Iterations between validations.
     #[arg(long, default_value_t = 1000)]
     pub validate_every: usize,
-    /// Threads for the large products (0 = all cores).
-    #[arg(long, default_value_t = 0)]
+    /// Threads (0 = all cores). The batch is split into one row part per thread and the parts'
+    /// gradients are summed, so the trained bits depend on this number: the default, 2, gives
+    /// the same model on every machine (and what the trainer service uses).
+    #[arg(long, default_value_t = 2)]
     pub threads: usize,
     /// Print the metrics as one JSON object on the last line of stdout.
     #[arg(long)]
