@@ -7,6 +7,7 @@ pub mod eval;
 pub mod loss;
 pub mod nndm;
 mod run;
+mod tracker;
 
 pub use checkpoint::Checkpoint;
 pub use run::{train, train_resumable};

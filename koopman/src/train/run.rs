@@ -4,6 +4,7 @@ use super::adam::{clip_grad_norm, step_lr, Adam};
 use super::checkpoint::{data_fingerprint, Checkpoint};
 use super::eval::{check_dataset, PredEval};
 use super::loss::{LossOptions, LossParts, LossWs};
+use super::tracker::RunTracker;
 use super::{Precision, Progress, TrainConfig, TrainMetrics, TrainOutcome};
 use crate::data::Dataset;
 use crate::model::arch::Arch;
@@ -191,10 +192,13 @@ fn run_loop<T: Real>(
         None => to_t(&init_params(arch, &mut Rng::new(cfg.seed))?),
     };
     let mut grad = vec![T::default(); params.len()];
-    let mut best: Vec<T> = match resume {
-        Some(ck) => to_t(&ck.best),
-        None => params.clone(),
-    };
+    let mut tracker = RunTracker::new(&params);
+    if let Some(ck) = resume {
+        tracker.best = to_t(&ck.best);
+        tracker.best_val = ck.best_validation.unwrap_or(f64::INFINITY);
+        tracker.best_it = ck.best_iteration;
+        tracker.iter_secs = ck.iter_seconds;
+    }
     let mut adam = match resume {
         Some(ck) => Adam::<T>::from_state(to_t(&ck.adam_m), to_t(&ck.adam_v), ck.adam_steps)
             .filter(|a| a.moments().0.len() == params.len())
@@ -219,14 +223,6 @@ fn run_loop<T: Real>(
         ctrl: cfg.ctrl,
         cov: cfg.cov,
     };
-    let (mut best_val, mut best_it) = match resume {
-        Some(ck) => (
-            ck.best_validation.unwrap_or(f64::INFINITY),
-            ck.best_iteration,
-        ),
-        None => (f64::INFINITY, 0),
-    };
-    let mut iter_secs = resume.map_or(0.0, |ck| ck.iter_seconds);
     let mut last = resume.map_or(LossParts::default(), |ck| ck.last_loss);
     let n = (steps + 1) * b;
     for it in resume.map_or(0, |ck| ck.iteration)..cfg.iterations {
@@ -265,34 +261,18 @@ fn run_loop<T: Real>(
         clip_grad_norm(&mut grad, cfg.clip);
         let lr = step_lr(cfg.lr, cfg.lr_decay, cfg.lr_step, it);
         adam.step(&mut params, &grad, lr);
-        iter_secs += t0.elapsed().as_secs_f64();
+        tracker.iter_secs += t0.elapsed().as_secs_f64();
         last = parts;
         let done = it + 1;
-        let validation = if done % cfg.validate_every == 0 || done == cfg.iterations {
-            let v = eval
-                .pred_loss(&params, val, cfg.gamma)
-                .unwrap_or(f64::INFINITY);
-            if v < best_val || best_it == 0 {
-                best_val = v;
-                best_it = done;
-                best.copy_from_slice(&params);
-            }
-            Some(v)
-        } else {
-            None
-        };
-        let progress = Progress {
-            iteration: done,
-            total: cfg.iterations,
-            loss: parts,
+        let validation = tracker.after_step(
+            cfg,
+            done,
+            &params,
+            parts,
             lr,
-            validation,
-            best_validation: best_val.is_finite().then_some(best_val),
-            iterations_per_second: done as f64 / iter_secs.max(1e-12),
-        };
-        if observer(&progress).is_break() {
-            return Err(Error::Cancelled);
-        }
+            |p| eval.pred_loss(p, val, cfg.gamma),
+            observer,
+        )?;
         if validation.is_some() {
             let (am, av) = adam.moments();
             let (state, spare) = rng.state();
@@ -306,24 +286,14 @@ fn run_loop<T: Real>(
                 adam_steps: adam.steps(),
                 rng: state,
                 rng_spare: spare,
-                best: to_f64(&best),
-                best_validation: best_val.is_finite().then_some(best_val),
-                best_iteration: best_it,
-                iter_seconds: iter_secs,
+                best: to_f64(&tracker.best),
+                best_validation: tracker.best_validation(),
+                best_iteration: tracker.best_it,
+                iter_seconds: tracker.iter_secs,
                 last_loss: last,
             });
         }
     }
-    if !best_val.is_finite() {
-        return Err(Error::Numerical(
-            "the validation prediction error is not finite at any checkpoint".into(),
-        ));
-    }
-    Ok((
-        best.iter().map(|v| v.to_f64()).collect(),
-        best_val,
-        best_it,
-        iter_secs,
-        last,
-    ))
+    let t = tracker.finish()?;
+    Ok((to_f64(&t.best), t.best_val, t.best_it, t.iter_secs, last))
 }

@@ -12,6 +12,7 @@ use crate::rng::Rng;
 use crate::train::adam::{clip_grad_norm, step_lr, Adam};
 use crate::train::eval::check_dataset;
 use crate::train::loss::LossParts;
+use crate::train::tracker::RunTracker;
 use crate::train::{Precision, Progress, TrainConfig, TrainMetrics};
 use crate::{Error, Result};
 use faer::Par;
@@ -135,14 +136,12 @@ fn run_loop<T: Real>(
     let init = init_params(arch, &mut Rng::new(cfg.seed))?;
     let mut params: Vec<T> = init.iter().map(|&v| T::from_f64(v)).collect();
     let mut grad = vec![T::default(); params.len()];
-    let mut best = params.clone();
+    let mut tracker = RunTracker::new(&params);
     let mut adam = Adam::<T>::new(params.len());
     let mut ws = NndmLossWs::<T>::new(arch, cfg.batch, train.steps, par);
     let mut eval = NndmEval::<T>::new(arch, 1024, par);
     let mut rng = Rng::derive(cfg.seed, 1);
     let mut idx = vec![0usize; cfg.batch];
-    let (mut best_val, mut best_it) = (f64::INFINITY, 0);
-    let mut iter_secs = 0.0;
     let mut last = LossParts::default();
     for it in 0..cfg.iterations {
         let t0 = Instant::now();
@@ -160,49 +159,23 @@ fn run_loop<T: Real>(
         clip_grad_norm(&mut grad, cfg.clip);
         let lr = step_lr(cfg.lr, cfg.lr_decay, cfg.lr_step, it);
         adam.step(&mut params, &grad, lr);
-        iter_secs += t0.elapsed().as_secs_f64();
+        tracker.iter_secs += t0.elapsed().as_secs_f64();
         last = LossParts {
             pred,
             total: pred,
             ..LossParts::default()
         };
-        let done = it + 1;
-        let validation = if done % cfg.validate_every == 0 || done == cfg.iterations {
-            let v = eval
-                .pred_loss(&params, val, cfg.gamma)
-                .unwrap_or(f64::INFINITY);
-            if v < best_val || best_it == 0 {
-                best_val = v;
-                best_it = done;
-                best.copy_from_slice(&params);
-            }
-            Some(v)
-        } else {
-            None
-        };
-        let progress = Progress {
-            iteration: done,
-            total: cfg.iterations,
-            loss: last,
+        tracker.after_step(
+            cfg,
+            it + 1,
+            &params,
+            last,
             lr,
-            validation,
-            best_validation: best_val.is_finite().then_some(best_val),
-            iterations_per_second: done as f64 / iter_secs.max(1e-12),
-        };
-        if observer(&progress).is_break() {
-            return Err(Error::Cancelled);
-        }
+            |p| eval.pred_loss(p, val, cfg.gamma),
+            observer,
+        )?;
     }
-    if !best_val.is_finite() {
-        return Err(Error::Numerical(
-            "the validation prediction error is not finite at any checkpoint".into(),
-        ));
-    }
-    Ok((
-        best.iter().map(|v| v.to_f64()).collect(),
-        best_val,
-        best_it,
-        iter_secs,
-        last,
-    ))
+    let t = tracker.finish()?;
+    let best = t.best.iter().map(|v| v.to_f64()).collect();
+    Ok((best, t.best_val, t.best_it, t.iter_secs, last))
 }
