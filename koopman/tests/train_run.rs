@@ -122,6 +122,16 @@ fn save_load_round_trip_keeps_predictions_exactly() {
         dynm.try_lift(&[0.3, f64::NAN]),
         Err(Error::NonFinite(_))
     ));
+    // Loading it as another kind of model names both kinds.
+    match koopman::model::nndm::NndmModel::load(&dir) {
+        Err(Error::Format { message, .. }) => {
+            assert!(
+                message.contains("kind is 'koopman', expected 'nndm'"),
+                "{message}"
+            )
+        }
+        other => panic!("expected a format error, got {:?}", other.map(|_| ())),
+    }
     // A truncated weights file is a typed error, not a panic.
     let st = dir.join("model.safetensors");
     let bytes = std::fs::read(&st).unwrap();

@@ -199,31 +199,10 @@ impl KoopmanModel {
 
     /// Loads a model saved by [`KoopmanModel::save`] (F32 or F64 tensors).
     pub fn load(dir: &Path) -> Result<Self> {
-        let cfg_path = dir.join("config.json");
-        let value = store::read_config(dir)?;
+        let (value, cfg_path) =
+            store::read_config_checked(dir, "koopman", FORMAT_VERSION, "a Koopman model")?;
         let cfg: ConfigFile = serde_json::from_value(value)
             .map_err(|e| Error::format(&cfg_path, format!("not a Koopman model config: {e}")))?;
-        if cfg.kind != "koopman" {
-            return Err(Error::format(
-                &cfg_path,
-                format!("kind is '{}', expected 'koopman'", cfg.kind),
-            ));
-        }
-        if cfg.format_version > FORMAT_VERSION {
-            return Err(Error::format(
-                &cfg_path,
-                format!(
-                    "format_version {} is newer than this build",
-                    cfg.format_version
-                ),
-            ));
-        }
-        if cfg.normalisation.is_some() {
-            return Err(Error::format(
-                &cfg_path,
-                "normalised models are not supported",
-            ));
-        }
         let arch = Arch {
             nx: cfg.nx,
             nu: cfg.nu,

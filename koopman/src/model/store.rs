@@ -123,3 +123,46 @@ pub fn read_kind(dir: &Path) -> Result<String> {
         .map(str::to_string)
         .ok_or_else(|| Error::format(dir.join("config.json"), "no string field \"kind\""))
 }
+
+/// Reads `dir/config.json` and checks the header every saved model shares: `"kind"` equals
+/// `kind`, `"format_version"` is not newer than `max_version`, and `"normalisation"` is absent
+/// or null (normalised models are not supported). `label` names the model in errors (e.g.
+/// "a Koopman model"). Returns the parsed config for the caller's own fields, and its path.
+pub fn read_config_checked(
+    dir: &Path,
+    kind: &str,
+    max_version: u32,
+    label: &str,
+) -> Result<(serde_json::Value, std::path::PathBuf)> {
+    let path = dir.join("config.json");
+    let cfg = read_config(dir)?;
+    let found = cfg.get("kind").and_then(|k| k.as_str());
+    if found != Some(kind) {
+        return Err(Error::format(
+            &path,
+            format!(
+                "not {label} config: kind is {}, expected '{kind}'",
+                found.map_or("missing".to_string(), |k| format!("'{k}'"))
+            ),
+        ));
+    }
+    match cfg.get("format_version").and_then(|v| v.as_u64()) {
+        None => {
+            return Err(Error::format(
+                &path,
+                format!("not {label} config: missing field `format_version`"),
+            ))
+        }
+        Some(v) if v > u64::from(max_version) => {
+            return Err(Error::format(
+                &path,
+                format!("format_version {v} is newer than this build"),
+            ))
+        }
+        Some(_) => {}
+    }
+    if cfg.get("normalisation").is_some_and(|n| !n.is_null()) {
+        return Err(Error::format(&path, "normalised models are not supported"));
+    }
+    Ok((cfg, path))
+}

@@ -198,31 +198,9 @@ impl NndmModel {
 
     /// Loads a model saved by [`NndmModel::save`] (F32 or F64 tensors).
     pub fn load(dir: &Path) -> Result<Self> {
-        let cfg_path = dir.join("config.json");
-        let value = store::read_config(dir)?;
+        let (value, cfg_path) = store::read_config_checked(dir, "nndm", FORMAT_VERSION, "an NNDM")?;
         let cfg: ConfigFile = serde_json::from_value(value)
             .map_err(|e| Error::format(&cfg_path, format!("not an NNDM config: {e}")))?;
-        if cfg.kind != "nndm" {
-            return Err(Error::format(
-                &cfg_path,
-                format!("kind is '{}', expected 'nndm'", cfg.kind),
-            ));
-        }
-        if cfg.format_version > FORMAT_VERSION {
-            return Err(Error::format(
-                &cfg_path,
-                format!(
-                    "format_version {} is newer than this build",
-                    cfg.format_version
-                ),
-            ));
-        }
-        if cfg.normalisation.is_some() {
-            return Err(Error::format(
-                &cfg_path,
-                "normalised models are not supported",
-            ));
-        }
         let arch = NndmArch::new(cfg.nx, cfg.nu, &cfg.hidden)
             .map_err(|e| Error::format(&cfg_path, e.to_string()))?;
         if arch.widths() != cfg.widths || arch.num_params() != cfg.num_params {
