@@ -4,7 +4,7 @@ use super::adam::{clip_grad_norm, step_lr, Adam};
 use super::checkpoint::{data_fingerprint, Checkpoint};
 use super::eval::{check_dataset, PredEval};
 use super::loss::{LossOptions, LossParts, LossWs};
-use super::tracker::RunTracker;
+use super::tracker::{RunTracker, StepInfo};
 use super::{Precision, Progress, TrainConfig, TrainMetrics, TrainOutcome};
 use crate::data::Dataset;
 use crate::model::arch::Arch;
@@ -266,10 +266,12 @@ fn run_loop<T: Real>(
         let done = it + 1;
         let validation = tracker.after_step(
             cfg,
-            done,
+            StepInfo {
+                done,
+                loss: parts,
+                lr,
+            },
             &params,
-            parts,
-            lr,
             |p| eval.pred_loss(p, val, cfg.gamma),
             observer,
         )?;

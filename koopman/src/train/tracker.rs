@@ -8,6 +8,17 @@ use super::loss::LossParts;
 use super::{Progress, TrainConfig};
 use crate::{Error, Result};
 
+/// What one optimiser step reports.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct StepInfo {
+    /// Iterations done, this one included (1-based).
+    pub done: usize,
+    /// The batch's loss terms.
+    pub loss: LossParts,
+    /// The learning rate used.
+    pub lr: f64,
+}
+
 /// Best-checkpoint and timing state of one run.
 pub(crate) struct RunTracker<T> {
     /// Parameters of the best validation so far.
@@ -31,20 +42,19 @@ impl<T: Copy> RunTracker<T> {
         }
     }
 
-    /// Called after iteration `done` (1-based) has updated `params`: validates with `validate`
+    /// Called after iteration `step.done` has updated `params`: validates with `validate`
     /// when due (every `validate_every` iterations and the last one; a failed validation counts
     /// as ∞), keeps the best parameters, and reports to `observer`. Returns the validation error
     /// when one was computed; `Error::Cancelled` when the observer breaks.
     pub fn after_step(
         &mut self,
         cfg: &TrainConfig,
-        done: usize,
+        step: StepInfo,
         params: &[T],
-        loss: LossParts,
-        lr: f64,
         validate: impl FnOnce(&[T]) -> Result<f64>,
         observer: &mut dyn FnMut(&Progress) -> ControlFlow<()>,
     ) -> Result<Option<f64>> {
+        let StepInfo { done, loss, lr } = step;
         let validation = if done % cfg.validate_every == 0 || done == cfg.iterations {
             let v = validate(params).unwrap_or(f64::INFINITY);
             if v < self.best_val || self.best_it == 0 {

@@ -12,7 +12,7 @@ use crate::rng::Rng;
 use crate::train::adam::{clip_grad_norm, step_lr, Adam};
 use crate::train::eval::check_dataset;
 use crate::train::loss::LossParts;
-use crate::train::tracker::RunTracker;
+use crate::train::tracker::{RunTracker, StepInfo};
 use crate::train::{Precision, Progress, TrainConfig, TrainMetrics};
 use crate::{Error, Result};
 use faer::Par;
@@ -167,10 +167,12 @@ fn run_loop<T: Real>(
         };
         tracker.after_step(
             cfg,
-            it + 1,
+            StepInfo {
+                done: it + 1,
+                loss: last,
+                lr,
+            },
             &params,
-            last,
-            lr,
             |p| eval.pred_loss(p, val, cfg.gamma),
             observer,
         )?;
