@@ -1,0 +1,85 @@
+//! `koopbridge control` as a user runs it: the pre-flight diagnostics (holding input against the
+//! bounds, control authority of the model) reach stderr and `diagnostics.json`, the zero-input
+//! baseline runs, and bad arguments are clear errors.
+
+mod common;
+
+use std::process::Command;
+
+fn control(args: &[&str]) -> std::process::Output {
+    Command::new(common::exe())
+        .arg("control")
+        .args(args)
+        .output()
+        .expect("run koopbridge control")
+}
+
+#[test]
+fn double_pendulum_target_is_reported_as_not_holdable_within_the_bounds() {
+    let out_dir = common::scratch("control-double");
+    let out = control(&[
+        "--fit",
+        "20",
+        "--env",
+        "double-pendulum",
+        "--solver",
+        "zero-input",
+        "--steps",
+        "20",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(stderr.contains("no controller can hold it"), "{stderr}");
+    let diag: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out_dir.join("diagnostics.json")).unwrap()).unwrap();
+    // τ = G(θ) at [1.2, −0.8] (SPEC's closed form), 2.7× the ±6 bounds.
+    let u = diag["holding"]["u"].as_array().unwrap();
+    let g1 = 2.0 * 9.8 * 1.2f64.cos() + 9.8 * 0.4f64.cos();
+    assert!((u[0].as_f64().unwrap() - g1).abs() < 1e-4, "{diag}");
+    assert_eq!(diag["holding"]["within_bounds"], false);
+    assert!(diag["authority"]["projection"].is_number(), "{diag}");
+    // The zero-input run wrote its metrics.
+    let metrics: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out_dir.join("metrics.json")).unwrap()).unwrap();
+    assert_eq!(metrics[0]["controller"], "zero-input");
+    assert_eq!(metrics[0]["steps"], 20);
+    // With bounds that allow the holding torque the warning goes away.
+    let wide = control(&[
+        "--fit",
+        "20",
+        "--env",
+        "double-pendulum",
+        "--solver",
+        "zero-input",
+        "--steps",
+        "5",
+        "--u-bound",
+        "20",
+        "--out",
+        out_dir.join("wide").to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&wide.stderr);
+    assert!(
+        wide.status.success() && !stderr.contains("no controller can hold it"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn bad_x0_is_a_clear_error() {
+    let out_dir = common::scratch("control-bad-x0");
+    let out = control(&[
+        "--env",
+        "damped-pendulum",
+        "--solver",
+        "zero-input",
+        "--x0=1.0",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("--x0 needs 2 finite values"), "{stderr}");
+}
