@@ -2,7 +2,11 @@
 //! reports it faithfully, runs are deterministic, save → load keeps predictions, bad input
 //! gives typed errors, and a trained NNDM drives random-shooting MPC in a closed loop.
 
-use koopman::data::{generate, Dataset, Pairing};
+mod common;
+
+use common::{data, small_cfg};
+
+use koopman::data::{generate, Pairing};
 use koopman::model::nndm::{NndmArch, NndmModel};
 use koopman::model::{load_lifted, load_one_step};
 use koopman::mpc::metrics::GoalSpec;
@@ -11,23 +15,6 @@ use koopman::train::nndm::{prediction_error, train_nndm};
 use koopman::train::{Precision, TrainConfig};
 use koopman::Error;
 use std::ops::ControlFlow;
-
-fn data(windows: usize, seed: u64) -> Dataset {
-    let sys = koopman::systems::by_name("damped-pendulum").unwrap();
-    generate(sys.as_ref(), windows, 15, seed, Pairing::Aligned).unwrap()
-}
-
-fn small_cfg(iterations: usize) -> TrainConfig {
-    TrainConfig {
-        n_mult: 4,
-        hidden: vec![32, 32],
-        iterations,
-        batch: 16,
-        validate_every: 50,
-        lr: 3e-3,
-        ..TrainConfig::default()
-    }
-}
 
 fn quiet(_: &koopman::train::Progress) -> ControlFlow<()> {
     ControlFlow::Continue(())

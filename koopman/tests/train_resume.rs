@@ -2,15 +2,14 @@
 //! iterations and resumed from its checkpoint file for the other N; mismatched checkpoints and
 //! damaged files are refused with typed errors.
 
-use koopman::data::{generate, Dataset, Pairing};
+mod common;
+
+use common::data;
+
+use koopman::data::Dataset;
 use koopman::train::{train, train_resumable, Checkpoint, Precision, TrainConfig, TrainOutcome};
 use koopman::Error;
 use std::ops::ControlFlow;
-
-fn data(windows: usize, seed: u64) -> Dataset {
-    let sys = koopman::systems::by_name("damped-pendulum").unwrap();
-    generate(sys.as_ref(), windows, 15, seed, Pairing::Aligned).unwrap()
-}
 
 fn cfg(precision: Precision) -> TrainConfig {
     TrainConfig {

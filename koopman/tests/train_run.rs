@@ -1,29 +1,16 @@
 //! Short training runs on small generated datasets: the loss decreases, runs are deterministic,
 //! save → load keeps predictions, and bad input gives typed errors.
 
+mod common;
+
+use common::{data, small_cfg};
+
 use koopman::data::{generate, Dataset, Pairing};
 use koopman::model::koopman::KoopmanModel;
 use koopman::model::{load_lifted, LiftedModel};
 use koopman::train::{prediction_error, train, Precision, TrainConfig};
 use koopman::Error;
 use std::ops::ControlFlow;
-
-fn data(windows: usize, seed: u64) -> Dataset {
-    let sys = koopman::systems::by_name("damped-pendulum").unwrap();
-    generate(sys.as_ref(), windows, 15, seed, Pairing::Aligned).unwrap()
-}
-
-fn small_cfg(iterations: usize) -> TrainConfig {
-    TrainConfig {
-        n_mult: 4,
-        hidden: vec![32, 32],
-        iterations,
-        batch: 16,
-        validate_every: 50,
-        lr: 3e-3,
-        ..TrainConfig::default()
-    }
-}
 
 fn no_observer() -> impl FnMut(&koopman::train::Progress) -> ControlFlow<()> {
     |_| ControlFlow::Continue(())

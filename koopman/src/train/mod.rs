@@ -151,3 +151,31 @@ pub fn prediction_error(model: &KoopmanModel, data: &Dataset, gamma: f64) -> Res
     let mut ev = eval::PredEval::<f64>::new(model.arch(), 4096, faer::Par::rayon(0));
     ev.pred_loss(model.params(), data, gamma)
 }
+
+/// Checks the settings every trainer (Koopman and NNDM) shares: iterations, batch, learning rate
+/// and its schedule, γ, clipping and the validation period.
+pub(crate) fn check_optimiser_settings(cfg: &TrainConfig) -> Result<()> {
+    let bad = |m: &str| Err(crate::Error::InvalidArgument(m.to_string()));
+    if cfg.iterations == 0 {
+        return bad("iterations must be ≥ 1");
+    }
+    if cfg.batch == 0 {
+        return bad("batch must be ≥ 1");
+    }
+    if !(cfg.lr > 0.0 && cfg.lr.is_finite()) {
+        return bad("lr must be a positive number");
+    }
+    if !(cfg.gamma > 0.0 && cfg.gamma.is_finite()) {
+        return bad("gamma must be a positive number");
+    }
+    if cfg.clip.is_nan()
+        || cfg.clip <= 0.0
+        || cfg.lr_decay.is_nan()
+        || cfg.lr_decay <= 0.0
+        || cfg.lr_step == 0
+        || cfg.validate_every == 0
+    {
+        return bad("clip and lr_decay must be > 0, lr_step and validate_every ≥ 1");
+    }
+    Ok(())
+}

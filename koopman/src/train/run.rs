@@ -123,29 +123,9 @@ fn check_config(cfg: &TrainConfig) -> Result<()> {
     if cfg.n_mult == 0 {
         return bad("n_mult must be ≥ 1");
     }
-    if cfg.iterations == 0 {
-        return bad("iterations must be ≥ 1");
-    }
-    if cfg.batch == 0 {
-        return bad("batch must be ≥ 1");
-    }
+    super::check_optimiser_settings(cfg)?;
     if cfg.cov && cfg.batch < 2 {
         return bad("the covariance loss needs batch ≥ 2 (or --no-cov)");
-    }
-    if !(cfg.lr > 0.0 && cfg.lr.is_finite()) {
-        return bad("lr must be a positive number");
-    }
-    if !(cfg.gamma > 0.0 && cfg.gamma.is_finite()) {
-        return bad("gamma must be a positive number");
-    }
-    if cfg.clip.is_nan()
-        || cfg.clip <= 0.0
-        || cfg.lr_decay.is_nan()
-        || cfg.lr_decay <= 0.0
-        || cfg.lr_step == 0
-        || cfg.validate_every == 0
-    {
-        return bad("clip and lr_decay must be > 0, lr_step and validate_every ≥ 1");
     }
     Ok(())
 }

@@ -97,27 +97,12 @@ pub fn train_nndm(
 }
 
 fn check_config(cfg: &TrainConfig) -> Result<()> {
-    let bad = |m: &str| Err(Error::InvalidArgument(m.to_string()));
     if cfg.n_mult == 0 || cfg.hidden.is_empty() || cfg.hidden.contains(&0) {
-        return bad("n_mult must be ≥ 1 and hidden a non-empty list of widths ≥ 1 (they set the NNDM's parameter budget)");
+        return Err(Error::InvalidArgument(
+            "n_mult must be ≥ 1 and hidden a non-empty list of widths ≥ 1 (they set the NNDM's parameter budget)".into(),
+        ));
     }
-    if cfg.iterations == 0 || cfg.batch == 0 {
-        return bad("iterations and batch must be ≥ 1");
-    }
-    let positive = |v: f64| v > 0.0 && v.is_finite();
-    if !positive(cfg.lr) || !positive(cfg.gamma) {
-        return bad("lr and gamma must be positive numbers");
-    }
-    if cfg.clip.is_nan()
-        || cfg.clip <= 0.0
-        || cfg.lr_decay.is_nan()
-        || cfg.lr_decay <= 0.0
-        || cfg.lr_step == 0
-        || cfg.validate_every == 0
-    {
-        return bad("clip and lr_decay must be > 0, lr_step and validate_every ≥ 1");
-    }
-    Ok(())
+    crate::train::check_optimiser_settings(cfg)
 }
 
 /// (best parameters in f64, best validation error, its iteration, seconds spent iterating,
