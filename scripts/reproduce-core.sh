@@ -1,13 +1,16 @@
 #!/usr/bin/env bash
 # Reproduces the Koopman-core acceptance runs of SPEC.md (issue #2): the damped pendulum with both
-# pairings and all four regulariser combinations, the double pendulum, and m = 1000 for both, each
-# 60,000 iterations at seed 17382. Runs that already have a metrics.json are skipped, so the script
-# can be stopped and started again; it ends with one table (markdown) of test prediction errors.
+# pairings and all four regulariser combinations, the double pendulum, m = 1000 for both, and the
+# damped pendulum's sample-size curve (m = 1000 … 140,000), each 60,000 iterations at seed 17382.
+# Runs that already have a metrics.json are skipped, so the script can be stopped and started
+# again; it ends with one table (markdown) of test prediction errors and the scaling-law fits
+# (`koopbridge scaling`, written to MODELS/scaling/{scaling.json,scaling.png}).
 #
 #   scripts/reproduce-core.sh [JOBS]     (default 2 runs at a time, 1 thread each, at nice 19)
 #
 # Environment: KOOPBRIDGE (binary, default target/release/koopbridge built first), DATA (default
-# data), MODELS (default models/core). One run takes ~12 min on one core of a 2-core Zen3.
+# data), MODELS (default models/core), ONLY (a regular expression: run only the matching names).
+# One run takes ~15 min on one core of a 2-core Zen3 (the double pendulum longer).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 JOBS="${1:-2}"
@@ -37,7 +40,19 @@ runs=(
   "damped-reference-none   damped-pendulum reference 140000 --no-ctrl --no-cov"
   "damped-aligned-nocov    damped-pendulum aligned   140000 --no-cov"
   "damped-aligned-none     damped-pendulum aligned   140000 --no-ctrl --no-cov"
+  "damped-reference-m16000 damped-pendulum reference 16000"
+  "damped-reference-m4000  damped-pendulum reference 4000"
+  "damped-reference-m64000 damped-pendulum reference 64000"
+  "double-reference-m16000 double-pendulum reference 16000"
+  "double-reference-m4000  double-pendulum reference 4000"
+  "double-reference-m64000 double-pendulum reference 64000"
 )
+if [ -n "${ONLY:-}" ]; then
+  selected=()
+  for r in "${runs[@]}"; do [[ "${r%% *}" =~ $ONLY ]] && selected+=("$r"); done
+  [ "${#selected[@]}" -gt 0 ] || { echo "ONLY=$ONLY matches no run" >&2; exit 2; }
+  runs=("${selected[@]}")
+fi
 
 run_one() {
   read -r name env pairing m flags <<<"$1"
@@ -67,3 +82,6 @@ c = j.get("config", {})
 print(f"| {name} | {env} | {pairing} | {m} | {c.get('ctrl')} | {c.get('cov')} | {j['test_prediction_error']:.5f} | {j['iterations_per_second']:.0f} |")
 PY
 done
+
+# The sample-size curves (m) of every environment/setting with at least 3 runs.
+"$KOOPBRIDGE" scaling "$MODELS" --out "$MODELS/scaling" || echo "(scaling fit failed; see above)" >&2

@@ -21,6 +21,8 @@ enum Command {
     Train(cli::train::TrainArgs),
     /// Evaluate a trained model on a dataset (prediction error, diagnostics).
     Eval(cli::eval::EvalArgs),
+    /// Fit the scaling law E = A·D^(−α) + C to trained runs' test prediction errors.
+    Scaling(cli::scaling::ScalingArgs),
     /// Closed-loop control of a reference system with a trained model.
     Control(cli::control::ControlArgs),
     /// Benchmarks (training speed, MPC solvers, bridge round trips).
@@ -40,6 +42,7 @@ fn main() -> std::process::ExitCode {
         Command::Data(a) => cli::data::run(a),
         Command::Train(a) => cli::train::run(a),
         Command::Eval(a) => cli::eval::run(a),
+        Command::Scaling(a) => cli::scaling::run(a),
         Command::Control(a) => cli::control::run(a),
         Command::Bench(a) => cli::bench::run(a),
         Command::Sim(a) => cli::sim::run(a),

@@ -1,5 +1,5 @@
-//! Multi-panel time-series PNGs (states against references, inputs) for `control` and scenario
-//! reports, drawn with plotters and the bundled DejaVu Sans font (no system fonts needed).
+//! Multi-panel line-chart PNGs (states against references, learning curves, scaling fits) for the
+//! CLI's reports, drawn with plotters and the bundled DejaVu Sans font (no system fonts needed).
 
 use std::path::Path;
 use std::sync::Once;
@@ -20,7 +20,7 @@ fn register_font() {
     });
 }
 
-/// One curve: points `(t, y)`, a legend label, and whether it is drawn dashed (references).
+/// One curve: points `(t, y)`, a legend label, and how it is drawn.
 #[derive(Clone, Debug)]
 pub struct Series {
     /// Legend text.
@@ -29,6 +29,11 @@ pub struct Series {
     pub points: Vec<(f64, f64)>,
     /// Dashed line (used for references and bounds).
     pub dashed: bool,
+    /// Unconnected markers instead of a line (used for measurements a fit is drawn through).
+    pub markers: bool,
+    /// Palette index of the colour (default: the series' position in its panel), so that a fit
+    /// and its measurements can share one colour.
+    pub color: Option<usize>,
 }
 
 impl Series {
@@ -38,7 +43,21 @@ impl Series {
             label: label.into(),
             points: t.iter().copied().zip(y.iter().copied()).collect(),
             dashed: false,
+            markers: false,
+            color: None,
         }
+    }
+
+    /// The same curve in palette colour `index`.
+    pub fn colored(mut self, index: usize) -> Self {
+        self.color = Some(index);
+        self
+    }
+
+    /// The same points drawn as unconnected markers.
+    pub fn markers(mut self) -> Self {
+        self.markers = true;
+        self
     }
 
     /// The same curve drawn dashed.
@@ -68,11 +87,13 @@ const COLORS: [RGBColor; 6] = [
     RGBColor(140, 86, 75),
 ];
 
-/// Draws `panels` stacked vertically into a PNG at `path` (written to a temporary name in the
-/// same directory, then renamed). `width` is in pixels; each panel is 260 px high.
+/// Draws `panels` stacked vertically, sharing an x axis labelled `x_label`, into a PNG at `path`
+/// (written to a temporary name in the same directory, then renamed). `width` is in pixels; each
+/// panel is 260 px high.
 pub fn time_series_png(
     path: &Path,
     title: &str,
+    x_label: &str,
     panels: &[Panel],
     width: u32,
 ) -> anyhow::Result<()> {
@@ -90,7 +111,7 @@ pub fn time_series_png(
         .and_then(|n| n.to_str())
         .context("plot path has no file name")?;
     let tmp = dir.join(format!(".{name}.{}.tmp.png", std::process::id()));
-    let result = draw(&tmp, title, panels, width);
+    let result = draw(&tmp, title, x_label, panels, width);
     if let Err(e) = result {
         let _ = std::fs::remove_file(&tmp);
         return Err(e);
@@ -99,7 +120,13 @@ pub fn time_series_png(
         .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
 }
 
-fn draw(path: &Path, title: &str, panels: &[Panel], width: u32) -> anyhow::Result<()> {
+fn draw(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    panels: &[Panel],
+    width: u32,
+) -> anyhow::Result<()> {
     let height = 60 + 260 * panels.len() as u32;
     let root = BitMapBackend::new(path, (width, height)).into_drawing_area();
     root.fill(&WHITE)
@@ -132,6 +159,11 @@ fn draw(path: &Path, title: &str, panels: &[Panel], width: u32) -> anyhow::Resul
         if x1 <= x0 {
             x1 = x0 + 1.0;
         }
+        if panel.series.iter().any(|s| s.markers) {
+            // Markers at the ends of the range would be cut in half.
+            let pad = (x1 - x0) * 0.03;
+            (x0, x1) = (x0 - pad, x1 + pad);
+        }
         let pad = ((y1 - y0) * 0.08).max(1e-3);
         let (y0, y1) = (y0 - pad, y1 + pad);
         let mut chart = ChartBuilder::on(area)
@@ -143,13 +175,13 @@ fn draw(path: &Path, title: &str, panels: &[Panel], width: u32) -> anyhow::Resul
             .map_err(|e| anyhow::anyhow!("plot axes: {e}"))?;
         chart
             .configure_mesh()
-            .x_desc("t [s]")
+            .x_desc(x_label)
             .y_desc(&panel.y_label)
             .label_style(("sans-serif", 14))
             .draw()
             .map_err(|e| anyhow::anyhow!("plot mesh: {e}"))?;
         for (i, s) in panel.series.iter().enumerate() {
-            let color = COLORS[i % COLORS.len()];
+            let color = COLORS[s.color.unwrap_or(i) % COLORS.len()];
             let pts: Vec<(f64, f64)> = s
                 .points
                 .iter()
@@ -157,7 +189,9 @@ fn draw(path: &Path, title: &str, panels: &[Panel], width: u32) -> anyhow::Resul
                 .filter(|p| p.0.is_finite() && p.1.is_finite())
                 .collect();
             let style = color.stroke_width(2);
-            let drawn = if s.dashed {
+            let drawn = if s.markers {
+                chart.draw_series(pts.into_iter().map(|p| Circle::new(p, 4, color.filled())))
+            } else if s.dashed {
                 chart.draw_series(DashedLineSeries::new(pts, 8, 5, style))
             } else {
                 chart.draw_series(LineSeries::new(pts, style))
@@ -201,7 +235,7 @@ mod tests {
                 Series::new("θ ref", &t, &vec![0.0; 50]).dashed(),
             ],
         }];
-        time_series_png(&path, "test", &panels, 600).unwrap();
+        time_series_png(&path, "test", "t [s]", &panels, 600).unwrap();
         let bytes = std::fs::read(&path).unwrap();
         assert_eq!(&bytes[1..4], b"PNG");
         // No temporary file is left behind.
@@ -211,7 +245,7 @@ mod tests {
             .map(|e| e.file_name())
             .collect();
         assert_eq!(left.len(), 1, "{left:?}");
-        assert!(time_series_png(&path, "empty", &[], 600).is_err());
+        assert!(time_series_png(&path, "empty", "t [s]", &[], 600).is_err());
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -575,5 +575,11 @@ fn plot_trajectory(
             .push(Series::new("u min", &ends, &[l, l]).dashed());
     }
     let title = format!("{} {:?} — {}", m.env, m.task, m.controller).to_lowercase();
-    time_series_png(path, &title, &[angle_panel, rate_panel, input_panel], 1000)
+    time_series_png(
+        path,
+        &title,
+        "t [s]",
+        &[angle_panel, rate_panel, input_panel],
+        1000,
+    )
 }

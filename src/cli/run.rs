@@ -161,6 +161,7 @@ fn plot_control(
     time_series_png(
         path,
         &format!("{}: MPC over Zenoh ({})", c.sim, c.model),
+        "t [s]",
         &panels,
         900,
     )

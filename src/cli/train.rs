@@ -1,6 +1,7 @@
 //! `koopbridge train`: trains a neural Koopman model (or a baseline) on a dataset folder written by
 //! `koopbridge data gen`, saves it with its `metrics.json`, and shows progress while it runs.
 
+use super::learning_curve::{CurvePoint, LearningCurve};
 use anyhow::Context;
 use koopman::data::{Dataset, Splits};
 use koopman::model::store::write_atomic;
@@ -33,7 +34,8 @@ pub enum ModelKind {
         decayed x0.9 every 1000 iterations, gradient-norm clipping 0.1, gamma 0.8, both regularisers, seed 17382, \
         validation every 1000 iterations; the best checkpoint by validation prediction error is saved and its \
         test prediction error reported. The model goes to OUT/ (model.safetensors + config.json), the figures \
-        to OUT/metrics.json.\n\n\
+        to OUT/metrics.json (with the learning curve: one point per validation), and the learning curve is drawn \
+        as OUT/learning-curve.png.\n\n\
         Example: koopbridge train --data data/damped --out models/damped-m140k --train-samples 140000"
 )]
 pub struct TrainArgs {
@@ -101,6 +103,8 @@ struct MetricsFile<'a, M: Serialize> {
     out: &'a Path,
     #[serde(flatten)]
     metrics: &'a M,
+    /// One point per validation (also drawn as `learning-curve.png`).
+    learning_curve: &'a [CurvePoint],
 }
 
 /// Runs `koopbridge train`.
@@ -138,12 +142,14 @@ fn config(args: &TrainArgs) -> TrainConfig {
 }
 
 /// The progress observer of every gradient-trained model: the bar (iteration, losses, best
-/// validation error, it/s, ETA) and one line per validation.
+/// validation error, it/s, ETA), one line per validation, and the learning curve.
 fn observer<'b>(
     bar: &'b indicatif::ProgressBar,
     started: Instant,
+    curve: &'b mut LearningCurve,
 ) -> impl FnMut(&Progress) -> ControlFlow<()> + 'b {
     move |p: &Progress| {
+        curve.record(p);
         if p.iteration % 10 == 0 || p.validation.is_some() || p.iteration == p.total {
             bar.set_position(p.iteration as u64);
             bar.set_message(format!(
@@ -182,7 +188,8 @@ fn observer<'b>(
 fn train_koopman(args: &TrainArgs, splits: &Splits) -> anyhow::Result<()> {
     let cfg = config(args);
     let bar = progress_bar(cfg.iterations);
-    let mut observer = observer(&bar, Instant::now());
+    let mut curve = LearningCurve::default();
+    let mut observer = observer(&bar, Instant::now(), &mut curve);
     let outcome = train(
         &cfg,
         &splits.train,
@@ -190,13 +197,20 @@ fn train_koopman(args: &TrainArgs, splits: &Splits) -> anyhow::Result<()> {
         Some(&splits.test),
         &mut observer,
     )?;
+    drop(observer);
     bar.finish_and_clear();
     outcome
         .model
         .save(&args.out)
         .with_context(|| format!("saving the model to {}", args.out.display()))?;
-    write_metrics(args, &outcome.metrics)?;
-    report(args, &outcome.metrics, &outcome.metrics, &splits.test)
+    write_metrics(args, &outcome.metrics, &curve)?;
+    report(
+        args,
+        &outcome.metrics,
+        &outcome.metrics,
+        &curve,
+        &splits.test,
+    )
 }
 
 /// The NNDM baseline (SPEC's ablation): an MLP x⁺ = x + g([x, u]) with the parameter count of
@@ -204,7 +218,8 @@ fn train_koopman(args: &TrainArgs, splits: &Splits) -> anyhow::Result<()> {
 fn train_nndm(args: &TrainArgs, splits: &Splits) -> anyhow::Result<()> {
     let cfg = config(args);
     let bar = progress_bar(cfg.iterations);
-    let mut observer = observer(&bar, Instant::now());
+    let mut curve = LearningCurve::default();
+    let mut observer = observer(&bar, Instant::now(), &mut curve);
     let outcome = koopman::train::nndm::train_nndm(
         &cfg,
         &splits.train,
@@ -212,17 +227,24 @@ fn train_nndm(args: &TrainArgs, splits: &Splits) -> anyhow::Result<()> {
         Some(&splits.test),
         &mut observer,
     )?;
+    drop(observer);
     bar.finish_and_clear();
     outcome
         .model
         .save(&args.out)
         .with_context(|| format!("saving the model to {}", args.out.display()))?;
-    write_metrics(args, &outcome.metrics)?;
+    write_metrics(args, &outcome.metrics, &curve)?;
     println!(
         "NNDM hidden {:?}: {} parameters (the Koopman model of the same config has {})",
         outcome.metrics.hidden, outcome.metrics.base.num_params, outcome.metrics.koopman_num_params
     );
-    report(args, &outcome.metrics.base, &outcome.metrics, &splits.test)
+    report(
+        args,
+        &outcome.metrics.base,
+        &outcome.metrics,
+        &curve,
+        &splits.test,
+    )
 }
 
 /// EDMD with control (SPEC's baseline): a least-squares fit on the first m windows.
@@ -281,16 +303,23 @@ fn progress_bar(total: usize) -> indicatif::ProgressBar {
     bar
 }
 
-fn write_metrics<M: Serialize>(args: &TrainArgs, metrics: &M) -> anyhow::Result<()> {
+/// Writes `OUT/metrics.json` and `OUT/learning-curve.png`.
+fn write_metrics<M: Serialize>(
+    args: &TrainArgs,
+    metrics: &M,
+    curve: &LearningCurve,
+) -> anyhow::Result<()> {
     let file = MetricsFile {
         model: args.model,
         data: &args.data,
         out: &args.out,
         metrics,
+        learning_curve: curve.points(),
     };
     let json = serde_json::to_vec_pretty(&file)?;
     write_atomic(&args.out.join("metrics.json"), &json)?;
-    Ok(())
+    let title = format!("{:?} on {}", args.model, args.data.display());
+    curve.write_png(&args.out.join("learning-curve.png"), &title)
 }
 
 /// Prints the summary of `m`; with `--json`, `full` (what metrics.json holds) as the last line.
@@ -298,6 +327,7 @@ fn report<M: Serialize>(
     args: &TrainArgs,
     m: &TrainMetrics,
     full: &M,
+    curve: &LearningCurve,
     test: &Dataset,
 ) -> anyhow::Result<()> {
     println!(
@@ -313,13 +343,17 @@ fn report<M: Serialize>(
         m.iterations_per_second,
         m.wall_seconds
     );
-    println!("model and metrics.json in {}", args.out.display());
+    println!(
+        "model, metrics.json and learning-curve.png in {}",
+        args.out.display()
+    );
     if args.json {
         let file = MetricsFile {
             model: args.model,
             data: &args.data,
             out: &args.out,
             metrics: full,
+            learning_curve: curve.points(),
         };
         println!("{}", serde_json::to_string(&file)?);
     }

@@ -1,0 +1,408 @@
+//! `koopbridge scaling`: fits SPEC's scaling law `E = A·D^(−α) + C` to the test prediction errors
+//! of trained runs (one curve per n_mult against m, or per m against N), prints α, A, C and R², and
+//! writes the fits as JSON and a log–log plot.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context};
+use koopman::analysis::{fit_scaling_law, ScalingFit};
+use koopman::model::store::write_atomic;
+use serde::Serialize;
+use serde_json::Value;
+
+use crate::plot::{time_series_png, Panel, Series};
+
+/// The D of the fit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Axis {
+    /// Training windows m; one curve per (env, pairing, n_mult, regularisers).
+    M,
+    /// Latent dimension N = nx + n_enc; one curve per (env, pairing, m, regularisers).
+    N,
+}
+
+/// Arguments of `koopbridge scaling`.
+#[derive(clap::Args, Debug)]
+#[command(
+    about = "Fit the scaling law E = A·D^(−α) + C to trained runs' test prediction errors",
+    long_about = "Fit SPEC's scaling law E = A·D^(−α) + C (in log space, A ≥ 0, C ≥ 0) to the test prediction \
+        errors of Koopman runs written by 'koopbridge train'. With --over m (default) D is the number of \
+        training windows and there is one curve per environment, pairing, n_mult and regulariser setting; \
+        with --over n D is the latent dimension N = nx + n_enc and there is one curve per m. Every seed is its \
+        own point. A curve needs 3 points and 2 distinct D values to be fitted; smaller ones are listed \
+        unfitted.\n\n\
+        Example: koopbridge scaling models/scaling --out results/scaling"
+)]
+pub struct ScalingArgs {
+    /// Run folders (each with the metrics.json and config.json of 'koopbridge train'), or folders
+    /// whose sub-folders are runs.
+    #[arg(required = true, value_name = "RUN")]
+    pub runs: Vec<PathBuf>,
+    /// What D is: the training windows m, or the latent dimension N.
+    #[arg(long, value_enum, default_value_t = Axis::M)]
+    pub over: Axis,
+    /// Folder for scaling.json and scaling.png (nothing is written without it).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Print the curves as one JSON object on the last line of stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// One trained run, as far as the fit needs it.
+#[derive(Clone, Debug, Serialize)]
+struct RunPoint {
+    path: PathBuf,
+    env: String,
+    pairing: String,
+    m: usize,
+    n_mult: usize,
+    latent_dim: usize,
+    ctrl: bool,
+    cov: bool,
+    seed: u64,
+    error: f64,
+}
+
+/// One curve: its runs and, with enough points, the fit.
+#[derive(Debug, Serialize)]
+struct Curve {
+    label: String,
+    over: Axis,
+    /// `(D, E)` per run, D ascending.
+    points: Vec<(f64, f64)>,
+    fit: Option<ScalingFit>,
+    /// Why there is no fit.
+    note: Option<String>,
+}
+
+/// Runs `koopbridge scaling`.
+pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
+    let runs = collect_runs(&args.runs)?;
+    let curves = fit_curves(&runs, args.over);
+    print_table(&curves, args.over);
+    if let Some(out) = &args.out {
+        std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+        let json = serde_json::json!({ "over": args.over, "runs": runs, "curves": curves });
+        write_atomic(
+            &out.join("scaling.json"),
+            &serde_json::to_vec_pretty(&json)?,
+        )?;
+        plot(&out.join("scaling.png"), &curves, args.over)?;
+        println!("scaling.json and scaling.png in {}", out.display());
+    }
+    if args.json {
+        println!(
+            "{}",
+            serde_json::json!({ "over": args.over, "curves": curves })
+        );
+    }
+    Ok(())
+}
+
+/// The runs named on the command line: each path is a run folder, or a folder of run folders
+/// (sub-folders without metrics.json are passed over). Runs of other models are skipped with a
+/// note on stderr; a run whose files cannot be read is an error naming the file.
+fn collect_runs(paths: &[PathBuf]) -> anyhow::Result<Vec<RunPoint>> {
+    let mut runs = Vec::new();
+    for path in paths {
+        if path.join("metrics.json").is_file() {
+            runs.extend(read_run(path)?);
+            continue;
+        }
+        if !path.is_dir() {
+            bail!(
+                "{} is neither a run folder (with metrics.json) nor a folder of runs",
+                path.display()
+            );
+        }
+        let mut children: Vec<PathBuf> = std::fs::read_dir(path)
+            .with_context(|| format!("listing {}", path.display()))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.join("metrics.json").is_file())
+            .collect();
+        children.sort();
+        if children.is_empty() {
+            bail!("no run folders (with metrics.json) in {}", path.display());
+        }
+        for child in children {
+            runs.extend(read_run(&child)?);
+        }
+    }
+    if runs.is_empty() {
+        bail!("none of the runs is a Koopman model");
+    }
+    Ok(runs)
+}
+
+/// Reads one run folder; `None` (with a note) for a model other than Koopman.
+fn read_run(dir: &Path) -> anyhow::Result<Option<RunPoint>> {
+    let metrics = read_json(&dir.join("metrics.json"))?;
+    let model = metrics.get("model").and_then(Value::as_str).unwrap_or("");
+    if model != "koopman" {
+        eprintln!(
+            "skipping {}: a {model:?} run, the scaling law is fitted to Koopman models",
+            dir.display()
+        );
+        return Ok(None);
+    }
+    let file = dir.join("metrics.json");
+    let field = |v: &Value, name: &str| -> anyhow::Result<Value> {
+        v.get(name)
+            .cloned()
+            .filter(|x| !x.is_null())
+            .with_context(|| format!("{}: no field {name:?}", file.display()))
+    };
+    let config = field(&metrics, "config")?;
+    let number = |v: Value, name: &str| -> anyhow::Result<u64> {
+        v.as_u64()
+            .with_context(|| format!("{}: {name:?} is not a whole number", file.display()))
+    };
+    let boolean = |v: Value, name: &str| -> anyhow::Result<bool> {
+        v.as_bool()
+            .with_context(|| format!("{}: {name:?} is not true/false", file.display()))
+    };
+    let text = |v: Value| v.as_str().unwrap_or("?").to_string();
+    let error = field(&metrics, "test_prediction_error")?
+        .as_f64()
+        .with_context(|| format!("{}: test_prediction_error is not a number", file.display()))?;
+    if !(error.is_finite() && error > 0.0) {
+        bail!(
+            "{}: test_prediction_error {error} is not positive and finite",
+            file.display()
+        );
+    }
+    let model_config = read_json(&dir.join("config.json"))?;
+    let latent_dim = number(
+        model_config
+            .get("latent_dim")
+            .cloned()
+            .unwrap_or(Value::Null),
+        "latent_dim",
+    )
+    .with_context(|| format!("reading N from {}", dir.join("config.json").display()))?;
+    Ok(Some(RunPoint {
+        path: dir.to_path_buf(),
+        env: text(field(&metrics, "env")?),
+        pairing: text(field(&metrics, "pairing")?),
+        m: number(field(&metrics, "train_samples")?, "train_samples")? as usize,
+        n_mult: number(field(&config, "n_mult")?, "n_mult")? as usize,
+        latent_dim: latent_dim as usize,
+        ctrl: boolean(field(&config, "ctrl")?, "ctrl")?,
+        cov: boolean(field(&config, "cov")?, "cov")?,
+        seed: number(field(&config, "seed")?, "seed")?,
+        error,
+    }))
+}
+
+fn read_json(path: &Path) -> anyhow::Result<Value> {
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    serde_json::from_slice(&bytes).with_context(|| format!("{} is not valid JSON", path.display()))
+}
+
+/// Groups the runs into curves along `over` and fits each one that can be fitted.
+fn fit_curves(runs: &[RunPoint], over: Axis) -> Vec<Curve> {
+    let mut groups: BTreeMap<String, Vec<(f64, f64)>> = BTreeMap::new();
+    for r in runs {
+        let regularisers = match (r.ctrl, r.cov) {
+            (true, true) => "both regularisers",
+            (false, true) => "no inverse-control loss",
+            (true, false) => "no covariance loss",
+            (false, false) => "no regulariser",
+        };
+        let (fixed, d) = match over {
+            Axis::M => (format!("n_mult {}", r.n_mult), r.m as f64),
+            Axis::N => (format!("m {}", r.m), r.latent_dim as f64),
+        };
+        let label = format!("{} {} {fixed} {regularisers}", r.env, r.pairing);
+        groups.entry(label).or_default().push((d, r.error));
+    }
+    groups
+        .into_iter()
+        .map(|(label, mut points)| {
+            points.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let d: Vec<f64> = points.iter().map(|p| p.0).collect();
+            let e: Vec<f64> = points.iter().map(|p| p.1).collect();
+            let (fit, note) = match fit_scaling_law(&d, &e) {
+                Ok(fit) => (Some(fit), None),
+                Err(err) => (None, Some(err.to_string())),
+            };
+            Curve {
+                label,
+                over,
+                points,
+                fit,
+                note,
+            }
+        })
+        .collect()
+}
+
+fn print_table(curves: &[Curve], over: Axis) {
+    let d = match over {
+        Axis::M => "m",
+        Axis::N => "N",
+    };
+    println!("E = A·{d}^(−α) + C, fitted in log space");
+    println!(
+        "{:<60} {:>6} {:>8} {:>10} {:>10} {:>7}",
+        "curve", "points", "α", "A", "C", "R²"
+    );
+    for c in curves {
+        match &c.fit {
+            Some(f) => println!(
+                "{:<60} {:>6} {:>8.4} {:>10.4e} {:>10.4e} {:>7.4}",
+                c.label, f.points, f.alpha, f.a, f.c, f.r2
+            ),
+            None => println!(
+                "{:<60} {:>6} not fitted: {}",
+                c.label,
+                c.points.len(),
+                c.note.as_deref().unwrap_or("")
+            ),
+        }
+    }
+}
+
+/// log₁₀ E against log₁₀ D: each curve's runs as markers and its fit as a line, in one colour.
+fn plot(path: &Path, curves: &[Curve], over: Axis) -> anyhow::Result<()> {
+    let mut series = Vec::new();
+    for (i, c) in curves.iter().enumerate() {
+        let ld: Vec<f64> = c.points.iter().map(|p| p.0.log10()).collect();
+        let le: Vec<f64> = c.points.iter().map(|p| p.1.log10()).collect();
+        series.push(Series::new(c.label.clone(), &ld, &le).markers().colored(i));
+        if let Some(f) = &c.fit {
+            let (lo, hi) = (ld[0], ld[ld.len() - 1]);
+            let xs: Vec<f64> = (0..=60).map(|k| lo + (hi - lo) * k as f64 / 60.0).collect();
+            let ys: Vec<f64> = xs
+                .iter()
+                .map(|x| f.predict(10f64.powf(*x)).log10())
+                .collect();
+            let label = format!("fit: α {:.3}, C {:.2e}, R² {:.3}", f.alpha, f.c, f.r2);
+            series.push(Series::new(label, &xs, &ys).colored(i));
+        }
+    }
+    let x_label = match over {
+        Axis::M => "log10 m (training windows)",
+        Axis::N => "log10 N (latent dimension)",
+    };
+    let panel = Panel {
+        title: "test prediction error".into(),
+        y_label: "log10 E".into(),
+        series,
+    };
+    time_series_png(
+        path,
+        "Scaling law E = A·D^(−α) + C",
+        x_label,
+        &[panel],
+        1000,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Writes a run folder as `koopbridge train` would (the fields the fit reads).
+    fn write_run(dir: &Path, m: usize, n_mult: usize, seed: u64, error: f64) {
+        std::fs::create_dir_all(dir).unwrap();
+        let metrics = serde_json::json!({
+            "model": "koopman", "env": "damped-pendulum", "pairing": "reference",
+            "train_samples": m, "test_prediction_error": error,
+            "config": { "n_mult": n_mult, "ctrl": true, "cov": true, "seed": seed },
+        });
+        std::fs::write(dir.join("metrics.json"), metrics.to_string()).unwrap();
+        let config = serde_json::json!({ "kind": "koopman", "latent_dim": 2 + 2 * n_mult });
+        std::fs::write(dir.join("config.json"), config.to_string()).unwrap();
+    }
+
+    fn temp(name: &str) -> PathBuf {
+        let dir =
+            std::env::temp_dir().join(format!("koopbridge-scaling-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        dir
+    }
+
+    #[test]
+    fn recovers_the_law_the_runs_follow_and_lists_small_curves_unfitted() {
+        let root = temp("law");
+        // n_mult 16: E = 3·m^(−0.6) + 0.004, two seeds with ±1% deviations.
+        for (k, m) in [1000usize, 4000, 16000, 64000, 140000]
+            .into_iter()
+            .enumerate()
+        {
+            let e = 3.0 * (m as f64).powf(-0.6) + 0.004;
+            write_run(&root.join(format!("a{k}")), m, 16, 1, e * 1.01);
+            write_run(&root.join(format!("b{k}")), m, 16, 2, e * 0.99);
+        }
+        // n_mult 4: two points only.
+        write_run(&root.join("c0"), 1000, 4, 1, 0.05);
+        write_run(&root.join("c1"), 4000, 4, 1, 0.03);
+        let runs = collect_runs(std::slice::from_ref(&root)).unwrap();
+        assert_eq!(runs.len(), 12);
+        let curves = fit_curves(&runs, Axis::M);
+        assert_eq!(curves.len(), 2);
+        let big = curves
+            .iter()
+            .find(|c| c.label.contains("n_mult 16"))
+            .unwrap();
+        let fit = big.fit.as_ref().unwrap();
+        assert_eq!(fit.points, 10);
+        assert!((fit.alpha - 0.6).abs() < 0.05, "α = {}", fit.alpha);
+        assert!((fit.c - 0.004).abs() < 5e-4, "C = {}", fit.c);
+        assert!(fit.r2 > 0.99);
+        let small = curves
+            .iter()
+            .find(|c| c.label.contains("n_mult 4"))
+            .unwrap();
+        assert!(small.fit.is_none());
+        assert!(small.note.as_deref().unwrap().contains("at least 3 points"));
+
+        // Over N: the m = 1000 runs of n_mult 16 and 4 form one curve of 3 points.
+        let by_n = fit_curves(&runs, Axis::N);
+        let m1000 = by_n.iter().find(|c| c.label.contains("m 1000 ")).unwrap();
+        assert_eq!(
+            m1000.points.iter().map(|p| p.0).collect::<Vec<_>>(),
+            [10.0, 34.0, 34.0]
+        );
+
+        let out = root.join("report");
+        run(ScalingArgs {
+            runs: vec![root.clone()],
+            over: Axis::M,
+            out: Some(out.clone()),
+            json: false,
+        })
+        .unwrap();
+        assert_eq!(
+            &std::fs::read(out.join("scaling.png")).unwrap()[1..4],
+            b"PNG"
+        );
+        let saved: Value =
+            serde_json::from_slice(&std::fs::read(out.join("scaling.json")).unwrap()).unwrap();
+        assert_eq!(saved["curves"].as_array().unwrap().len(), 2);
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    #[test]
+    fn unreadable_runs_are_errors_that_name_the_file() {
+        let root = temp("bad");
+        write_run(&root.join("r"), 1000, 16, 1, 0.01);
+        let metrics = root.join("r").join("metrics.json");
+        let text = std::fs::read_to_string(&metrics).unwrap();
+        std::fs::write(&metrics, &text[..text.len() / 2]).unwrap();
+        let err = format!("{:#}", collect_runs(&[root.join("r")]).unwrap_err());
+        assert!(err.contains("metrics.json is not valid JSON"), "{err}");
+
+        write_run(&root.join("r"), 1000, 16, 1, f64::NAN);
+        let err = format!("{:#}", collect_runs(&[root.join("r")]).unwrap_err());
+        assert!(err.contains("test_prediction_error"), "{err}");
+
+        let err = format!("{:#}", collect_runs(&[root.join("missing")]).unwrap_err());
+        assert!(err.contains("neither a run folder"), "{err}");
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+}
