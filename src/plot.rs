@@ -177,6 +177,8 @@ fn draw(
             .configure_mesh()
             .x_desc(x_label)
             .y_desc(&panel.y_label)
+            .x_label_formatter(&|x| tick_label(*x))
+            .y_label_formatter(&|y| tick_label(*y))
             .label_style(("sans-serif", 14))
             .draw()
             .map_err(|e| anyhow::anyhow!("plot mesh: {e}"))?;
@@ -217,9 +219,33 @@ fn draw(
     Ok(())
 }
 
+/// An axis tick: whole numbers from 100 up (iterations, sample counts), otherwise at most three
+/// decimals without trailing zeros.
+fn tick_label(v: f64) -> String {
+    if v.abs() >= 100.0 {
+        return format!("{v:.0}");
+    }
+    let s = format!("{v:.3}");
+    let s = s.trim_end_matches('0').trim_end_matches('.');
+    if s == "-0" {
+        "0".into()
+    } else {
+        s.into()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn tick_labels_drop_float_noise() {
+        assert_eq!(tick_label(10000.0), "10000");
+        assert_eq!(tick_label(0.30000000000000004), "0.3");
+        assert_eq!(tick_label(-1.25), "-1.25");
+        assert_eq!(tick_label(2.0), "2");
+        assert_eq!(tick_label(-0.0001), "0");
+    }
 
     #[test]
     fn draws_a_png_atomically() {

@@ -90,8 +90,16 @@ pub fn run(args: ScalingArgs) -> anyhow::Result<()> {
             &out.join("scaling.json"),
             &serde_json::to_vec_pretty(&json)?,
         )?;
-        plot(&out.join("scaling.png"), &curves, args.over)?;
-        println!("scaling.json and scaling.png in {}", out.display());
+        let png = out.join("scaling.png");
+        if plot(&png, &curves, args.over)? {
+            println!("scaling.json and scaling.png in {}", out.display());
+        } else {
+            let _ = std::fs::remove_file(&png);
+            println!(
+                "scaling.json in {} (no plot: no curve has two distinct D values)",
+                out.display()
+            );
+        }
     }
     if args.json {
         println!(
@@ -267,9 +275,13 @@ fn print_table(curves: &[Curve], over: Axis) {
 }
 
 /// log₁₀ E against log₁₀ D: each curve's runs as markers and its fit as a line, in one colour.
-fn plot(path: &Path, curves: &[Curve], over: Axis) -> anyhow::Result<()> {
+/// Curves with a single D value are left out; `false` (nothing drawn) when no curve is left.
+fn plot(path: &Path, curves: &[Curve], over: Axis) -> anyhow::Result<bool> {
     let mut series = Vec::new();
-    for (i, c) in curves.iter().enumerate() {
+    let spans = curves
+        .iter()
+        .filter(|c| c.points.first().map(|p| p.0) != c.points.last().map(|p| p.0));
+    for (i, c) in spans.enumerate() {
         let ld: Vec<f64> = c.points.iter().map(|p| p.0.log10()).collect();
         let le: Vec<f64> = c.points.iter().map(|p| p.1.log10()).collect();
         series.push(Series::new(c.label.clone(), &ld, &le).markers().colored(i));
@@ -293,13 +305,17 @@ fn plot(path: &Path, curves: &[Curve], over: Axis) -> anyhow::Result<()> {
         y_label: "log10 E".into(),
         series,
     };
+    if panel.series.is_empty() {
+        return Ok(false);
+    }
     time_series_png(
         path,
         "Scaling law E = A·D^(−α) + C",
         x_label,
         &[panel],
         1000,
-    )
+    )?;
+    Ok(true)
 }
 
 #[cfg(test)]

@@ -318,7 +318,12 @@ fn write_metrics<M: Serialize>(
     };
     let json = serde_json::to_vec_pretty(&file)?;
     write_atomic(&args.out.join("metrics.json"), &json)?;
-    let title = format!("{:?} on {}", args.model, args.data.display());
+    let title = format!(
+        "{:?} {} (data {})",
+        args.model,
+        args.out.display(),
+        args.data.display()
+    );
     curve.write_png(&args.out.join("learning-curve.png"), &title)
 }
 
