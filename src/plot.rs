@@ -23,7 +23,7 @@ fn register_font() {
 /// One curve: points `(t, y)`, a legend label, and how it is drawn.
 #[derive(Clone, Debug)]
 pub struct Series {
-    /// Legend text.
+    /// Legend text (no legend entry when empty).
     pub label: String,
     /// The points, in time order.
     pub points: Vec<(f64, f64)>,
@@ -165,7 +165,16 @@ fn draw(
             (x0, x1) = (x0 - pad, x1 + pad);
         }
         let pad = ((y1 - y0) * 0.08).max(1e-3);
-        let (y0, y1) = (y0 - pad, y1 + pad);
+        let (y0, mut y1) = (y0 - pad, y1 + pad);
+        let legend_corner = if panel.series.iter().any(|s| s.markers) {
+            // Scattered measurements: the legend gets a band of its own above the data.
+            let entries = panel.series.iter().filter(|s| !s.label.is_empty()).count();
+            let band = ((entries as f64 * 19.0 + 14.0) / 178.0).min(0.6);
+            y1 += (y1 - y0) * band / (1.0 - band);
+            SeriesLabelPosition::UpperRight
+        } else {
+            emptiest_corner(panel, (x0, x1), (y0, y1))
+        };
         let mut chart = ChartBuilder::on(area)
             .caption(&panel.title, ("sans-serif", 18))
             .margin(8)
@@ -198,25 +207,59 @@ fn draw(
             } else {
                 chart.draw_series(LineSeries::new(pts, style))
             };
-            drawn
-                .map_err(|e| anyhow::anyhow!("plot series: {e}"))?
-                .label(s.label.clone())
-                .legend(move |(x, y)| {
+            let drawn = drawn.map_err(|e| anyhow::anyhow!("plot series: {e}"))?;
+            if !s.label.is_empty() {
+                drawn.label(s.label.clone()).legend(move |(x, y)| {
                     PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
                 });
+            }
         }
         chart
             .configure_series_labels()
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)
             .label_font(("sans-serif", 14))
-            .position(SeriesLabelPosition::UpperRight)
+            .position(legend_corner)
             .draw()
             .map_err(|e| anyhow::anyhow!("plot legend: {e}"))?;
     }
     root.present()
         .map_err(|e| anyhow::anyhow!("writing {}: {e}", path.display()))?;
     Ok(())
+}
+
+/// The corner of the plot area whose box (45% of the width, 40% of the height) holds the fewest
+/// points of `panel`, so that the legend hides as little as possible (upper right on a tie).
+fn emptiest_corner(panel: &Panel, x: (f64, f64), y: (f64, f64)) -> SeriesLabelPosition {
+    let corners = [
+        (SeriesLabelPosition::UpperRight, true, true),
+        (SeriesLabelPosition::UpperLeft, false, true),
+        (SeriesLabelPosition::LowerRight, true, false),
+        (SeriesLabelPosition::LowerLeft, false, false),
+    ];
+    let count = |right: bool, upper: bool| {
+        panel
+            .series
+            .iter()
+            .flat_map(|s| s.points.iter())
+            .filter(|p| p.0.is_finite() && p.1.is_finite())
+            .filter(|p| {
+                let fx = (p.0 - x.0) / (x.1 - x.0);
+                let fy = (p.1 - y.0) / (y.1 - y.0);
+                let in_x = if right { fx >= 0.55 } else { fx <= 0.45 };
+                let in_y = if upper { fy >= 0.6 } else { fy <= 0.4 };
+                in_x && in_y
+            })
+            .count()
+    };
+    let mut best = (SeriesLabelPosition::UpperRight, usize::MAX);
+    for (corner, right, upper) in corners {
+        let n = count(right, upper);
+        if n < best.1 {
+            best = (corner, n);
+        }
+    }
+    best.0
 }
 
 /// An axis tick: whole numbers from 100 up (iterations, sample counts), otherwise at most three
@@ -237,6 +280,27 @@ fn tick_label(v: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_legend_goes_where_the_curves_are_not() {
+        let t: Vec<f64> = (0..=10).map(f64::from).collect();
+        let falling: Vec<f64> = t.iter().map(|v| 10.0 - v).collect();
+        let panel = |y: &[f64]| Panel {
+            title: String::new(),
+            y_label: String::new(),
+            series: vec![Series::new("y", &t, y)],
+        };
+        // A falling line crosses the upper-left and lower-right corners only.
+        let corner = emptiest_corner(&panel(&falling), (0.0, 10.0), (0.0, 10.0));
+        assert!(matches!(corner, SeriesLabelPosition::UpperRight));
+        let rising: Vec<f64> = t.clone();
+        let corner = emptiest_corner(&panel(&rising), (0.0, 10.0), (0.0, 10.0));
+        assert!(matches!(corner, SeriesLabelPosition::UpperLeft));
+        // Points along the top: the legend goes below them.
+        let top = vec![9.5; t.len()];
+        let corner = emptiest_corner(&panel(&top), (0.0, 10.0), (-0.5, 10.0));
+        assert!(matches!(corner, SeriesLabelPosition::LowerRight));
+    }
 
     #[test]
     fn tick_labels_drop_float_noise() {

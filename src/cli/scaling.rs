@@ -274,7 +274,8 @@ fn print_table(curves: &[Curve], over: Axis) {
     }
 }
 
-/// log₁₀ E against log₁₀ D: each curve's runs as markers and its fit as a line, in one colour.
+/// log₁₀ E against log₁₀ D: each curve's runs as markers and its fit as a line, in one colour,
+/// with one legend entry per curve giving α, C and R².
 /// Curves with a single D value are left out; `false` (nothing drawn) when no curve is left.
 fn plot(path: &Path, curves: &[Curve], over: Axis) -> anyhow::Result<bool> {
     let mut series = Vec::new();
@@ -284,7 +285,14 @@ fn plot(path: &Path, curves: &[Curve], over: Axis) -> anyhow::Result<bool> {
     for (i, c) in spans.enumerate() {
         let ld: Vec<f64> = c.points.iter().map(|p| p.0.log10()).collect();
         let le: Vec<f64> = c.points.iter().map(|p| p.1.log10()).collect();
-        series.push(Series::new(c.label.clone(), &ld, &le).markers().colored(i));
+        let label = match &c.fit {
+            Some(f) => format!(
+                "{}: α {:.3}, C {:.2e}, R² {:.3}",
+                c.label, f.alpha, f.c, f.r2
+            ),
+            None => format!("{} (not fitted)", c.label),
+        };
+        series.push(Series::new(label, &ld, &le).markers().colored(i));
         if let Some(f) = &c.fit {
             let (lo, hi) = (ld[0], ld[ld.len() - 1]);
             let xs: Vec<f64> = (0..=60).map(|k| lo + (hi - lo) * k as f64 / 60.0).collect();
@@ -292,8 +300,7 @@ fn plot(path: &Path, curves: &[Curve], over: Axis) -> anyhow::Result<bool> {
                 .iter()
                 .map(|x| f.predict(10f64.powf(*x)).log10())
                 .collect();
-            let label = format!("fit: α {:.3}, C {:.2e}, R² {:.3}", f.alpha, f.c, f.r2);
-            series.push(Series::new(label, &xs, &ys).colored(i));
+            series.push(Series::new("", &xs, &ys).colored(i));
         }
     }
     let x_label = match over {
