@@ -46,6 +46,9 @@ runs=(
   "double-reference-m16000 double-pendulum reference 16000"
   "double-reference-m4000  double-pendulum reference 4000"
   "double-reference-m64000 double-pendulum reference 64000"
+  "damped-reference-m1000-seed76849  damped-pendulum reference 1000 --seed 76849"
+  "damped-reference-m4000-seed76849  damped-pendulum reference 4000 --seed 76849"
+  "damped-reference-m16000-seed76849 damped-pendulum reference 16000 --seed 76849"
 )
 if [ -n "${ONLY:-}" ]; then
   selected=()
