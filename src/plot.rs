@@ -136,45 +136,7 @@ fn draw(
         .map_err(|e| anyhow::anyhow!("plot title: {e}"))?;
     let areas = root.split_evenly((panels.len(), 1));
     for (panel, area) in panels.iter().zip(&areas) {
-        let pts = panel
-            .series
-            .iter()
-            .flat_map(|s| s.points.iter())
-            .filter(|p| p.0.is_finite() && p.1.is_finite());
-        let (mut x0, mut x1, mut y0, mut y1) = (
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-        );
-        for &(x, y) in pts {
-            x0 = x0.min(x);
-            x1 = x1.max(x);
-            y0 = y0.min(y);
-            y1 = y1.max(y);
-        }
-        if !x0.is_finite() {
-            (x0, x1, y0, y1) = (0.0, 1.0, -1.0, 1.0);
-        }
-        if x1 <= x0 {
-            x1 = x0 + 1.0;
-        }
-        if panel.series.iter().any(|s| s.markers) {
-            // Markers at the ends of the range would be cut in half.
-            let pad = (x1 - x0) * 0.03;
-            (x0, x1) = (x0 - pad, x1 + pad);
-        }
-        let pad = ((y1 - y0) * 0.08).max(1e-3);
-        let (y0, mut y1) = (y0 - pad, y1 + pad);
-        let legend_corner = if panel.series.iter().any(|s| s.markers) {
-            // Scattered measurements: the legend gets a band of its own above the data.
-            let entries = panel.series.iter().filter(|s| !s.label.is_empty()).count();
-            let band = ((entries as f64 * 19.0 + 14.0) / 178.0).min(0.6);
-            y1 += (y1 - y0) * band / (1.0 - band);
-            SeriesLabelPosition::UpperRight
-        } else {
-            emptiest_corner(panel, (x0, x1), (y0, y1))
-        };
+        let (x0, x1, y0, y1, legend_corner) = layout(panel);
         let mut chart = ChartBuilder::on(area)
             .caption(&panel.title, ("sans-serif", 18))
             .margin(8)
@@ -226,6 +188,52 @@ fn draw(
     root.present()
         .map_err(|e| anyhow::anyhow!("writing {}: {e}", path.display()))?;
     Ok(())
+}
+
+/// The axis ranges of `panel` (its finite points, padded; scattered markers get room at the
+/// ends and a legend band above the data) and the corner for its legend.
+fn layout(panel: &Panel) -> (f64, f64, f64, f64, SeriesLabelPosition) {
+    let pts = panel
+        .series
+        .iter()
+        .flat_map(|s| s.points.iter())
+        .filter(|p| p.0.is_finite() && p.1.is_finite());
+    let (mut x0, mut x1, mut y0, mut y1) = (
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+    );
+    for &(x, y) in pts {
+        x0 = x0.min(x);
+        x1 = x1.max(x);
+        y0 = y0.min(y);
+        y1 = y1.max(y);
+    }
+    if !x0.is_finite() {
+        (x0, x1, y0, y1) = (0.0, 1.0, -1.0, 1.0);
+    }
+    if x1 <= x0 {
+        x1 = x0 + 1.0;
+    }
+    let scatter = panel.series.iter().any(|s| s.markers);
+    if scatter {
+        // Markers at the ends of the range would be cut in half.
+        let pad = (x1 - x0) * 0.03;
+        (x0, x1) = (x0 - pad, x1 + pad);
+    }
+    let pad = ((y1 - y0) * 0.08).max(1e-3);
+    let (y0, mut y1) = (y0 - pad, y1 + pad);
+    let legend_corner = if scatter {
+        // Scattered measurements: the legend gets a band of its own above the data.
+        let entries = panel.series.iter().filter(|s| !s.label.is_empty()).count();
+        let band = ((entries as f64 * 19.0 + 14.0) / 178.0).min(0.6);
+        y1 += (y1 - y0) * band / (1.0 - band);
+        SeriesLabelPosition::UpperRight
+    } else {
+        emptiest_corner(panel, (x0, x1), (y0, y1))
+    };
+    (x0, x1, y0, y1, legend_corner)
 }
 
 /// The corner of the plot area whose box (45% of the width, 40% of the height) holds the fewest

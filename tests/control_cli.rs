@@ -6,10 +6,12 @@ mod common;
 
 use std::process::Command;
 
-fn control(args: &[&str]) -> std::process::Output {
+/// `koopbridge control --env ENV --solver zero-input --out OUT` plus `extra`.
+fn zero_input(env: &str, out: &std::path::Path, extra: &[&str]) -> std::process::Output {
     Command::new(common::exe())
-        .arg("control")
-        .args(args)
+        .args(["control", "--env", env, "--solver", "zero-input", "--out"])
+        .arg(out)
+        .args(extra)
         .output()
         .expect("run koopbridge control")
 }
@@ -17,18 +19,11 @@ fn control(args: &[&str]) -> std::process::Output {
 #[test]
 fn double_pendulum_target_is_reported_as_not_holdable_within_the_bounds() {
     let out_dir = common::scratch("control-double");
-    let out = control(&[
-        "--fit",
-        "20",
-        "--env",
+    let out = zero_input(
         "double-pendulum",
-        "--solver",
-        "zero-input",
-        "--steps",
-        "20",
-        "--out",
-        out_dir.to_str().unwrap(),
-    ]);
+        &out_dir,
+        &["--fit", "20", "--steps", "20"],
+    );
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     assert!(stderr.contains("no controller can hold it"), "{stderr}");
@@ -46,20 +41,11 @@ fn double_pendulum_target_is_reported_as_not_holdable_within_the_bounds() {
     assert_eq!(metrics[0]["controller"], "zero-input");
     assert_eq!(metrics[0]["steps"], 20);
     // With bounds that allow the holding torque the warning goes away.
-    let wide = control(&[
-        "--fit",
-        "20",
-        "--env",
+    let wide = zero_input(
         "double-pendulum",
-        "--solver",
-        "zero-input",
-        "--steps",
-        "5",
-        "--u-bound",
-        "20",
-        "--out",
-        out_dir.join("wide").to_str().unwrap(),
-    ]);
+        &out_dir.join("wide"),
+        &["--fit", "20", "--steps", "5", "--u-bound", "20"],
+    );
     let stderr = String::from_utf8_lossy(&wide.stderr);
     assert!(
         wide.status.success() && !stderr.contains("no controller can hold it"),
@@ -70,15 +56,7 @@ fn double_pendulum_target_is_reported_as_not_holdable_within_the_bounds() {
 #[test]
 fn bad_x0_is_a_clear_error() {
     let out_dir = common::scratch("control-bad-x0");
-    let out = control(&[
-        "--env",
-        "damped-pendulum",
-        "--solver",
-        "zero-input",
-        "--x0=1.0",
-        "--out",
-        out_dir.to_str().unwrap(),
-    ]);
+    let out = zero_input("damped-pendulum", &out_dir, &["--x0=1.0"]);
     assert!(!out.status.success());
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("--x0 needs 2 finite values"), "{stderr}");

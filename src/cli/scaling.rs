@@ -7,7 +7,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use koopman::analysis::{fit_scaling_law, ScalingFit};
-use koopman::model::store::write_atomic;
+use koopman::data::Pairing;
+use koopman::model::store::{self, write_atomic};
+use koopman::train::TrainMetrics;
 use serde::Serialize;
 use serde_json::Value;
 
@@ -56,7 +58,7 @@ pub struct ScalingArgs {
 struct RunPoint {
     path: PathBuf,
     env: String,
-    pairing: String,
+    pairing: Pairing,
     m: usize,
     n_mult: usize,
     latent_dim: usize,
@@ -70,7 +72,6 @@ struct RunPoint {
 #[derive(Debug, Serialize)]
 struct Curve {
     label: String,
-    over: Axis,
     /// `(D, E)` per run, D ascending.
     points: Vec<(f64, f64)>,
     fit: Option<ScalingFit>,
@@ -145,9 +146,11 @@ fn collect_runs(paths: &[PathBuf]) -> anyhow::Result<Vec<RunPoint>> {
     Ok(runs)
 }
 
-/// Reads one run folder; `None` (with a note) for a model other than Koopman.
+/// Reads one run folder (its metrics.json as [`TrainMetrics`], N from config.json); `None`
+/// (with a note) for a model other than Koopman.
 fn read_run(dir: &Path) -> anyhow::Result<Option<RunPoint>> {
-    let metrics = read_json(&dir.join("metrics.json"))?;
+    let file = dir.join("metrics.json");
+    let metrics = read_json(&file)?;
     let model = metrics.get("model").and_then(Value::as_str).unwrap_or("");
     if model != "koopman" {
         eprintln!(
@@ -156,51 +159,40 @@ fn read_run(dir: &Path) -> anyhow::Result<Option<RunPoint>> {
         );
         return Ok(None);
     }
-    let file = dir.join("metrics.json");
-    let field = |v: &Value, name: &str| -> anyhow::Result<Value> {
-        v.get(name)
-            .cloned()
-            .filter(|x| !x.is_null())
-            .with_context(|| format!("{}: no field {name:?}", file.display()))
-    };
-    let config = field(&metrics, "config")?;
-    let number = |v: Value, name: &str| -> anyhow::Result<u64> {
-        v.as_u64()
-            .with_context(|| format!("{}: {name:?} is not a whole number", file.display()))
-    };
-    let boolean = |v: Value, name: &str| -> anyhow::Result<bool> {
-        v.as_bool()
-            .with_context(|| format!("{}: {name:?} is not true/false", file.display()))
-    };
-    let text = |v: Value| v.as_str().unwrap_or("?").to_string();
-    let error = field(&metrics, "test_prediction_error")?
-        .as_f64()
-        .with_context(|| format!("{}: test_prediction_error is not a number", file.display()))?;
-    if !(error.is_finite() && error > 0.0) {
-        bail!(
-            "{}: test_prediction_error {error} is not positive and finite",
+    let run: TrainMetrics = serde_json::from_value(metrics).with_context(|| {
+        format!(
+            "{} is not the metrics.json of a Koopman training run",
             file.display()
-        );
-    }
-    let model_config = read_json(&dir.join("config.json"))?;
-    let latent_dim = number(
-        model_config
-            .get("latent_dim")
-            .cloned()
-            .unwrap_or(Value::Null),
-        "latent_dim",
-    )
-    .with_context(|| format!("reading N from {}", dir.join("config.json").display()))?;
+        )
+    })?;
+    let error = run
+        .test_prediction_error
+        .filter(|e| e.is_finite() && *e > 0.0)
+        .with_context(|| {
+            format!(
+                "{}: test_prediction_error is missing or not a positive number",
+                file.display()
+            )
+        })?;
+    let latent_dim = store::read_config(dir)?
+        .get("latent_dim")
+        .and_then(Value::as_u64)
+        .with_context(|| {
+            format!(
+                "{}: no whole-number field \"latent_dim\"",
+                dir.join("config.json").display()
+            )
+        })?;
     Ok(Some(RunPoint {
         path: dir.to_path_buf(),
-        env: text(field(&metrics, "env")?),
-        pairing: text(field(&metrics, "pairing")?),
-        m: number(field(&metrics, "train_samples")?, "train_samples")? as usize,
-        n_mult: number(field(&config, "n_mult")?, "n_mult")? as usize,
+        env: run.env,
+        pairing: run.pairing,
+        m: run.train_samples,
+        n_mult: run.config.n_mult,
         latent_dim: latent_dim as usize,
-        ctrl: boolean(field(&config, "ctrl")?, "ctrl")?,
-        cov: boolean(field(&config, "cov")?, "cov")?,
-        seed: number(field(&config, "seed")?, "seed")?,
+        ctrl: run.config.ctrl,
+        cov: run.config.cov,
+        seed: run.config.seed,
         error,
     }))
 }
@@ -224,7 +216,8 @@ fn fit_curves(runs: &[RunPoint], over: Axis) -> Vec<Curve> {
             Axis::M => (format!("n_mult {}", r.n_mult), r.m as f64),
             Axis::N => (format!("m {}", r.m), r.latent_dim as f64),
         };
-        let label = format!("{} {} {fixed} {regularisers}", r.env, r.pairing);
+        let pairing = format!("{:?}", r.pairing).to_lowercase();
+        let label = format!("{} {pairing} {fixed} {regularisers}", r.env);
         groups.entry(label).or_default().push((d, r.error));
     }
     groups
@@ -239,7 +232,6 @@ fn fit_curves(runs: &[RunPoint], over: Axis) -> Vec<Curve> {
             };
             Curve {
                 label,
-                over,
                 points,
                 fit,
                 note,
@@ -328,16 +320,32 @@ fn plot(path: &Path, curves: &[Curve], over: Axis) -> anyhow::Result<bool> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use koopman::train::TrainConfig;
 
-    /// Writes a run folder as `koopbridge train` would (the fields the fit reads).
+    /// Writes a run folder as `koopbridge train` would (its TrainMetrics, tagged "model").
     fn write_run(dir: &Path, m: usize, n_mult: usize, seed: u64, error: f64) {
         std::fs::create_dir_all(dir).unwrap();
-        let metrics = serde_json::json!({
-            "model": "koopman", "env": "damped-pendulum", "pairing": "reference",
-            "train_samples": m, "test_prediction_error": error,
-            "config": { "n_mult": n_mult, "ctrl": true, "cov": true, "seed": seed },
-        });
-        std::fs::write(dir.join("metrics.json"), metrics.to_string()).unwrap();
+        let metrics = TrainMetrics {
+            test_prediction_error: Some(error),
+            best_validation_prediction_error: 0.01,
+            best_iteration: 1,
+            iterations: 1,
+            iterations_per_second: 1.0,
+            wall_seconds: 1.0,
+            train_samples: m,
+            num_params: 1,
+            final_loss: Default::default(),
+            pairing: Pairing::Reference,
+            env: "damped-pendulum".into(),
+            config: TrainConfig {
+                n_mult,
+                seed,
+                ..TrainConfig::default()
+            },
+        };
+        let mut json = serde_json::to_value(&metrics).unwrap();
+        json["model"] = "koopman".into();
+        std::fs::write(dir.join("metrics.json"), json.to_string()).unwrap();
         let config = serde_json::json!({ "kind": "koopman", "latent_dim": 2 + 2 * n_mult });
         std::fs::write(dir.join("config.json"), config.to_string()).unwrap();
     }
