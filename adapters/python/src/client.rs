@@ -6,8 +6,8 @@ use std::sync::Mutex;
 use std::time::Duration;
 
 use bridge::client::{Client as Inner, Liveliness, SimClient};
-use bridge::codec::{SolveReply, SolveRequest, SolveStatus, StepReply};
-use bridge::keyexpr::Keys;
+use bridge::codec::{SolveReply, SolveRequest, SolveStatus, StepReply, StepRequest};
+use bridge::keyexpr::{Keys, SimLeaf};
 use bridge::messages::ResetRequest;
 use bridge::session::{open_session, Mode, ZenohOptions};
 use bridge::zenoh::Wait;
@@ -125,6 +125,35 @@ impl Client {
         let u = vec_f64(u, "u")?;
         let live = &self.live;
         let r: StepReply = self.with_sim(py, id, |s| s.step(&u, Some(live)))?;
+        Ok((r.k, r.t, array1(py, &r.x)))
+    }
+
+    /// Sends one step request for an explicit step index ``k`` of simulator ``id`` (connected
+    /// first with ``connect_sim``) and returns the reply's ``(k, t, x)`` without retries and
+    /// without moving this client's own step index. For checking lockstep semantics: a ``k``
+    /// already taken with the same ``u`` is answered from the adapter's cache (the simulator is
+    /// not stepped again); with another ``u`` it is a ``conflict`` error reply.
+    #[pyo3(signature = (id, k, u, timeout=10.0))]
+    fn step_at<'py>(
+        &self,
+        py: Python<'py>,
+        id: &str,
+        k: u64,
+        u: &Bound<'py, PyAny>,
+        timeout: f64,
+    ) -> PyResult<(u64, f64, Bound<'py, PyArray1<f64>>)> {
+        let body = StepRequest {
+            k,
+            u: vec_f64(u, "u")?,
+        }
+        .encode();
+        let key = self.inner.keys.sim(id, SimLeaf::Step).map_err(bridge_err)?;
+        let t = secs(timeout)?;
+        let who = format!("simulator '{id}'");
+        let bytes = py
+            .detach(|| self.inner.query(&key, body, t, &who))
+            .map_err(bridge_err)?;
+        let r = StepReply::decode(&bytes).map_err(bridge_err)?;
         Ok((r.k, r.t, array1(py, &r.x)))
     }
 

@@ -2,6 +2,8 @@
 
 use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
+use pyo3::sync::PyOnceLock;
+use pyo3::types::{PyDict, PyTuple, PyType};
 
 pyo3::create_exception!(
     koopbridge,
@@ -14,12 +16,6 @@ pyo3::create_exception!(
     RemoteError,
     KoopbridgeError,
     "A remote participant answered with a typed error reply (`code` and `message` attributes)."
-);
-pyo3::create_exception!(
-    koopbridge,
-    TimeoutError,
-    KoopbridgeError,
-    "A participant did not answer in time; the message names it."
 );
 pyo3::create_exception!(
     koopbridge,
@@ -40,11 +36,40 @@ pyo3::create_exception!(
     "Raise it from an adapter's `reset`/`step` to answer with an `unsupported` error reply."
 );
 
+static BRIDGE_TIMEOUT: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+
+/// `koopbridge.BridgeTimeout`: a participant did not answer in time. A subclass of both
+/// `KoopbridgeError` and Python's built-in `TimeoutError` (which it does not shadow), made once.
+fn bridge_timeout(py: Python<'_>) -> PyResult<Bound<'_, PyType>> {
+    let t = BRIDGE_TIMEOUT.get_or_try_init(py, || -> PyResult<Py<PyType>> {
+        let builtins = py.import("builtins")?;
+        let bases = PyTuple::new(
+            py,
+            [
+                py.get_type::<KoopbridgeError>().into_any(),
+                builtins.getattr("TimeoutError")?,
+            ],
+        )?;
+        let ns = PyDict::new(py);
+        ns.set_item("__module__", "koopbridge")?;
+        ns.set_item(
+            "__doc__",
+            "A participant did not answer in time; the message names it. Also a built-in TimeoutError.",
+        )?;
+        let t = builtins
+            .getattr("type")?
+            .call1(("BridgeTimeout", bases, ns))?
+            .cast_into::<PyType>()?;
+        Ok(t.unbind())
+    })?;
+    Ok(t.bind(py).clone())
+}
+
 /// Adds the exception types to the module.
 pub fn register(py: Python<'_>, m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("KoopbridgeError", py.get_type::<KoopbridgeError>())?;
     m.add("RemoteError", py.get_type::<RemoteError>())?;
-    m.add("TimeoutError", py.get_type::<TimeoutError>())?;
+    m.add("BridgeTimeout", bridge_timeout(py)?)?;
     m.add("GoneError", py.get_type::<GoneError>())?;
     m.add("InvalidInput", py.get_type::<InvalidInput>())?;
     m.add("Unsupported", py.get_type::<Unsupported>())?;
@@ -63,7 +88,10 @@ pub fn bridge_err(e: bridge::Error) -> PyErr {
             let _ = v.setattr("message", reply.message);
             err
         }),
-        bridge::Error::Timeout { .. } => TimeoutError::new_err(msg),
+        bridge::Error::Timeout { .. } => Python::attach(|py| match bridge_timeout(py) {
+            Ok(t) => PyErr::from_type(t, msg),
+            Err(e) => e,
+        }),
         bridge::Error::Gone(_) => GoneError::new_err(msg),
         bridge::Error::Koopman(k) => koopman_err(k),
         _ => KoopbridgeError::new_err(msg),

@@ -43,7 +43,7 @@ def test_fetch_configure_and_solve_through_the_services(tmp_path, session_id):
             try:
                 got = c.fetch_model("pend", str(tmp_path / "fetched"))
                 break
-            except koopbridge.TimeoutError:
+            except koopbridge.BridgeTimeout:
                 assert time.monotonic() < t_end, child.output()
         fetched = koopbridge.KoopmanModel.load(got)
         np.testing.assert_array_equal(fetched.A, model.A)

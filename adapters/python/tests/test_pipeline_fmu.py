@@ -51,7 +51,7 @@ def test_collect_train_fetch_and_regulate_through_the_services(tmp_path, damped_
                 job = c.submit_job("s0", "fmu-pend", paths["train"], paths["val"], paths["test"],
                                    config={"iterations": 60, "validate_every": 30, "hidden": [32, 32], "n_mult": 4, "batch": 16})
                 break
-            except koopbridge.TimeoutError:
+            except koopbridge.BridgeTimeout:
                 assert time.monotonic() < t_end, services.output()
         rec = c.wait_job("s0", job, timeout=300)
         assert rec["state"] == "done", rec

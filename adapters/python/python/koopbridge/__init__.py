@@ -1,17 +1,26 @@
 """koopbridge from Python.
 
-- ``Adapter``: base class of simulators written in Python, served over Zenoh (lockstep or
-  free-run) by the one Rust implementation of the protocol;
+- ``Simulator``, ``SimInfo``: the contract of a Python simulator (``koopbridge.simulator``);
+  ``SimulatorAdapter`` serves any of them over Zenoh (lockstep or free-run) through the one
+  Rust implementation of the protocol, ``run_main`` is the body of an adapter's command line
+  (``koopbridge.serving``); ``koopbridge.testing.check_adapter`` checks a simulator the way
+  the bridge will use it;
+- ``Adapter``: the native base class under ``SimulatorAdapter``;
 - ``KoopmanModel``: a trained neural Koopman model (``encode``, ``predict``, ``A``, ``B``, ``P``);
 - ``Mpc``: in-process receding-horizon MPC solves on a model;
 - ``Client``: the querying side (simulators, MPC service, raw queries of the other services);
 - ``ReferenceSystem``: the built-in Rust reference dynamics;
-- ``koopbridge.adapters.fmu``: the FMU adapter (``python -m koopbridge.adapters.fmu --help``).
+- ``koopbridge.adapters.fmu``, ``koopbridge.adapters.mujoco``: the FMU and MuJoCo adapters
+  (``python -m koopbridge.adapters.fmu --help``).
+
+Errors: every one is a ``KoopbridgeError``; ``BridgeTimeout`` is also a built-in
+``TimeoutError``, ``RemoteError`` carries the reply's ``code``.
 """
 
 from ._native import (
     PROTOCOL_VERSION,
     Adapter,
+    BridgeTimeout,
     GoneError,
     InvalidInput,
     KoopbridgeError,
@@ -19,15 +28,17 @@ from ._native import (
     Mpc,
     ReferenceSystem,
     RemoteError,
-    TimeoutError,
     Unsupported,
     __version__,
 )
 from .client import Client
+from .serving import SimulatorAdapter, run_main
+from .simulator import SimInfo, Simulator
 
 __all__ = [
     "PROTOCOL_VERSION",
     "Adapter",
+    "BridgeTimeout",
     "Client",
     "GoneError",
     "InvalidInput",
@@ -36,7 +47,10 @@ __all__ = [
     "Mpc",
     "ReferenceSystem",
     "RemoteError",
-    "TimeoutError",
+    "SimInfo",
+    "Simulator",
+    "SimulatorAdapter",
     "Unsupported",
     "__version__",
+    "run_main",
 ]

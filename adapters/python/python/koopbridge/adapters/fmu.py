@@ -11,36 +11,20 @@ version) as JSON and exits. Lists of numbers that start with a minus sign need `
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from typing import Any, Sequence
 
-import numpy as np
-
-from .._native import Adapter, KoopbridgeError
-from ..serve_args import add_serve_arguments, serve_from_args
+from ..serving import SimulatorAdapter, run_main
 from .fmu_sim import FmuError, FmuSimulator
 
-__all__ = ["FmuAdapter", "FmuError", "FmuSimulator", "main"]
+__all__ = ["FmuAdapter", "FmuError", "FmuSimulator", "main", "parser"]
 
 
-class FmuAdapter(Adapter):
-    """A koopbridge ``Adapter`` around an ``FmuSimulator`` (same constructor arguments)."""
+class FmuAdapter(SimulatorAdapter):
+    """A ``SimulatorAdapter`` serving an ``FmuSimulator`` built from the same arguments."""
 
     def __init__(self, path: str, inputs: Sequence[str], outputs: Sequence[str], **kwargs: Any) -> None:
-        self.sim = FmuSimulator(path, inputs, outputs, **kwargs)
-
-    def info(self) -> dict[str, Any]:
-        return self.sim.info()
-
-    def reset(self, seed: int | None = None, x0: Any = None) -> np.ndarray:
-        return self.sim.reset(seed=seed, x0=x0)
-
-    def step(self, u: np.ndarray) -> np.ndarray:
-        return self.sim.step(u)
-
-    def close(self) -> None:
-        self.sim.close()
+        super().__init__(FmuSimulator(path, inputs, outputs, **kwargs))
 
 
 def _names(s: str) -> list[str]:
@@ -65,7 +49,7 @@ def _param(s: str) -> tuple[str, float]:
 
 
 def parser() -> argparse.ArgumentParser:
-    """The command-line parser of the FMU adapter."""
+    """The FMU adapter's own options (``run_main`` adds ``--describe`` and the serving ones)."""
     p = argparse.ArgumentParser(
         prog="python -m koopbridge.adapters.fmu",
         description="Serve an FMI 2.0/3.0 co-simulation FMU as a koopbridge simulator over Zenoh "
@@ -86,48 +70,30 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE", help="start value set on every reset (repeatable)")
     p.add_argument("--env", help="environment name reported in info (default: the FMU's model name)")
     p.add_argument("--angles", type=lambda s: [int(v) for v in s.split(",") if v], default=[], metavar="INDICES", help="state indices that are angles")
-    p.add_argument("--describe", action="store_true", help="print the info this adapter reports (JSON) and exit")
-    add_serve_arguments(p)
     return p
 
 
+def simulator(args: argparse.Namespace) -> FmuSimulator:
+    """The ``FmuSimulator`` the parsed command line describes."""
+    return FmuSimulator(
+        args.fmu,
+        args.inputs,
+        args.outputs,
+        dt=args.dt,
+        initial=args.initial,
+        x0_low=args.x0_low,
+        x0_high=args.x0_high,
+        u_min=args.u_min,
+        u_max=args.u_max,
+        parameters=dict(args.param),
+        env=args.env,
+        angle_indices=args.angles,
+    )
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Runs the FMU adapter; returns the exit code."""
-    args = parser().parse_args(argv)
-    try:
-        adapter = FmuAdapter(
-            args.fmu,
-            args.inputs,
-            args.outputs,
-            dt=args.dt,
-            initial=args.initial,
-            x0_low=args.x0_low,
-            x0_high=args.x0_high,
-            u_min=args.u_min,
-            u_max=args.u_max,
-            parameters=dict(args.param),
-            env=args.env,
-            angle_indices=args.angles,
-        )
-    except KoopbridgeError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    try:
-        if args.describe:
-            json.dump(adapter.info(), sys.stdout, indent=2, default=str)
-            print()
-            return 0
-        print(f"koopbridge fmu adapter: {adapter.sim.name} as sim '{args.id}' in session '{args.session}'", file=sys.stderr, flush=True)
-        stats = serve_from_args(adapter, args)
-        print(f"koopbridge fmu adapter: stopped after {stats.get('steps', 0)} steps", file=sys.stderr)
-        return 0
-    except KeyboardInterrupt:
-        return 130
-    except KoopbridgeError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 1
-    finally:
-        adapter.close()
+    """Runs the FMU adapter (``koopbridge.serving.run_main``); returns the exit code."""
+    return run_main(simulator, parser(), argv)
 
 
 if __name__ == "__main__":

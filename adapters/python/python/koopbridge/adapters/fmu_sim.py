@@ -1,6 +1,7 @@
 """An FMI 2.0 / 3.0 co-simulation FMU as a discrete-time simulator ``x_{k+1} = f(x_k, u_k)``
 through fmpy: inputs and outputs chosen by variable name, one ``doStep`` of ``dt`` per step with
-the inputs held, reset by re-initialising the FMU. No networking here (see ``fmu.py``)."""
+the inputs held, reset by re-initialising the FMU. A ``koopbridge.Simulator``; no networking here
+(see ``fmu.py``)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .._native import InvalidInput, KoopbridgeError, Unsupported
+from ..simulator import SimInfo
 
 
 class FmuError(KoopbridgeError):
@@ -164,13 +166,13 @@ class FmuSimulator:
             )
         return out
 
-    def info(self) -> dict[str, Any]:
-        """The simulator description for koopbridge (``Adapter.info``) plus the FMU's own under
-        ``fmu`` (FMI version, units and start values of the inputs and outputs, every variable);
-        ``fmu`` is plain JSON and reaches clients in the ``info`` reply's ``extra`` object."""
+    def info(self) -> SimInfo:
+        """The simulator description for koopbridge plus the FMU's own under ``extra["fmu"]``
+        (FMI version, units and start values of the inputs and outputs, every variable); it
+        reaches clients in the ``info`` reply's ``extra`` object."""
         units = {v["name"]: v["unit"] for v in self.variables()}
         starts = {v["name"]: v["start"] for v in self.variables()}
-        return dict(
+        return SimInfo(
             env=self.env,
             kind="fmu",
             version=f"FMI {self.md.fmiVersion}; {self.md.modelName} {self.md.version or ''}".strip(),
@@ -180,15 +182,17 @@ class FmuSimulator:
             u_min=self.u_min,
             u_max=self.u_max,
             angle_indices=self.angle_indices,
-            fmu=dict(
-                file=self.path,
-                fmi_version=self.md.fmiVersion,
-                model_name=self.md.modelName,
-                generation_tool=self.md.generationTool,
-                units=dict(inputs=[units[n] for n in self.inputs], outputs=[units[n] for n in self.outputs]),
-                start=dict(inputs=[starts[n] for n in self.inputs], outputs=[starts[n] for n in self.outputs]),
-                initial=self.initial,
-                variables=self.variables(),
+            extra=dict(
+                fmu=dict(
+                    file=self.path,
+                    fmi_version=self.md.fmiVersion,
+                    model_name=self.md.modelName,
+                    generation_tool=self.md.generationTool,
+                    units=dict(inputs=[units[n] for n in self.inputs], outputs=[units[n] for n in self.outputs]),
+                    start=dict(inputs=[starts[n] for n in self.inputs], outputs=[starts[n] for n in self.outputs]),
+                    initial=self.initial,
+                    variables=self.variables(),
+                )
             ),
         )
 
