@@ -16,11 +16,20 @@ fi
 venv_py=$root/.venv/bin/python
 
 # Requirements: reinstalled only when requirements.txt changed (its hash is kept in the venv).
+# Lines marked `# no-deps` (robosuite, a folder of model files here) are installed on their own
+# with --no-deps, after the others.
 stamp=.venv/.koopbridge-requirements.sha256
 want=$(sha256sum requirements.txt | cut -d' ' -f1)
 if [ "$(cat "$stamp" 2>/dev/null || true)" != "$want" ]; then
   echo "setup-python: installing requirements.txt"
-  "$venv_py" -m pip install --quiet --disable-pip-version-check -r requirements.txt
+  with_deps=$(mktemp)
+  trap 'rm -f "$with_deps"' EXIT
+  grep -v -- '# no-deps' requirements.txt > "$with_deps"
+  "$venv_py" -m pip install --quiet --disable-pip-version-check -r "$with_deps"
+  mapfile -t no_deps < <(grep -- '# no-deps' requirements.txt | sed 's/#.*//; s/[[:space:]]//g' | grep -v '^$')
+  if [ "${#no_deps[@]}" -gt 0 ]; then
+    "$venv_py" -m pip install --quiet --disable-pip-version-check --no-deps "${no_deps[@]}"
+  fi
   echo "$want" > "$stamp"
 fi
 

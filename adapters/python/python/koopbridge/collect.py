@@ -1,0 +1,151 @@
+"""In-process data collection: blocks of windows run by a simulator itself, deterministic by
+seed and resumable by block. A policy is plain JSON (``{"kind": "uniform", ...}``) so that the
+same request can later travel over Zenoh; window ``i`` depends only on ``(seed, i)``."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping, Protocol, Sequence
+
+import numpy as np
+
+from ._native import InvalidInput
+from .simulator import SimInfo, Simulator
+
+__all__ = ["Policy", "UniformPolicy", "Windows", "collect_windows", "policy_from_json", "window_rng"]
+
+
+class Policy(Protocol):
+    """Draws the inputs of one window."""
+
+    def inputs(self, rng: np.random.Generator, T: int, info: SimInfo) -> np.ndarray:
+        """``(T, nu)`` inputs for one window, drawn from ``rng`` only."""
+        ...
+
+    def to_json(self) -> dict[str, Any]:
+        """The policy as JSON (what a collect request would carry)."""
+        ...
+
+
+@dataclass(frozen=True)
+class UniformPolicy:
+    """A fresh ``u ~ U(low, high)`` every step (SPEC's data); ``low``/``high`` default to the
+    simulator's bounds (``info().u_min``/``u_max``), which must then be finite; one value
+    applies to every input."""
+
+    low: tuple[float, ...] | None = None
+    high: tuple[float, ...] | None = None
+
+    def bounds(self, info: SimInfo) -> tuple[np.ndarray, np.ndarray]:
+        """The box inputs are drawn from, checked against ``info``."""
+        lo = np.array(self.low if self.low is not None else info.u_min, dtype=float)
+        hi = np.array(self.high if self.high is not None else info.u_max, dtype=float)
+        lo, hi = (np.full(info.nu, b.item()) if b.size == 1 else b for b in (lo, hi))
+        if lo.shape != (info.nu,) or hi.shape != (info.nu,):
+            raise InvalidInput(f"uniform policy: bounds of {lo.size} and {hi.size} values for {info.nu} inputs")
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo <= hi)):
+            raise InvalidInput(f"uniform policy: bounds must be finite with low <= high, got {lo.tolist()}, {hi.tolist()}")
+        return lo, hi
+
+    def inputs(self, rng: np.random.Generator, T: int, info: SimInfo) -> np.ndarray:
+        lo, hi = self.bounds(info)
+        return rng.uniform(lo, hi, size=(T, info.nu))
+
+    def to_json(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"kind": "uniform"}
+        if self.low is not None:
+            d["low"] = list(self.low)
+        if self.high is not None:
+            d["high"] = list(self.high)
+        return d
+
+
+def policy_from_json(d: Mapping[str, Any]) -> Policy:
+    """The policy a JSON object describes (``{"kind": "uniform", "low": [...], "high": [...]}``;
+    a scalar bound applies to every input)."""
+    kind = d.get("kind")
+    if kind != "uniform":
+        raise InvalidInput(f"policy kind {kind!r}: only 'uniform' is known")
+    unknown = set(d) - {"kind", "low", "high"}
+    if unknown:
+        raise InvalidInput(f"uniform policy: unknown fields {sorted(unknown)}")
+
+    def vec(v: Any) -> tuple[float, ...] | None:
+        if v is None:
+            return None
+        return tuple(float(a) for a in (v if isinstance(v, Sequence) else [v]))
+
+    return UniformPolicy(vec(d.get("low")), vec(d.get("high")))
+
+
+def window_rng(seed: int, index: int) -> np.random.Generator:
+    """The generator of window ``index`` of a collection with ``seed``: independent of every
+    other window, so a block can be (re)collected on its own."""
+    if seed < 0 or index < 0:
+        raise InvalidInput(f"seed and window index must be >= 0, got {seed}, {index}")
+    return np.random.default_rng([seed, index])
+
+
+@dataclass
+class Windows:
+    """A block of windows: ``x`` ``(n, T+1, nx)``, ``u`` ``(n, T, nu)``, windows ``start`` to
+    ``start + n - 1`` of the collection with ``seed``; ``reset_seeds[i]`` is the seed window
+    ``i`` was reset with (``sim.reset(seed=...)`` reproduces its first state)."""
+
+    x: np.ndarray
+    u: np.ndarray
+    seed: int
+    start: int
+    reset_seeds: np.ndarray
+
+    def save_npz(self, path: str | os.PathLike[str]) -> None:
+        """Writes ``x`` and ``u`` (the recorder's ``.npz`` layout) plus the block's ``seed``,
+        ``start`` and ``reset_seeds``; atomically (temporary file, then rename)."""
+        path = os.fspath(path)
+        folder = os.path.dirname(os.path.abspath(path))
+        fd, tmp = tempfile.mkstemp(prefix=".windows-", suffix=".npz", dir=folder)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, x=self.x, u=self.u, seed=self.seed, start=self.start, reset_seeds=self.reset_seeds)
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+
+
+def collect_windows(
+    sim: Simulator,
+    policy: Policy,
+    seed: int,
+    n_windows: int,
+    T: int,
+    *,
+    start: int = 0,
+    step: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> Windows:
+    """Runs windows ``start .. start + n_windows - 1``: window ``i`` draws a reset seed and its
+    ``T`` inputs from ``window_rng(seed, i)``, resets ``sim`` with that seed and steps it.
+    ``step`` replaces ``sim.step`` (a simulator's own unchecked fast path; the inputs are checked
+    here once). Any simulator error propagates (the block is then incomplete)."""
+    if n_windows < 0 or T < 1:
+        raise InvalidInput(f"collect: n_windows must be >= 0 and T >= 1, got {n_windows}, {T}")
+    info = sim.info()
+    step = step or sim.step
+    xs = np.empty((n_windows, T + 1, info.nx))
+    us = np.empty((n_windows, T, info.nu))
+    seeds = np.empty(n_windows, dtype=np.uint64)
+    for i in range(n_windows):
+        rng = window_rng(seed, start + i)
+        reset_seed = int(rng.integers(0, 2**63))
+        u = np.asarray(policy.inputs(rng, T, info), dtype=np.float64)
+        if u.shape != (T, info.nu) or not np.all(np.isfinite(u)):
+            raise InvalidInput(f"collect: the policy gave inputs of shape {u.shape} (or non-finite), expected ({T}, {info.nu})")
+        seeds[i] = reset_seed
+        us[i] = u
+        xs[i, 0] = sim.reset(seed=reset_seed)
+        for t in range(T):
+            xs[i, t + 1] = step(u[t])
+    return Windows(x=xs, u=us, seed=seed, start=start, reset_seeds=seeds)

@@ -1,0 +1,51 @@
+"""`python -m koopbridge.adapters.mujoco` as a child process: --help, --describe, and lockstep
+steps over Zenoh equal, bit for bit, the same simulator stepped in this process; SIGTERM ends
+it cleanly with its counters."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mujoco")
+
+import koopbridge  # noqa: E402
+from conftest import Child, free_endpoint  # noqa: E402
+from koopbridge.adapters.mujoco_sim import FrankaSimulator  # noqa: E402
+
+MODULE = [sys.executable, "-m", "koopbridge.adapters.mujoco"]
+
+
+def test_help_and_describe():
+    out = subprocess.run(MODULE + ["--help"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and "--state" in out.stdout and "--free-run" in out.stdout and "--describe" in out.stdout
+    out = subprocess.run(MODULE + ["--describe", "--state", "q,qd"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    info = json.loads(out.stdout)
+    assert info["kind"] == "mujoco" and len(info["state_names"]) == 14 and info["u_max"] == [0.3] * 7
+    assert info["mujoco"]["actuation"]["gravcomp"] is True and info["mujoco"]["model_file"].endswith("panda/robot.xml")
+
+
+def test_child_adapter_matches_in_process_and_stops_on_sigterm(tmp_path, session_id):
+    ep = free_endpoint()
+    here = FrankaSimulator()
+    rng = np.random.default_rng(5)
+    us = rng.uniform(-0.12, 0.12, size=(20, 7))
+    with Child(MODULE + ["--session", session_id, "--id", "arm0", "--listen", ep], tmp_path / "adapter.log") as child:
+        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+            info = c.connect_sim("arm0", timeout=30)
+            assert info["kind"] == "mujoco" and info["env"] == "franka-panda" and info["extra"]["mujoco"]["substeps"] == 10
+            np.testing.assert_array_equal(c.reset("arm0", seed=11), here.reset(seed=11))
+            for i, u in enumerate(us):
+                k, t, x = c.step("arm0", u)
+                assert k == i + 1 and t == pytest.approx(0.02 * (i + 1))
+                np.testing.assert_array_equal(x, here.step(u))
+        child.p.send_signal(signal.SIGTERM)
+        assert child.p.wait(timeout=10) == 0, child.output()
+        log = child.output()
+    assert "koopbridge mujoco adapter: franka-panda as sim 'arm0'" in log and "stopped after 20 steps" in log, log
