@@ -18,7 +18,7 @@ use pyo3::exceptions::{PyNotImplementedError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyTuple};
 
-use crate::convert::{array1, vec_f64};
+use crate::convert::{array1, from_py_json, to_py_json, vec_f64};
 use crate::errors::{bridge_err, InvalidInput, Unsupported};
 
 /// Base class of simulators written in Python. Subclass it and implement:
@@ -225,10 +225,7 @@ impl Adapter {
         };
         let _ = py.detach(|| handle.join());
         serving.store(false, Ordering::SeqCst);
-        let stats = outcome?;
-        let json =
-            serde_json::to_string(&stats).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
-        Ok(py.import("json")?.call_method1("loads", (json,))?.unbind())
+        to_py_json(py, &outcome?)
     }
 
     /// Asks a running ``serve()`` to return (within about 0.1 s). Safe from any thread.
@@ -320,10 +317,6 @@ const INFO_KEYS: [&str; 9] = [
 /// The keys of `info()`'s dict that are not `SimInfo` fields, as JSON (through Python's `json`
 /// module, so anything it can encode is accepted; NaN and infinities are refused).
 fn extra_info(d: &Bound<'_, PyAny>) -> PyResult<serde_json::Map<String, serde_json::Value>> {
-    let py = d.py();
-    let dumps = py.import("json")?.getattr("dumps")?;
-    let kwargs = PyDict::new(py);
-    kwargs.set_item("allow_nan", false)?;
     let mut out = serde_json::Map::new();
     for item in d.try_iter()? {
         let key = item?;
@@ -333,14 +326,7 @@ fn extra_info(d: &Bound<'_, PyAny>) -> PyResult<serde_json::Map<String, serde_js
         if INFO_KEYS.contains(&name.as_str()) {
             continue;
         }
-        let text: String = dumps
-            .call((d.get_item(&key)?,), Some(&kwargs))
-            .map_err(|e| {
-                PyValueError::new_err(format!("info(): '{name}' is not JSON-serialisable: {e}"))
-            })?
-            .extract()?;
-        let v = serde_json::from_str(&text)
-            .map_err(|e| PyValueError::new_err(format!("info(): '{name}': {e}")))?;
+        let v = from_py_json(&d.get_item(&key)?, &format!("info(): '{name}'"))?;
         out.insert(name, v);
     }
     Ok(out)

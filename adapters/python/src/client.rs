@@ -1,5 +1,6 @@
 //! `koopbridge.Client`: the querying side from Python, through bridge's Rust client — simulators
-//! (info, reset, step with idempotent retries), MPC solves, and raw queries for the other services.
+//! (info, reset, step with idempotent retries), MPC solves and configuration, training jobs, the
+//! model store (`control`), and raw queries.
 
 use std::collections::HashMap;
 use std::sync::Mutex;
@@ -16,7 +17,8 @@ use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 
-use crate::convert::{array1, array2, vec_f64};
+use crate::control;
+use crate::convert::{array1, array2, from_py_json, to_py_json, vec_f64};
 use crate::errors::{bridge_err, KoopbridgeError};
 
 /// A client of one koopbridge session over Zenoh.
@@ -84,13 +86,12 @@ impl Client {
         let sim = py
             .detach(|| SimClient::connect(&self.inner, id, t))
             .map_err(bridge_err)?;
-        let json =
-            serde_json::to_string(&sim.info).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+        let info = to_py_json(py, &sim.info)?;
         self.sims
             .lock()
             .map_err(poisoned)?
             .insert(id.to_string(), sim);
-        Ok(py.import("json")?.call_method1("loads", (json,))?.unbind())
+        Ok(info)
     }
 
     /// Resets simulator ``id`` (``seed`` for a random initial state, ``x0`` for a given one);
@@ -211,6 +212,129 @@ impl Client {
         d.set_item("iterations", r.iterations)?;
         d.set_item("solve_time", r.solve_time_ns as f64 * 1e-9)?;
         Ok(d)
+    }
+
+    /// Loads ``model`` into MPC service ``mpc_id`` and builds its controller once; ``mpc``
+    /// holds ``MpcConfig`` fields (``horizon``, ``u_min``, ...; an unknown one is refused here).
+    /// Returns the service's reply (``model``, ``nx``, ``nu``, ``horizon``, ``build_ms``).
+    #[pyo3(signature = (mpc_id, model, timeout=60.0, **mpc))]
+    fn configure_mpc(
+        &self,
+        py: Python<'_>,
+        mpc_id: &str,
+        model: &str,
+        timeout: f64,
+        mpc: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<Py<PyAny>> {
+        let cfg = match mpc {
+            Some(d) => from_py_json(d.as_any(), "the MPC configuration")?,
+            None => serde_json::Value::Object(Default::default()),
+        };
+        let t = secs(timeout)?;
+        let r = py
+            .detach(|| control::configure_mpc(&self.inner, mpc_id, model, cfg, t))
+            .map_err(bridge_err)?;
+        to_py_json(py, &r)
+    }
+
+    /// Submits a training job to trainer ``trainer_id``: the finished model is stored as
+    /// ``model``; datasets are ``.npz`` paths the trainer can read or ``recording:NAME`` for a
+    /// recorder's dataset; ``config`` holds ``TrainConfig`` fields. Returns the job id.
+    #[pyo3(signature = (trainer_id, model, train, val, test=None, config=None, timeout=30.0))]
+    #[allow(clippy::too_many_arguments)]
+    fn submit_job(
+        &self,
+        py: Python<'_>,
+        trainer_id: &str,
+        model: &str,
+        train: &str,
+        val: &str,
+        test: Option<&str>,
+        config: Option<&Bound<'_, PyDict>>,
+        timeout: f64,
+    ) -> PyResult<String> {
+        let config = match config {
+            Some(d) => match from_py_json(d.as_any(), "the training configuration")? {
+                serde_json::Value::Object(m) => m,
+                other => {
+                    return Err(PyValueError::new_err(format!(
+                        "the training configuration must be a JSON object, got {other}"
+                    )))
+                }
+            },
+            None => Default::default(),
+        };
+        let spec = bridge::services::trainer::JobSpec {
+            model: model.to_string(),
+            train: control::dataset(train).map_err(bridge_err)?,
+            val: control::dataset(val).map_err(bridge_err)?,
+            test: test.map(control::dataset).transpose().map_err(bridge_err)?,
+            config,
+        };
+        let t = secs(timeout)?;
+        py.detach(|| control::submit_job(&self.inner, trainer_id, &spec, t))
+            .map_err(bridge_err)
+    }
+
+    /// The record of training job ``job`` on trainer ``trainer_id`` (``state``, ``progress``,
+    /// ``metrics``, ``error``, ...).
+    #[pyo3(signature = (trainer_id, job, timeout=10.0))]
+    fn job(
+        &self,
+        py: Python<'_>,
+        trainer_id: &str,
+        job: &str,
+        timeout: f64,
+    ) -> PyResult<Py<PyAny>> {
+        let t = secs(timeout)?;
+        let r = py
+            .detach(|| control::job(&self.inner, trainer_id, job, t))
+            .map_err(bridge_err)?;
+        to_py_json(py, &r)
+    }
+
+    /// Polls a job every ``poll`` seconds until it is done (returns its record); raises
+    /// ``KoopbridgeError`` if it failed or was cancelled, ``BridgeTimeout`` after ``timeout``.
+    #[pyo3(signature = (trainer_id, job, timeout=3600.0, poll=0.5))]
+    fn wait_job(
+        &self,
+        py: Python<'_>,
+        trainer_id: &str,
+        job: &str,
+        timeout: f64,
+        poll: f64,
+    ) -> PyResult<Py<PyAny>> {
+        let (t, every) = (secs(timeout)?, secs(poll)?);
+        let started = std::time::Instant::now();
+        loop {
+            let waited = started.elapsed();
+            let r = py
+                .detach(|| control::poll_job(&self.inner, trainer_id, job, started + t, waited))
+                .map_err(bridge_err)?;
+            if let Some(rec) = r {
+                return to_py_json(py, &rec);
+            }
+            py.detach(|| std::thread::sleep(every));
+            py.check_signals()?;
+        }
+    }
+
+    /// Fetches model ``name`` from the model store into directory ``dest`` (unpacked by the
+    /// bridge into a temporary folder beside it, then renamed; an older ``dest`` is replaced);
+    /// returns ``dest``. Load it with ``KoopmanModel.load``.
+    #[pyo3(signature = (name, dest, timeout=60.0))]
+    fn fetch_model(
+        &self,
+        py: Python<'_>,
+        name: &str,
+        dest: std::path::PathBuf,
+        timeout: f64,
+    ) -> PyResult<String> {
+        let t = secs(timeout)?;
+        let p = py
+            .detach(|| control::fetch_model(&self.inner, name, &dest, t))
+            .map_err(bridge_err)?;
+        Ok(p.to_string_lossy().into_owned())
     }
 
     /// A raw query of ``koopbridge/{session}/{key}`` (e.g. ``"trainer/t0/jobs"`` or

@@ -94,3 +94,24 @@ pub fn mat<'py>(py: Python<'py>, m: MatRef<'_, f64>) -> PyResult<Bound<'py, PyAr
 pub fn faer_rows(rows: usize, cols: usize, v: &[f64]) -> Mat<f64> {
     Mat::from_fn(rows, cols, |i, j| v[i * cols + j])
 }
+
+/// A serialisable Rust value as the Python object `json.loads` makes of it (dicts, lists, ...).
+pub fn to_py_json<T: serde::Serialize>(py: Python<'_>, v: &T) -> PyResult<Py<PyAny>> {
+    let text = serde_json::to_string(v)
+        .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))?;
+    Ok(py.import("json")?.call_method1("loads", (text,))?.unbind())
+}
+
+/// A Python object as JSON through `json.dumps` (NaN and infinities refused); `what` names it.
+pub fn from_py_json(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<serde_json::Value> {
+    let py = obj.py();
+    let kwargs = pyo3::types::PyDict::new(py);
+    kwargs.set_item("allow_nan", false)?;
+    let text: String = py
+        .import("json")?
+        .getattr("dumps")?
+        .call((obj,), Some(&kwargs))
+        .map_err(|e| PyValueError::new_err(format!("{what} is not JSON-serialisable: {e}")))?
+        .extract()?;
+    serde_json::from_str(&text).map_err(|e| PyValueError::new_err(format!("{what}: {e}")))
+}

@@ -4,7 +4,8 @@
 //! - [`adapter`]: `Adapter`, the base class of simulators written in Python;
 //! - [`model`]: `KoopmanModel`, a trained model loaded from disk;
 //! - [`mpc`]: `Mpc`, in-process MPC solves on a loaded model;
-//! - [`client`]: `Client`, the querying side (simulators, MPC service, model store);
+//! - [`client`]: `Client`, the querying side (simulators, MPC service, model store), with
+//!   [`control`] for the JSON control plane through the `bridge` types;
 //! - [`systems`]: `ReferenceSystem`, the built-in Rust reference dynamics;
 //! - [`errors`]: the exception types; [`convert`]: numpy conversions.
 
@@ -12,6 +13,7 @@ use pyo3::prelude::*;
 
 mod adapter;
 mod client;
+mod control;
 mod convert;
 mod errors;
 mod model;

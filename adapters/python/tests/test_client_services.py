@@ -8,21 +8,55 @@ import pytest
 
 import koopbridge
 from conftest import Child, free_endpoint, koopbridge_binary
-from koopbridge.client import parse_model_archive
 
 
-def test_model_archive_parser_rejects_bad_archives():
-    with pytest.raises(koopbridge.KoopbridgeError, match="KBM1"):
-        parse_model_archive(b"nope")
+def archive(files: list[dict], body: bytes, name: str = "evil") -> bytes:
+    """A model archive per PROTOCOL.md §6, written here from the document."""
     import json
     import struct
 
-    header = json.dumps({"name": "m", "files": [{"name": "../evil", "size": 1}]}).encode()
-    with pytest.raises(koopbridge.KoopbridgeError, match="unsafe file name"):
-        parse_model_archive(b"KBM1" + struct.pack("<I", len(header)) + header + b"x")
-    header = json.dumps({"name": "m", "files": [{"name": "a", "size": 5}]}).encode()
-    with pytest.raises(koopbridge.KoopbridgeError, match="truncated file a"):
-        parse_model_archive(b"KBM1" + struct.pack("<I", len(header)) + header + b"xy")
+    header = json.dumps({"name": name, "config": {}, "files": files}).encode()
+    return b"KBM1" + struct.pack("<I", len(header)) + header + body
+
+
+@pytest.mark.parametrize(
+    "blob, message",
+    [
+        (b"nope", "missing KBM1 magic"),
+        (archive([{"name": "../escape", "size": 1}], b"x"), "unsafe file name"),
+        (archive([{"name": "a", "size": 5}], b"xy"), "truncated body"),
+        (archive([{"name": "a", "size": 1}], b"xy"), "trailing bytes"),
+        (archive([], b"", name="../up"), "model name"),
+    ],
+)
+def test_fetch_model_refuses_bad_archives_and_writes_nothing(tmp_path, session_id, blob, message):
+    """A model store (plain Zenoh here) answering with a bad archive: the bridge's unpacker
+    refuses it, nothing is written beside or outside the destination."""
+    import zenoh
+
+    ep = free_endpoint()
+    conf = zenoh.Config()
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("listen/endpoints", f'["{ep}"]')
+    with zenoh.open(conf) as z:
+        q = z.declare_queryable(f"koopbridge/{session_id}/models/evil", lambda query: query.reply(query.key_expr, blob))
+        out = tmp_path / "out"
+        out.mkdir()
+        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+            import time
+
+            t_end = time.monotonic() + 20
+            while True:
+                try:
+                    c.fetch_model("evil", str(out / "model"), timeout=2)
+                    raise AssertionError("a bad archive was accepted")
+                except koopbridge.BridgeTimeout:
+                    assert time.monotonic() < t_end
+                except koopbridge.KoopbridgeError as e:
+                    assert message in str(e), str(e)
+                    break
+        q.undeclare()
+    assert list(out.iterdir()) == [] and sorted(p.name for p in tmp_path.iterdir()) == ["out"]
 
 
 def test_fetch_configure_and_solve_through_the_services(tmp_path, session_id):
@@ -52,6 +86,9 @@ def test_fetch_configure_and_solve_through_the_services(tmp_path, session_id):
             c.fetch_model("absent", str(tmp_path / "absent"))
         assert e.value.code == "not_found"
         assert not (tmp_path / "absent").exists()
+        # MpcConfig is checked by the bridge's own type before anything is sent.
+        with pytest.raises(koopbridge.KoopbridgeError, match="MPC configuration: unknown field `horizn`"):
+            c.configure_mpc("s0", "pend", horizn=10)
         reply = c.configure_mpc("s0", "pend", horizon=10, u_min=[-8.0], u_max=[8.0])
         assert (reply["nx"], reply["nu"], reply["horizon"]) == (2, 1, 10)
         sol = c.solve("s0", [-2.5, 0.1], [0.0, 0.0], model="pend", nu=1)

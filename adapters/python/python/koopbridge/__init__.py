@@ -8,7 +8,8 @@
 - ``Adapter``: the native base class under ``SimulatorAdapter``;
 - ``KoopmanModel``: a trained neural Koopman model (``encode``, ``predict``, ``A``, ``B``, ``P``);
 - ``Mpc``: in-process receding-horizon MPC solves on a model;
-- ``Client``: the querying side (simulators, MPC service, raw queries of the other services);
+- ``Client``: the querying side (simulators, MPC solves and configuration, training jobs, the
+  model store, raw queries), all through the Rust ``bridge`` crate;
 - ``ReferenceSystem``: the built-in Rust reference dynamics;
 - ``koopbridge.adapters.fmu``, ``koopbridge.adapters.mujoco``: the FMU and MuJoCo adapters
   (``python -m koopbridge.adapters.fmu --help``).
@@ -21,6 +22,7 @@ from ._native import (
     PROTOCOL_VERSION,
     Adapter,
     BridgeTimeout,
+    Client,
     GoneError,
     InvalidInput,
     KoopbridgeError,
@@ -31,7 +33,6 @@ from ._native import (
     Unsupported,
     __version__,
 )
-from .client import Client
 from .serving import SimulatorAdapter, run_main
 from .simulator import SimInfo, Simulator
 

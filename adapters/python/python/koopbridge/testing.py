@@ -10,8 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from ._native import InvalidInput, RemoteError, Unsupported
-from .client import Client
+from ._native import Client, InvalidInput, RemoteError, Unsupported
 from .serving import SimulatorAdapter
 from .simulator import SimInfo, Simulator
 
