@@ -41,13 +41,28 @@ def bare(sim: FrankaSimulator, q0: np.ndarray, u: np.ndarray) -> np.ndarray:
     return out
 
 
-def one_process(args: tuple[int, int, int]) -> float:
-    """Collects ``n`` windows (block ``start``) and returns the seconds it took."""
-    n, T, start = args
+def one_process(n: int, T: int, start: int, barrier, out) -> None:
+    """Builds a simulator, waits for the others, collects ``n`` windows (block ``start``) and
+    reports its (start, end) wall-clock times."""
     sim = FrankaSimulator()
-    t0 = time.perf_counter()
+    barrier.wait()
+    t0 = time.time()
     sim.collect(POLICY, 42, n, T, start=start)
-    return time.perf_counter() - t0
+    out.put((t0, time.time()))
+
+
+def processes(k: int, n: int, T: int) -> float:
+    """Windows per second of ``k`` processes collecting ``n`` windows each at the same time,
+    from the first start to the last end (process start-up and model building excluded)."""
+    ctx = mp.get_context("spawn")
+    barrier, out = ctx.Barrier(k), ctx.Queue()
+    ps = [ctx.Process(target=one_process, args=(n, T, i * n, barrier, out)) for i in range(k)]
+    for p in ps:
+        p.start()
+    spans = [out.get() for _ in ps]
+    for p in ps:
+        p.join()
+    return k * n / (max(e for _, e in spans) - min(s for s, _ in spans))
 
 
 def lockstep(n: int, T: int) -> float:
@@ -101,12 +116,8 @@ def main() -> None:
     if a.lockstep:
         res["lockstep_zenoh"] = lockstep(a.lockstep, a.T)
     if a.procs:
-        one = a.windows / one_process((a.windows, a.T, 0))
-        with mp.get_context("spawn").Pool(a.procs) as pool:
-            t0 = time.perf_counter()
-            pool.map(one_process, [(a.windows, a.T, i * a.windows) for i in range(a.procs)])
-            res[f"procs_{a.procs}"] = a.procs * a.windows / (time.perf_counter() - t0)
-        res["procs_1"] = one
+        res["procs_1"] = processes(1, a.windows, a.T)
+        res[f"procs_{a.procs}"] = processes(a.procs, a.windows, a.T)
     print(json.dumps(res, indent=1))
 
 

@@ -88,3 +88,10 @@ def test_generic_collection_through_any_simulator(damped_fmu):
                 np.testing.assert_allclose(w.x[i, t + 1], ref.step(w.x[i, t], w.u[i, t]), atol=1e-7)
     finally:
         fmu.close()
+
+
+def test_simulator_adapter_uses_the_simulators_own_collect(sim):
+    ad = SimulatorAdapter(FrankaSimulator())
+    w = ad.collect({"kind": "uniform", "low": -0.12, "high": 0.12}, seed=42, n_windows=3, T=15)
+    ref = sim.collect(SPEC_POLICY, seed=42, n_windows=3, T=15)
+    assert np.array_equal(w.x, ref.x) and np.array_equal(w.u, ref.u)

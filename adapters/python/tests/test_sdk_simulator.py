@@ -195,3 +195,29 @@ def test_run_main_exit_codes(capsys):
     assert koopbridge.run_main(factory, parser(), ["--free-run", "--rate", "500", "--steps", "4", "--seed", "3"]) == 0
     err = capsys.readouterr().err
     assert "koopbridge python adapter: decay as sim 'sim0'" in err and "stopped after 4 steps" in err and '"published": 5' in err
+
+
+def test_simulator_adapter_collects_through_any_simulator():
+    from koopbridge.collect import UniformPolicy, collect_windows, window_rng
+
+    ad = SimulatorAdapter(Decay())
+    w = ad.collect({"kind": "uniform"}, seed=4, n_windows=3, T=5)
+    assert w.x.shape == (3, 6, 2) and w.u.shape == (3, 5, 1)
+    # Window i is the generic loop's, drawn from window_rng(seed, i) alone.
+    again = collect_windows(Decay(), UniformPolicy(), 4, 3, 5)
+    assert np.array_equal(w.x, again.x) and np.array_equal(w.u, again.u)
+    rng = window_rng(4, 2)
+    assert int(w.reset_seeds[2]) == int(rng.integers(0, 2**63))
+    np.testing.assert_array_equal(w.u[2], rng.uniform([-1.0], [1.0], size=(5, 1)))
+    np.testing.assert_array_equal(w.x[2, 0], Decay().reset(seed=int(w.reset_seeds[2])))
+
+
+def test_siminfo_from_an_info_reply(session_id, serve_in_thread):
+    from conftest import free_endpoint
+
+    ep = free_endpoint()
+    with serve_in_thread(SimulatorAdapter(Decay()), session=session_id, id="d", listen=[ep]):
+        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+            reply = c.connect_sim("d", timeout=10)
+    info = SimInfo.from_dict(reply)
+    assert info.env == "decay" and info.extra["units"] == ["m", "m/s"] and info.nx == 2

@@ -7,14 +7,14 @@ from __future__ import annotations
 import os
 import tempfile
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping, Protocol, Sequence
+from typing import Any, Callable, Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
 from ._native import InvalidInput
 from .simulator import SimInfo, Simulator
 
-__all__ = ["Policy", "UniformPolicy", "Windows", "collect_windows", "policy_from_json", "window_rng"]
+__all__ = ["Collector", "Policy", "UniformPolicy", "Windows", "collect_windows", "policy_from_json", "window_rng"]
 
 
 class Policy(Protocol):
@@ -114,6 +114,13 @@ class Windows:
             if os.path.exists(tmp):
                 os.unlink(tmp)
             raise
+
+
+@runtime_checkable
+class Collector(Protocol):
+    """A simulator with its own in-process collection (same results as ``collect_windows``)."""
+
+    def collect(self, policy: Policy, seed: int, n_windows: int, T: int, start: int = 0) -> Windows: ...
 
 
 def collect_windows(

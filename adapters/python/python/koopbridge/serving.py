@@ -9,12 +9,13 @@ import json
 import signal
 import sys
 import threading
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import numpy.typing as npt
 
 from ._native import Adapter, KoopbridgeError
+from .collect import Collector, Policy, Windows, collect_windows, policy_from_json
 from .serve_args import add_serve_arguments, serve_from_args
 from .simulator import Closable, SimInfo, Simulator, as_input, as_state
 
@@ -50,6 +51,16 @@ class SimulatorAdapter(Adapter):
         """Checks ``u`` and steps the simulator."""
         u = as_input(u, self.sim_info.nu, "u")
         return np.asarray(self.sim.step(u), dtype=np.float64)
+
+    def collect(self, policy: Policy | Mapping[str, Any], seed: int, n_windows: int, T: int, start: int = 0) -> Windows:
+        """Windows ``start .. start + n_windows - 1`` of the collection with ``seed`` (see
+        ``koopbridge.collect``), run in this process by the simulator's own ``collect`` if it has
+        one, else step by step; ``policy`` may be its JSON form. What a Zenoh ``collect``
+        request will call."""
+        p = policy_from_json(policy) if isinstance(policy, Mapping) else policy
+        if isinstance(self.sim, Collector):
+            return self.sim.collect(p, seed, n_windows, T, start=start)
+        return collect_windows(self.sim, p, seed, n_windows, T, start=start)
 
     def close(self) -> None:
         """Closes the simulator if it has ``close()``."""

@@ -7,7 +7,7 @@ import json
 import math
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, fields
-from typing import Any, Protocol, Sequence, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
@@ -98,11 +98,16 @@ class SimInfo(Mapping[str, Any]):
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> SimInfo:
-        """The inverse of ``to_dict``: known keys become fields, the others ``extra``."""
+        """The inverse of ``to_dict``: known keys become fields, the others ``extra`` (an
+        ``extra`` object, as in an ``info`` reply, is merged into it)."""
         if isinstance(d, SimInfo):
             return d
         known = {k: d[k] for k in _FIELDS if k in d and d[k] is not None}
-        return cls(**known, extra={k: v for k, v in d.items() if k not in _FIELDS})
+        extra = {k: v for k, v in d.items() if k not in _FIELDS and k != "extra"}
+        nested = d.get("extra")
+        if isinstance(nested, Mapping):  # an `info` reply keeps them in an `extra` object
+            extra.update(nested)
+        return cls(**known, extra=extra)
 
     # Read-only mapping view of `to_dict()`.
     def __getitem__(self, key: str) -> Any:
