@@ -95,3 +95,13 @@ def test_simulator_adapter_uses_the_simulators_own_collect(sim):
     w = ad.collect({"kind": "uniform", "low": -0.12, "high": 0.12}, seed=42, n_windows=3, T=15)
     ref = sim.collect(SPEC_POLICY, seed=42, n_windows=3, T=15)
     assert np.array_equal(w.x, ref.x) and np.array_equal(w.u, ref.u)
+
+
+def test_fast_path_clamps_commands_exactly_like_step(sim):
+    # Commands beyond ±0.3: collect leaves the clamping to MuJoCo's control range, step clips.
+    w = sim.collect(UniformPolicy((-1.0,) * 7, (1.0,) * 7), seed=3, n_windows=2, T=10)
+    assert np.abs(w.u).max() > 0.9
+    for i in range(2):
+        np.testing.assert_array_equal(sim.reset(seed=int(w.reset_seeds[i])), w.x[i, 0])
+        for t in range(10):
+            np.testing.assert_array_equal(sim.step(w.u[i, t]), w.x[i, t + 1])

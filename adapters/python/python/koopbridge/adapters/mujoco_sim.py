@@ -5,6 +5,8 @@ reset around home. No networking here (see ``mujoco.py``)."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import numpy.typing as npt
 
@@ -183,7 +185,9 @@ class FrankaSimulator:
         # mj_step leaves the kinematics of the state before its last integration: bring the
         # end-effector site up to date with the new q.
         mj.mj_kinematics(m, d)
-        if int(d.warning.number.sum()) != warned or not (np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel))):
+        # MuJoCo itself resets the data after a NaN or a huge value in qpos/qvel/qacc and counts a
+        # warning; the sum also catches a non-finite value it let through.
+        if int(d.warning.number.sum()) != warned or not math.isfinite(d.qpos.sum() + d.qvel.sum()):
             self.ready = False
             names = [mj.mjtWarning(i).name for i, n in enumerate(d.warning.number) if n]
             raise SimFailure(
@@ -199,8 +203,9 @@ class FrankaSimulator:
         return collect_windows(self, policy, seed, n_windows, T, start=start, step=self._fast_step)
 
     def _fast_step(self, u: np.ndarray) -> np.ndarray:
-        # `collect_windows` has checked u against info() already.
-        self._advance(np.clip(u, -self.options.u_limit, self.options.u_limit))
+        # `collect_windows` has checked u already; MuJoCo clamps ctrl to the servos' ±u_limit
+        # control range exactly as np.clip does in `step`, so both paths give the same states.
+        self._advance(u)
         return self.state()
 
     def close(self) -> None:
