@@ -49,3 +49,14 @@ def test_child_adapter_matches_in_process_and_stops_on_sigterm(tmp_path, session
         assert child.p.wait(timeout=10) == 0, child.output()
         log = child.output()
     assert "koopbridge mujoco adapter: franka-panda as sim 'arm0'" in log and "stopped after 20 steps" in log, log
+
+
+def test_free_run_in_real_time_publishes_every_step(session_id):
+    # dt = 0.02 s: 25 steps at the default rate (real time) take half a second.
+    ad = koopbridge.SimulatorAdapter(FrankaSimulator())
+    stats = ad.serve(session=session_id, id="fr", free_run=True, steps=25, seed=4)
+    assert stats["steps"] == 25 and stats["published"] == 26, stats
+    assert 0.5 < stats["real_time_factor"] < 1.5, stats
+    # No command arrived: the arm held zero velocity commands from its seeded start.
+    start = FrankaSimulator().reset(seed=4)
+    assert np.abs(ad.sim.state()[3:10] - start[3:10]).max() < 0.01
