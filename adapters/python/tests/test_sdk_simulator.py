@@ -221,3 +221,17 @@ def test_siminfo_from_an_info_reply(session_id, serve_in_thread):
             reply = c.connect_sim("d", timeout=10)
     info = SimInfo.from_dict(reply)
     assert info.env == "decay" and info.extra["units"] == ["m", "m/s"] and info.nx == 2
+
+
+def test_check_adapter_handles_a_simulator_without_inputs():
+    class Autonomous(Decay):
+        def info(self):
+            return SimInfo(env="auto", dt=0.1, state_names=["p", "v"], input_names=[], u_min=[], u_max=[])
+
+        def step(self, u):
+            if np.asarray(u).size != 0:
+                raise InvalidInput("no inputs")
+            self.x = self.a * self.x
+            return self.x.copy()
+
+    assert check_adapter(Autonomous()).nu == 0
