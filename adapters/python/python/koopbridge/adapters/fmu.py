@@ -17,7 +17,7 @@ from typing import Any, Sequence
 from ..serving import SimulatorAdapter, run_main
 from .fmu_sim import FmuError, FmuSimulator
 
-__all__ = ["FmuAdapter", "FmuError", "FmuSimulator", "main", "parser"]
+__all__ = ["FmuAdapter", "FmuError", "FmuSimulator", "main", "parser", "simulator"]
 
 
 class FmuAdapter(SimulatorAdapter):
