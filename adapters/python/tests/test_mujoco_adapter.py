@@ -1,6 +1,7 @@
 """`python -m koopbridge.adapters.mujoco` as a child process: --help, --describe, and lockstep
 steps over Zenoh equal, bit for bit, the same simulator stepped in this process; SIGTERM ends
-it cleanly with its counters."""
+it cleanly with its counters; an unstable step is a sim_failure and MuJoCo's warning goes to the
+adapter's stderr."""
 
 from __future__ import annotations
 
@@ -21,6 +22,15 @@ from koopbridge.adapters.mujoco_sim import FrankaSimulator  # noqa: E402
 MODULE = [sys.executable, "-m", "koopbridge.adapters.mujoco"]
 
 
+class ChildIn(Child):
+    """A child process started in folder ``cwd``."""
+
+    def __init__(self, cwd, cmd, log) -> None:
+        self.log = log
+        self.f = open(log, "wb")
+        self.p = subprocess.Popen(cmd, stdout=self.f, stderr=subprocess.STDOUT, stdin=subprocess.PIPE, cwd=cwd)
+
+
 def test_help_and_describe():
     out = subprocess.run(MODULE + ["--help"], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and "--state" in out.stdout and "--free-run" in out.stdout and "--describe" in out.stdout
@@ -36,7 +46,9 @@ def test_child_adapter_matches_in_process_and_stops_on_sigterm(tmp_path, session
     here = FrankaSimulator()
     rng = np.random.default_rng(5)
     us = rng.uniform(-0.12, 0.12, size=(20, 7))
-    with Child(MODULE + ["--session", session_id, "--id", "arm0", "--listen", ep], tmp_path / "adapter.log") as child:
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    with ChildIn(cwd, MODULE + ["--session", session_id, "--id", "arm0", "--listen", ep], tmp_path / "adapter.log") as child:
         with koopbridge.Client(session=session_id, connect=[ep]) as c:
             info = c.connect_sim("arm0", timeout=30)
             assert info["kind"] == "mujoco" and info["env"] == "franka-panda" and info["extra"]["mujoco"]["substeps"] == 10
@@ -45,10 +57,20 @@ def test_child_adapter_matches_in_process_and_stops_on_sigterm(tmp_path, session
                 k, t, x = c.step("arm0", u)
                 assert k == i + 1 and t == pytest.approx(0.02 * (i + 1))
                 np.testing.assert_array_equal(x, here.step(u))
+            # An unstable start (q̇ beyond MuJoCo's 1e10 limit) fails the step, the adapter
+            # logs MuJoCo's warning to stderr (no MUJOCO_LOG.TXT) and serves on.
+            x0 = here.reset(seed=11)
+            x0[10] = 1e11
+            c.reset("arm0", x0=x0)
+            with pytest.raises(koopbridge.RemoteError) as e:
+                c.step("arm0", np.zeros(7))
+            assert e.value.code == "sim_failure" and "unstable" in str(e.value)
+            np.testing.assert_array_equal(c.reset("arm0", seed=11), here.reset(seed=11))
         child.p.send_signal(signal.SIGTERM)
         assert child.p.wait(timeout=10) == 0, child.output()
         log = child.output()
     assert "koopbridge mujoco adapter: franka-panda as sim 'arm0'" in log and "stopped after 20 steps" in log, log
+    assert "MuJoCo warning: Nan, Inf or huge value in QVEL" in log and list(cwd.iterdir()) == [], log
 
 
 def test_free_run_in_real_time_publishes_every_step(session_id):

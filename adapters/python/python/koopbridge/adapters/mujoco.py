@@ -40,8 +40,16 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
+def _warning(message: str) -> None:
+    print(f"MuJoCo warning: {message.strip()}", file=sys.stderr, flush=True)
+
+
 def simulator(args: argparse.Namespace) -> FrankaSimulator:
-    """The ``FrankaSimulator`` the parsed command line describes."""
+    """The ``FrankaSimulator`` the parsed command line describes. In this (adapter) process
+    MuJoCo's warnings go to standard error instead of ``./MUJOCO_LOG.TXT``."""
+    import mujoco
+
+    mujoco.set_mju_user_warning(_warning)
     opts = PandaOptions(kv=args.kv, u_limit=args.u_limit, gravcomp=not args.no_gravcomp, ee_body=args.ee_body)
     return FrankaSimulator(args.model, state=args.state, options=opts, reset_range=args.reset_range, env=args.env)
 
