@@ -23,6 +23,10 @@ enum Command {
     Eval(cli::eval::EvalArgs),
     /// Fit the scaling law E = A·D^(−α) + C to trained runs' test prediction errors.
     Scaling(cli::scaling::ScalingArgs),
+    /// Train a scaling-law grid on every trainer service that answers.
+    Sweep(cli::sweep::SweepArgs),
+    /// Print the paper's data budget m ≳ 40·N·ln N for a latent dimension.
+    Plan(cli::plan::PlanArgs),
     /// Closed-loop control of a reference system with a trained model.
     Control(cli::control::ControlArgs),
     /// Benchmarks (training speed, MPC solvers, bridge round trips).
@@ -43,6 +47,8 @@ fn main() -> std::process::ExitCode {
         Command::Train(a) => cli::train::run(a),
         Command::Eval(a) => cli::eval::run(a),
         Command::Scaling(a) => cli::scaling::run(a),
+        Command::Sweep(a) => cli::sweep::run(a),
+        Command::Plan(a) => cli::plan::run(a),
         Command::Control(a) => cli::control::run(a),
         Command::Bench(a) => cli::bench::run(a),
         Command::Sim(a) => cli::sim::run(a),

@@ -67,6 +67,36 @@ impl Client {
         })
     }
 
+    /// Sends a query that several participants may answer (e.g. `…/models/{name}` with a model
+    /// store on every trainer host) and returns the first successful reply; if none succeeds,
+    /// the first error reply (or a timeout).
+    pub fn query_first_ok(
+        &self,
+        key: &str,
+        payload: Vec<u8>,
+        timeout: Duration,
+        who: &str,
+    ) -> Result<Vec<u8>> {
+        let q = self.start(key, payload, timeout, who)?;
+        let mut first_err = None;
+        while let Ok(Some(reply)) = q.rx.recv_deadline(q.deadline + Duration::from_millis(500)) {
+            match reply.result() {
+                Ok(sample) => return Ok(sample.payload().to_bytes().into_owned()),
+                Err(e) => {
+                    first_err.get_or_insert(Error::Remote {
+                        who: who.to_string(),
+                        reply: ErrorReply::from_json(&e.payload().to_bytes()),
+                    });
+                }
+            }
+        }
+        Err(first_err.unwrap_or_else(|| Error::Timeout {
+            who: who.to_string(),
+            what: format!("{} (no reply)", q.what),
+            after_ms: q.started.elapsed().as_millis() as u64,
+        }))
+    }
+
     /// Sends a query and waits for its reply.
     pub fn query(
         &self,
@@ -198,6 +228,19 @@ impl Liveliness {
             .unwrap_or_else(|e| e.into_inner())
             .gone
             .contains(&Self::name(role, id))
+    }
+
+    /// Ids of the participants of `role` that currently hold a token, sorted.
+    pub fn alive_ids(&self, role: Role) -> Vec<String> {
+        let prefix = format!("{}/", role.as_str());
+        let st = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        let mut ids: Vec<String> = st
+            .alive
+            .iter()
+            .filter_map(|n| n.strip_prefix(&prefix).map(str::to_string))
+            .collect();
+        ids.sort();
+        ids
     }
 
     /// Waits until every participant in `who` is alive; the error names those still missing.

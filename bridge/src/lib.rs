@@ -20,6 +20,7 @@ pub mod procs;
 pub mod scenario;
 pub mod services;
 pub mod session;
+pub mod sweep;
 
 pub use error::{Error, ErrorCode, ErrorReply, Result};
 pub use zenoh;

@@ -10,10 +10,12 @@ pub mod control_diagnostics;
 pub mod data;
 pub mod eval;
 pub mod learning_curve;
+pub mod plan;
 pub mod run;
 pub mod scaling;
 pub mod serve;
 pub mod sim;
+pub mod sweep;
 pub mod train;
 
 /// Logs to stderr; `RUST_LOG` selects the level (default `info` for koopbridge, `warn` for others).
