@@ -17,10 +17,11 @@ venv_py=$root/.venv/bin/python
 
 # Requirements: reinstalled only when requirements.txt changed (its hash is kept in the venv).
 stamp=.venv/.koopbridge-requirements.sha256
-want=$(sha256sum requirements.txt | cut -d' ' -f1)
+want=$(cat requirements.txt adapters/drake/requirements-nodeps.txt | sha256sum | cut -d' ' -f1)
 if [ "$(cat "$stamp" 2>/dev/null || true)" != "$want" ]; then
   echo "setup-python: installing requirements.txt"
   "$venv_py" -m pip install --quiet --disable-pip-version-check -r requirements.txt
+  "$venv_py" -m pip install --quiet --disable-pip-version-check --no-deps -r adapters/drake/requirements-nodeps.txt
   echo "$want" > "$stamp"
 fi
 
