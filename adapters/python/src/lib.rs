@@ -6,6 +6,7 @@
 //! - [`mpc`]: `Mpc`, in-process MPC solves on a loaded model;
 //! - [`client`]: `Client`, the querying side (simulators, MPC service, model store);
 //! - [`systems`]: `ReferenceSystem`, the built-in Rust reference dynamics;
+//! - [`planner`]: `PlannerService`, a Python planner served at `…/planner/{id}/plan`;
 //! - [`errors`]: the exception types; [`convert`]: numpy conversions.
 
 use pyo3::prelude::*;
@@ -16,6 +17,7 @@ mod convert;
 mod errors;
 mod model;
 mod mpc;
+mod planner;
 mod systems;
 
 /// The extension module.
@@ -27,6 +29,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<mpc::Mpc>()?;
     m.add_class::<client::Client>()?;
     m.add_class::<systems::ReferenceSystem>()?;
+    m.add_class::<planner::PlannerService>()?;
     errors::register(py, m)?;
     m.add("PROTOCOL_VERSION", bridge::codec::PROTOCOL_VERSION)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
