@@ -30,9 +30,14 @@ def test_velocity_commands_are_tracked(sim):
     x = sim.reset(x0=np.concatenate([q0, np.zeros(7)]))
     np.testing.assert_array_equal(x[:7], q0)
     u = np.array([0.4, -0.3, 0.5, -0.2, 0.6, 0.3, -0.5])
+    xs = [x]
     for _ in range(500):
         x = sim.step(u)
-    assert sim.k == 500
+        xs.append(x)
+    assert sim.k == 500 and sim.context.get_time() == pytest.approx(0.5, abs=1e-12)
+    # One plant update per step, never skipped: q_{k+1} = q_k + dt·qd_{k+1} (the discrete plant).
+    xs = np.array(xs)
+    np.testing.assert_allclose(np.diff(xs[:, :7], axis=0), 0.001 * xs[1:, 7:], atol=1e-12)
     np.testing.assert_allclose(x[7:], u, atol=2e-3)  # velocity tracked after 0.5 s
     np.testing.assert_allclose(x[:7], q0 + 0.5 * u, atol=5e-3)  # and the integrated position
     for _ in range(300):

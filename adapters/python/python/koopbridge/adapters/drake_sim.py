@@ -153,10 +153,12 @@ class DrakeGen3Sim:
         if bad.size:
             j = int(bad[0])
             raise InvalidInput(f"u: joint {j + 1} command {u[j]:.4f} rad/s exceeds its limit {VELOCITY_LIMITS[j]}")
-        for _ in range(self.substeps):
+        for i in range(self.substeps):
             self._desired.FixValue(self.context, np.concatenate([self.q_ref, u]))
             self.q_ref = self.q_ref + u * self.time_step
-            self.simulator.AdvanceTo(self.context.get_time() + self.time_step)
+            # Times from the step count, not by adding dt: a sum that falls short of the plant's
+            # update time would skip an update (and do two in the next step).
+            self.simulator.AdvanceTo((self.k * self.substeps + i + 1) * self.time_step)
         self.k += 1
         x = self.state()
         if not np.all(np.isfinite(x)):
