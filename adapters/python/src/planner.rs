@@ -236,6 +236,9 @@ fn serve_loop(
                 message: e.message,
             })
             .and_then(|_| answer(&q));
+        // Free before replying: a client that sends its next request as soon as it has the
+        // reply must not find the planner still busy.
+        busy.store(false, Ordering::SeqCst);
         match outcome {
             Ok(bytes) => {
                 counters.plans.fetch_add(1, Ordering::SeqCst);
@@ -248,7 +251,6 @@ fn serve_loop(
                 }
             }
         }
-        busy.store(false, Ordering::SeqCst);
     }
     drop(queryable);
     drop(token);
