@@ -1,5 +1,5 @@
 """The Drake Gen3 simulator with real Drake: velocity commands are tracked, the holding torque is
-MuJoCo's gravity bias on the same MJCF, bad input is typed, ``collect`` executes planned
+MuJoCo's gravity bias on the same MJCF, bad input is typed, ``collect_plans`` executes planned
 trajectories into windows, and the adapter serves it over Zenoh and keeps serving after errors."""
 
 from __future__ import annotations
@@ -79,7 +79,7 @@ def test_collect_executes_plans_into_windows(sim):
 
     planner = Gen3Planner()
     goals = [[0.5, 0.4, 0.0, 0.8, 0.0, 0.5, 0.0], [0.0, 2.3, 0, 0, 0, 0, 0], [-0.3, 0.2, 0.3, 0.5, -0.4, 0.2, 0.6]]
-    out = sim.collect(planner, goals, steps=15)
+    out = sim.collect_plans(planner, goals, steps=15)
     plans = out["plans"]
     assert plans[1]["error"]["code"] == "infeasible"  # laid into the table: skipped
     ok = [p for p in plans if "error" not in p]

@@ -91,7 +91,7 @@ def collect_session(sim: DrakeGen3Sim, planner: Gen3Planner, seed: int, split: s
         if log is not None and ((i + 1) % 25 == 0 or i + 1 == goals):
             print(f"{split} session {session}: {i + 1}/{goals} goals, {time.perf_counter() - t0:.1f} s", file=log, flush=True)
 
-    out = sim.collect(planner, targets, steps=steps, on_plan=progress)
+    out = sim.collect_plans(planner, targets, steps=steps, on_plan=progress)
     plan_of = np.concatenate([np.full(p.get("windows", 0), i, float) for i, p in enumerate(out["plans"])] + [np.zeros(0)])
     order = np.random.default_rng(gs).permutation(len(plan_of))
     info = sim.info()

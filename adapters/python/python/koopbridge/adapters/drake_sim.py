@@ -7,7 +7,8 @@ State ``[q (7), q̇ (7)]`` [rad, rad/s], input the commanded joint velocities (7
 the kortex velocity limits. The low-level controller (the arm's own, in velocity mode) integrates
 the commands into a position reference and tracks both with inverse dynamics (Drake's
 ``InverseDynamicsController``, gains ``kp``/``kd``), the torques clamped to the effort limits.
-``collect`` executes planned trajectories (``drake_plan``) and cuts the log into windows.
+``collect_plans`` executes planned trajectories (``drake_plan``) and cuts the log into windows
+(named so because the SDK's ``collect(policy, seed, n_windows, T)`` means random-input windows).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ __all__ = ["DrakeGen3Adapter", "DrakeGen3Sim", "main"]
 
 class DrakeGen3Sim:
     """The Gen3 simulation with the SDK's simulator methods (``info``, ``reset``, ``step``,
-    ``close``, ``collect``). ``dt``: the step of one ``step`` call, a whole number of plant time
+    ``close``) plus ``collect_plans``. ``dt``: the step of one ``step`` call, a whole number of plant time
     steps (``time_step``, 1 ms); ``kp`` [1/s²], ``kd`` [1/s]: the controller's gains."""
 
     def __init__(self, dt: float = 0.001, time_step: float = 0.001, kp: float = 3600.0, kd: float = 120.0) -> None:
@@ -172,7 +173,7 @@ class DrakeGen3Sim:
     def close(self) -> None:
         """Nothing to release (kept for the SDK's protocol)."""
 
-    def collect(self, planner: Any, goals: Sequence[Sequence[float]], steps: int = 15, x0: Any = None, on_plan: Any = None) -> dict[str, Any]:
+    def collect_plans(self, planner: Any, goals: Sequence[Sequence[float]], steps: int = 15, x0: Any = None, on_plan: Any = None) -> dict[str, Any]:
         """Executes a plan to each goal in turn (each from where the arm is) with the planned
         velocities as commands, logging at ``dt``; returns ``x [n, steps+1, 14]`` and
         ``u [n, steps, 7]`` (non-overlapping windows of ``steps`` transitions, none spanning two
