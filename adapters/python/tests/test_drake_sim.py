@@ -111,3 +111,16 @@ def test_adapter_over_zenoh_keeps_serving_after_errors(serve_in_thread, session_
             assert e.value.code in ("dimension", "bad_request")
             k, t, x1 = c.step("gen3", [0.1] * 7)
             assert k == 1 and t == pytest.approx(0.001)
+
+
+def test_command_line_describe_and_bad_dt():
+    import json
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "koopbridge.adapters.drake_sim", "--describe"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    info = json.loads(out.stdout)
+    assert info["kind"] == "drake" and info["drake"]["controller"]["kp"] == 3600.0
+    out = subprocess.run([sys.executable, "-m", "koopbridge.adapters.drake_sim", "--dt", "0.0015"], capture_output=True, text=True)
+    assert out.returncode == 2 and "whole number of plant steps" in out.stderr
