@@ -23,7 +23,7 @@ def _load(path):
         u = np.load(z.open("u.npy"))
         plan = np.load(z.open("plan.npy"))
         meta = json.loads(z.read("meta.json"))
-    assert names == {"x.npy", "u.npy", "plan.npy", "meta.json"}
+    assert names == {"x.npy", "u.npy", "plan.npy", "session.npy", "meta.json"}
     return x, u, plan, meta
 
 
@@ -56,3 +56,10 @@ def test_collect_script_writes_a_dataset(tmp_path):
     assert r.returncode == 0, r.stderr
     _, _, _, val = _load(out / "val-000.npz")
     assert val["goal_seed"] != meta["goal_seed"] and val["goals"][0] not in meta["goals"]
+    # Sessions combine into the file `koopbridge train --data` reads, cut to a window budget.
+    r = subprocess.run(cmd + ["--split", "test", "--sessions", "0", "--combine", "--max-windows", "50"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    cx, cu, cplan, cmeta = _load(out / "test.npz")
+    assert cx.shape == (50, 16, 14) and cmeta["n"] == 50 and cmeta["sessions"][0]["goals"] == meta["goals"]
+    rows = {w.tobytes() for w in x}
+    assert all(w.tobytes() in rows for w in cx)  # windows of the session, none made up

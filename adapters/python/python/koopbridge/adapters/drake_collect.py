@@ -44,17 +44,18 @@ def _npy(a: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def write_dataset(path: str, x: np.ndarray, u: np.ndarray, meta: dict[str, Any], plan: np.ndarray | None = None) -> None:
+def write_dataset(path: str, x: np.ndarray, u: np.ndarray, meta: dict[str, Any], plan: np.ndarray | None = None, session: np.ndarray | None = None) -> None:
     """Writes ``x``, ``u`` and ``meta`` (plus n, steps, nx, nu) as a koopbridge ``.npz`` and its
     sidecar ``.json``, each to a temporary file in the same folder renamed into place; ``plan``
-    (which goal each window executes) goes in as the member ``plan.npy``."""
+    (which goal each window executes) goes in as the member ``plan.npy``, ``session`` (which
+    session) as ``session.npy``."""
     n, t1, nx = x.shape
     full = dict(n=n, steps=t1 - 1, nx=nx, nu=u.shape[2], **meta)
     text = json.dumps(full, indent=1, allow_nan=False).encode()
     folder = os.path.dirname(os.path.abspath(path))
     os.makedirs(folder, exist_ok=True)
     for target, write in (
-        (path, lambda f: _zip(f, x, u, text, plan)),
+        (path, lambda f: _zip(f, x, u, text, {"plan": plan, "session": session})),
         (os.path.splitext(path)[0] + ".json", lambda f: f.write(text)),
     ):
         fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=folder)
@@ -63,19 +64,55 @@ def write_dataset(path: str, x: np.ndarray, u: np.ndarray, meta: dict[str, Any],
                 write(f)
                 f.flush()
                 os.fsync(f.fileno())
+            os.chmod(tmp, 0o644)  # mkstemp makes it private; a dataset is for everyone to read
             os.replace(tmp, target)
         except BaseException:
             os.unlink(tmp)
             raise
 
 
-def _zip(f: Any, x: np.ndarray, u: np.ndarray, meta: bytes, plan: np.ndarray | None) -> None:
+def _zip(f: Any, x: np.ndarray, u: np.ndarray, meta: bytes, extra: dict[str, np.ndarray | None]) -> None:
     with zipfile.ZipFile(f, "w", zipfile.ZIP_STORED) as z:
         z.writestr("x.npy", _npy(x))
         z.writestr("u.npy", _npy(u))
-        if plan is not None:
-            z.writestr("plan.npy", _npy(plan))
+        for name, a in extra.items():
+            if a is not None:
+                z.writestr(f"{name}.npy", _npy(a))
         z.writestr("meta.json", meta)
+
+
+def combine(folder: str, split: str, max_windows: int | None = None) -> tuple[str, int]:
+    """Writes ``{folder}/{split}.npz`` (the name ``koopbridge train --data`` reads) from every
+    ``{split}-NNN.npz`` session there: windows shuffled across sessions (seeded by their goal
+    seeds), at most ``max_windows`` of them; the metadata list each session's goals and seeds.
+    Returns the path and the number of windows."""
+    import glob
+
+    paths = sorted(glob.glob(os.path.join(folder, f"{split}-[0-9][0-9][0-9].npz")))
+    if not paths:
+        raise KoopbridgeError(f"no {split}-NNN.npz sessions in {folder}")
+    xs, us, plans, sessions, metas = [], [], [], [], []
+    for p in paths:
+        with zipfile.ZipFile(p) as z:
+            m = json.loads(z.read("meta.json"))
+            xs.append(np.load(z.open("x.npy")))
+            us.append(np.load(z.open("u.npy")))
+            plans.append(np.load(z.open("plan.npy")))
+        sessions.append(np.full(len(plans[-1]), float(m["session"])))
+        metas.append(m)
+    order = np.random.default_rng([m["goal_seed"] for m in metas]).permutation(sum(len(a) for a in plans))
+    order = order[: max_windows if max_windows is not None else len(order)]
+    keep = {k: metas[0][k] for k in ("env", "dt", "state_names", "input_names", "pairing", "source", "policy", "split", "base_seed", "goal_margin_m", "planner")}
+    meta = dict(
+        keep,
+        seed=metas[0]["base_seed"],
+        shuffled=True,
+        sessions=[dict(session=m["session"], goal_seed=m["goal_seed"], goals=m["goals"], failed_goals=m["failed_goals"], windows=m["n"]) for m in metas],
+    )
+    out = os.path.join(folder, f"{split}.npz")
+    cat = lambda parts: np.concatenate(parts)[order]  # noqa: E731
+    write_dataset(out, cat(xs), cat(us), meta, cat(plans), cat(sessions))
+    return out, len(order)
 
 
 def collect_session(sim: DrakeGen3Sim, planner: Gen3Planner, seed: int, split: str, session: int, goals: int, steps: int, margin: float, log: Any = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
@@ -138,23 +175,28 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, default=15, help="transitions per window T (default: %(default)s)")
     p.add_argument("--seed", type=int, default=42, help="base seed (default: %(default)s)")
     p.add_argument("--goal-margin", type=float, default=0.02, help="goals closer than this to a collision are redrawn [m] (default: %(default)s)")
+    p.add_argument("--combine", action="store_true", help="then write {split}.npz from all {split}-NNN.npz sessions in --out (--sessions 0: only that)")
+    p.add_argument("--max-windows", type=int, help="with --combine: keep at most this many windows (e.g. 140000 / 20000)")
     return p
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Runs the collection; returns the exit code."""
     args = parser().parse_args(argv)
-    if args.sessions < 1 or args.goals < 1 or args.steps < 1:
-        print("error: --sessions, --goals and --steps must be at least 1", file=sys.stderr)
+    if args.sessions < (0 if args.combine else 1) or args.goals < 1 or args.steps < 1:
+        print("error: --sessions (unless --combine), --goals and --steps must be at least 1", file=sys.stderr)
         return 2
     try:
-        planner = Gen3Planner()
-        sim = DrakeGen3Sim()
+        planner = Gen3Planner() if args.sessions else None
+        sim = DrakeGen3Sim() if args.sessions else None
         for s in range(args.first_session, args.first_session + args.sessions):
             x, u, plan, meta = collect_session(sim, planner, args.seed, args.split, s, args.goals, args.steps, args.goal_margin, log=sys.stderr)
             path = os.path.join(args.out, f"{args.split}-{s:03d}.npz")
-            write_dataset(path, x, u, meta, plan)
+            write_dataset(path, x, u, meta, plan, np.full(len(plan), float(s)))
             print(f"{path}: {x.shape[0]} windows from {args.goals - len(meta['failed_goals'])}/{args.goals} plans ({meta['wall_s']:.1f} s)", file=sys.stderr, flush=True)
+        if args.combine:
+            path, n = combine(args.out, args.split, args.max_windows)
+            print(f"{path}: {n} windows", file=sys.stderr)
     except KoopbridgeError as e:
         print(f"error: {e}", file=sys.stderr)
         return 1
