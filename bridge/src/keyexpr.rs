@@ -112,6 +112,11 @@ impl Keys {
         self.checked("mpc id", id, &["mpc", id, "attach"])
     }
 
+    /// `…/planner/{id}/plan` (a trajectory planner's queryable).
+    pub fn planner_plan(&self, id: &str) -> Result<String> {
+        self.checked("planner id", id, &["planner", id, "plan"])
+    }
+
     /// `…/data/{name}`.
     pub fn data(&self, name: &str) -> Result<String> {
         self.checked("dataset name", name, &["data", name])
@@ -189,6 +194,8 @@ pub enum Role {
     Models,
     /// An orchestrator.
     Orchestrator,
+    /// A trajectory planner.
+    Planner,
 }
 
 impl Role {
@@ -201,6 +208,7 @@ impl Role {
             Role::Recorder => "recorder",
             Role::Models => "models",
             Role::Orchestrator => "orchestrator",
+            Role::Planner => "planner",
         }
     }
 }
@@ -219,6 +227,10 @@ mod tests {
         assert_eq!(
             k.trainer_progress("t", "j1").unwrap(),
             "koopbridge/s1/trainer/t/jobs/j1/progress"
+        );
+        assert_eq!(
+            k.planner_plan("p0").unwrap(),
+            "koopbridge/s1/planner/p0/plan"
         );
         assert_eq!(
             k.alive(Role::Mpc, "m").unwrap(),

@@ -7,6 +7,7 @@
 //! - [`client`]: `Client`, the querying side (simulators, MPC service, model store), with
 //!   [`control`] for the JSON control plane through the `bridge` types;
 //! - [`systems`]: `ReferenceSystem`, the built-in Rust reference dynamics;
+//! - [`planner`]: `PlannerService`, a Python planner served at `…/planner/{id}/plan`;
 //! - [`errors`]: the exception types; [`convert`]: numpy conversions.
 
 use pyo3::prelude::*;
@@ -18,6 +19,7 @@ mod convert;
 mod errors;
 mod model;
 mod mpc;
+mod planner;
 mod systems;
 
 /// The extension module.
@@ -29,6 +31,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<mpc::Mpc>()?;
     m.add_class::<client::Client>()?;
     m.add_class::<systems::ReferenceSystem>()?;
+    m.add_class::<planner::PlannerService>()?;
     errors::register(py, m)?;
     m.add("PROTOCOL_VERSION", bridge::codec::PROTOCOL_VERSION)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
