@@ -10,7 +10,9 @@ import pytest
 import koopbridge
 from koopbridge import InvalidInput
 from koopbridge.adapters.drake_model import VELOCITY_LIMITS, robosuite_mjcf
-from koopbridge.adapters.drake_sim import DrakeGen3Adapter, DrakeGen3Sim
+from koopbridge.adapters.drake_sim import DrakeGen3Sim
+from koopbridge.serving import SimulatorAdapter
+from koopbridge.testing import check_adapter
 from conftest import free_endpoint
 
 
@@ -96,7 +98,7 @@ def test_collect_executes_plans_into_windows(sim):
 
 def test_adapter_over_zenoh_keeps_serving_after_errors(serve_in_thread, session_id):
     ep = free_endpoint()
-    adapter = DrakeGen3Adapter()
+    adapter = SimulatorAdapter(DrakeGen3Sim())
     with serve_in_thread(adapter, session=session_id, id="gen3", listen=[ep]):
         with koopbridge.Client(session=session_id, connect=[ep]) as c:
             info = c.connect_sim("gen3", timeout=20)
@@ -124,3 +126,13 @@ def test_command_line_describe_and_bad_dt():
     assert info["kind"] == "drake" and info["drake"]["controller"]["kp"] == 3600.0
     out = subprocess.run([sys.executable, "-m", "koopbridge.adapters.drake_sim", "--dt", "0.0015"], capture_output=True, text=True)
     assert out.returncode == 2 and "whole number of plant steps" in out.stderr
+
+
+def test_check_adapter_passes_on_the_drake_simulator():
+    """The SDK's adapter check (in-process and over a real Zenoh session) on the Gen3."""
+    sim = DrakeGen3Sim()
+    try:
+        info = check_adapter(sim, steps=5)
+        assert info.nx == 14 and info.nu == 7 and info.kind == "drake"
+    finally:
+        sim.close()

@@ -14,17 +14,17 @@ the commands into a position reference and tracks both with inverse dynamics (Dr
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from typing import Any, Sequence
 
 import numpy as np
 
-from .._native import Adapter, InvalidInput, KoopbridgeError
-from ..serve_args import add_serve_arguments, serve_from_args
+from .._native import InvalidInput, KoopbridgeError
+from ..serving import run_main
+from ..simulator import SimInfo
 from .drake_model import CONTINUOUS, EFFORT_LIMITS, JOINT_NAMES, POSITION_LIMITS, VELOCITY_LIMITS, build_gen3
 
-__all__ = ["DrakeGen3Adapter", "DrakeGen3Sim", "main"]
+__all__ = ["DrakeGen3Sim", "main", "parser", "simulator"]
 
 
 class DrakeGen3Sim:
@@ -73,10 +73,10 @@ class DrakeGen3Sim:
         self.k = 0
 
     # ---- description ----
-    def info(self) -> dict[str, Any]:
+    def info(self) -> SimInfo:
         """What the simulator is (the SDK's ``info``): names, units, bounds, dt, Drake version."""
         names = [f"q{i + 1}" for i in range(7)] + [f"qd{i + 1}" for i in range(7)]
-        return dict(
+        return SimInfo(
             env="kinova-gen3",
             kind="drake",
             version=f"drake {self.drake_version}",
@@ -86,7 +86,7 @@ class DrakeGen3Sim:
             u_min=(-VELOCITY_LIMITS).tolist(),
             u_max=VELOCITY_LIMITS.tolist(),
             angle_indices=[],
-            drake=dict(
+            extra=dict(drake=dict(
                 version=self.drake_version,
                 model="robosuite 1.5.2 models/assets/robots/kinova3/robot.xml (kortex_description inertials)",
                 joints=JOINT_NAMES,
@@ -96,7 +96,7 @@ class DrakeGen3Sim:
                 effort_limits=EFFORT_LIMITS.tolist(),
                 time_step=self.time_step,
                 controller=dict(kind="inverse dynamics, velocity mode", kp=self.kp, kd=self.kd),
-            ),
+            )),
         )
 
     # ---- simulation ----
@@ -222,27 +222,9 @@ class DrakeGen3Sim:
         )
 
 
-class DrakeGen3Adapter(Adapter):
-    """A koopbridge ``Adapter`` around a ``DrakeGen3Sim`` (same constructor arguments)."""
-
-    def __init__(self, **kwargs: Any) -> None:
-        self.sim = DrakeGen3Sim(**kwargs)
-
-    def info(self) -> dict[str, Any]:
-        return self.sim.info()
-
-    def reset(self, seed: int | None = None, x0: Any = None) -> np.ndarray:
-        return self.sim.reset(seed=seed, x0=x0)
-
-    def step(self, u: np.ndarray) -> np.ndarray:
-        return self.sim.step(u)
-
-    def close(self) -> None:
-        self.sim.close()
-
-
 def parser() -> argparse.ArgumentParser:
-    """The command-line parser of the Drake simulator adapter."""
+    """The Drake simulator adapter's own options (``run_main`` adds ``--describe`` and the
+    serving ones)."""
     p = argparse.ArgumentParser(
         prog="python -m koopbridge.adapters.drake_sim",
         description="Serve the Kinova Gen3 in a Drake simulation (velocity commands, state [q, qd]) as a koopbridge simulator over Zenoh.",
@@ -250,35 +232,17 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--dt", type=float, default=0.001, help="step of one step() in seconds, a multiple of 1 ms (default: %(default)s)")
     p.add_argument("--kp", type=float, default=3600.0, help="controller position gain [1/s^2] (default: %(default)s)")
     p.add_argument("--kd", type=float, default=120.0, help="controller velocity gain [1/s] (default: %(default)s)")
-    p.add_argument("--describe", action="store_true", help="print the info this adapter reports (JSON) and exit")
-    add_serve_arguments(p)
     return p
 
 
+def simulator(args: argparse.Namespace) -> DrakeGen3Sim:
+    """The ``DrakeGen3Sim`` the parsed command line describes."""
+    return DrakeGen3Sim(dt=args.dt, kp=args.kp, kd=args.kd)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Runs the Drake simulator adapter; returns the exit code."""
-    args = parser().parse_args(argv)
-    try:
-        adapter = DrakeGen3Adapter(dt=args.dt, kp=args.kp, kd=args.kd)
-    except KoopbridgeError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    try:
-        if args.describe:
-            json.dump(adapter.info(), sys.stdout, indent=2)
-            print()
-            return 0
-        print(f"koopbridge drake adapter: Kinova Gen3 as sim '{args.id}' in session '{args.session}'", file=sys.stderr, flush=True)
-        stats = serve_from_args(adapter, args)
-        print(f"koopbridge drake adapter: stopped after {stats.get('steps', 0)} steps", file=sys.stderr)
-        return 0
-    except KeyboardInterrupt:
-        return 130
-    except KoopbridgeError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 1
-    finally:
-        adapter.close()
+    """Runs the Drake simulator adapter (``koopbridge.serving.run_main``); returns the exit code."""
+    return run_main(simulator, parser(), argv)
 
 
 if __name__ == "__main__":
