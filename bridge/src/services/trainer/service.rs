@@ -102,8 +102,9 @@ fn job_query(shared: &Shared, job: &str, body: &[u8]) -> Reply {
         }
         let c: Cmd = parse_json("job command", body)?;
         if c.cancel {
+            let mut jobs = lock(&shared.jobs);
+            jobs.cancel_queued(job);
             shared.cancel_running(job);
-            lock(&shared.jobs).cancel_queued(job);
         }
     }
     let jobs = lock(&shared.jobs);
@@ -125,7 +126,8 @@ fn submit(
     validate_chunk("model name", &spec.model).map_err(|e| e.to_reply())?;
     let spec = super::confine(data_root, spec)?;
     trainer.validate(&spec)?;
-    let s = lock(&shared.jobs).submit(spec);
+    let mut jobs = lock(&shared.jobs);
+    let s = jobs.submit(spec);
     if s.existing {
         tracing::info!(
             "trainer '{id}': submission equals unfinished job {}",
@@ -135,6 +137,7 @@ fn submit(
     for job in &s.superseded {
         shared.cancel_running(job);
     }
+    drop(jobs);
     shared.wake.notify_one();
     to_json(&s.reply)
 }

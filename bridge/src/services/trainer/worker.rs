@@ -51,7 +51,8 @@ pub struct Shared {
 }
 
 impl Shared {
-    /// Raises the cancel flag of `job` if it is running.
+    /// Raises the cancel flag of `job` if it is running. Call it holding the `jobs` lock (the
+    /// lock order is `jobs`, then `cancel`), see [`next_job`].
     pub fn cancel_running(&self, job: &str) {
         if let Some(f) = lock(&self.cancel).get(job) {
             f.store(true, Ordering::Relaxed);
@@ -78,11 +79,13 @@ const PROGRESS_EVERY: Duration = Duration::from_millis(200);
 
 /// Runs jobs until the service stops.
 pub fn run(shared: &Shared, trainer: &dyn Trainer, cx: &WorkerContext) {
-    while let Some(rec) = next_job(shared) {
+    while let Some((rec, flag)) = next_job(shared) {
         let job = rec.job.clone();
         let checkpoint = lock(&shared.jobs).dir().join(format!("{job}.ckpt"));
         let progress_key = cx.keys.trainer_progress(&cx.id, &job).ok();
-        let Some(ended) = run_job(shared, trainer, cx, &rec.spec, &job, &checkpoint) else {
+        let ended = run_job(shared, trainer, cx, &rec.spec, &job, &checkpoint, &flag);
+        lock(&shared.cancel).remove(&job);
+        let Some(ended) = ended else {
             // The service is stopping: the job stays `running` on disk, so a restart resumes it.
             return;
         };
@@ -109,7 +112,8 @@ pub fn run(shared: &Shared, trainer: &dyn Trainer, cx: &WorkerContext) {
 /// How a job ended: its metrics, or (cancelled?, message).
 type Ended = std::result::Result<serde_json::Value, (bool, String)>;
 
-/// Trains one job and stores its model; `None` if the service stopped it.
+/// Trains one job and stores its model; `None` if the service stopped it. `flag` is the job's
+/// cancel flag.
 fn run_job(
     shared: &Shared,
     trainer: &dyn Trainer,
@@ -117,14 +121,13 @@ fn run_job(
     spec: &JobSpec,
     job: &str,
     checkpoint: &Path,
+    flag: &AtomicBool,
 ) -> Option<Ended> {
     let final_dir = cx.store.join(&spec.model);
     let tmp = match koopman::fsutil::temp_path(&final_dir) {
         Ok(t) => t,
         Err(e) => return Some(Err((false, e.to_string()))),
     };
-    let flag = Arc::new(AtomicBool::new(false));
-    lock(&shared.cancel).insert(job.to_string(), flag.clone());
     let progress_key = cx.keys.trainer_progress(&cx.id, job).ok();
     let mut last_put = Instant::now() - PROGRESS_EVERY * 2;
     let mut on_progress = |p: &TrainProgress| {
@@ -160,7 +163,6 @@ fn run_job(
                 })?;
             trainer.train(&spec, &tmp, checkpoint, &mut on_progress)
         });
-    lock(&shared.cancel).remove(job);
     if shared.done.load(Ordering::Relaxed) && flag.load(Ordering::Relaxed) {
         let _ = std::fs::remove_dir_all(&tmp);
         return None;
@@ -191,15 +193,19 @@ fn run_job(
     Some(ended)
 }
 
-/// Waits for the next queued job (now `running`); `None` when the service stops.
-fn next_job(shared: &Shared) -> Option<super::jobs::JobRecord> {
+/// Waits for the next queued job (now `running`) and registers its cancel flag under the same
+/// lock, so that a cancel or a superseding submission (which hold that lock too) either finds
+/// the job still queued or finds its flag; `None` when the service stops.
+fn next_job(shared: &Shared) -> Option<(super::jobs::JobRecord, Arc<AtomicBool>)> {
     let mut jobs = lock(&shared.jobs);
     loop {
         if shared.done.load(Ordering::Relaxed) {
             return None;
         }
         if let Some(r) = jobs.start_next() {
-            return Some(r);
+            let flag = Arc::new(AtomicBool::new(false));
+            lock(&shared.cancel).insert(r.job.clone(), flag.clone());
+            return Some((r, flag));
         }
         jobs = shared
             .wake
