@@ -38,7 +38,8 @@ class Client(_NativeClient):
         test: str | None = None,
         config: dict[str, Any] | None = None,
     ) -> str:
-        """Submits a training job: datasets are ``.npz`` paths the trainer can read or
+        """Submits a training job: datasets are ``.npz`` paths inside the trainer's data root
+        (``koopbridge serve --data-root``; others are refused with ``forbidden``) or
         ``recording:NAME`` for a recorder's dataset. Returns the job id."""
 
         def ref(d: str) -> dict[str, str]:
