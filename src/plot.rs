@@ -101,23 +101,18 @@ pub fn time_series_png(
         bail!("nothing to plot: no panels");
     }
     register_font();
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let name = path
         .file_name()
         .and_then(|n| n.to_str())
         .context("plot path has no file name")?;
-    let tmp = dir.join(format!(".{name}.{}.tmp.png", std::process::id()));
+    // The renderer picks the format from the extension: the unique temporary name keeps `.png`.
+    let tmp = koopman::fsutil::temp_path(path)?.with_extension("tmp.png");
     let result = draw(&tmp, title, x_label, panels, width);
     if let Err(e) = result {
         let _ = std::fs::remove_file(&tmp);
         return Err(e);
     }
-    std::fs::rename(&tmp, path)
-        .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
+    koopman::fsutil::commit(&tmp, path).with_context(|| format!("writing {name}"))
 }
 
 fn draw(

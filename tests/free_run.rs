@@ -93,3 +93,78 @@ fn state_stream_is_ordered_without_gaps_and_commands_are_applied() {
     );
     drop(child);
 }
+
+/// A free-running adapter never applies a command outside its input bounds (±8 for the damped
+/// pendulum): a command of ±61 is applied as ±8, reported so in the state stream, and counted in
+/// `info.stats.clipped_commands`.
+#[test]
+fn commands_outside_the_bounds_are_clipped_and_counted() {
+    let (c, opts, session) = common::cluster("freerun-clip", &[], &[]);
+    let (tx, rx) = std::sync::mpsc::channel::<Vec<u8>>();
+    let _sub = c
+        .client
+        .session
+        .declare_subscriber(c.client.keys.sim("clip", SimLeaf::State).unwrap())
+        .callback(move |s| {
+            let _ = tx.send(s.payload().to_bytes().into_owned());
+        })
+        .wait()
+        .unwrap();
+    let publisher = c
+        .client
+        .session
+        .declare_publisher(c.client.keys.sim("clip", SimLeaf::Command).unwrap())
+        .wait()
+        .unwrap();
+    let steps = 2000u64;
+    let child = common::spawn_free_run_pendulum(&c, &opts, &session, "clip", 200, steps, &[]);
+    let (mut sent, mut driven) = (0u64, 0u64);
+    let deadline = Instant::now() + Duration::from_secs(120);
+    let info = loop {
+        assert!(Instant::now() < deadline, "too few states");
+        let Ok(b) = rx.recv_timeout(Duration::from_millis(500)) else {
+            continue;
+        };
+        let s = StateMsg::decode(&b).unwrap();
+        assert!(
+            s.u.iter().all(|u| u.abs() <= 8.0),
+            "state k={} applied u={:?}",
+            s.k,
+            s.u
+        );
+        if s.u.first().is_some_and(|u| u.abs() == 8.0) {
+            driven += 1;
+        }
+        let u = if s.k % 2 == 0 { 61.0 } else { -61.0 };
+        let cmd = CommandMsg {
+            seq: sent,
+            k: s.k,
+            u: vec![u],
+        };
+        publisher.put(cmd.encode()).wait().unwrap();
+        sent += 1;
+        if s.k == 200 {
+            let b = c
+                .client
+                .query(
+                    &c.client.keys.sim("clip", SimLeaf::Info).unwrap(),
+                    vec![],
+                    Duration::from_secs(30),
+                    "simulator clip",
+                )
+                .unwrap();
+            break serde_json::from_slice::<bridge::adapter::InfoReply>(&b).unwrap();
+        }
+    };
+    assert!(
+        driven > 100,
+        "only {driven} states were driven by a clipped command"
+    );
+    let clipped = info.stats.clipped_commands;
+    // Every command the adapter received was out of bounds (most of those sent arrive at 200 Hz).
+    assert!(
+        clipped * 2 > sent && clipped <= sent,
+        "clipped {clipped}, driven {driven}, sent {sent}"
+    );
+    drop(child);
+}

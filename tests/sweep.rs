@@ -39,6 +39,7 @@ fn trainer(
         state.join("models").display().to_string(),
         state.display().to_string(),
     );
+    let root = opts.out_dir.join("data").display().to_string();
     common::spawn(
         c,
         opts,
@@ -57,6 +58,8 @@ fn trainer(
             &state,
             "--train-threads",
             "1",
+            "--data-root",
+            &root,
         ],
     )
 }

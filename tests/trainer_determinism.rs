@@ -26,6 +26,7 @@ fn the_same_job_gives_the_same_model_bits_on_different_thread_pools() {
     };
     let c = Cluster::start(&opts, &session, &[], &[]).unwrap();
     let (mut models, mut threads) = (Vec::new(), Vec::new());
+    let data_root = opts.out_dir.join("data");
     for (id, pool) in [("ta", "1"), ("tb", "3")] {
         let base = opts.out_dir.join(id);
         let args: Vec<String> = [
@@ -39,6 +40,8 @@ fn the_same_job_gives_the_same_model_bits_on_different_thread_pools() {
             base.join("models").to_str().unwrap(),
             "--state-dir",
             base.join("state").to_str().unwrap(),
+            "--data-root",
+            data_root.to_str().unwrap(),
             "--stdin-lifeline",
             "--connect",
             &c.endpoint,

@@ -26,6 +26,9 @@ pub enum ErrorCode {
     Busy,
     /// The request is valid but not supported by this participant.
     Unsupported,
+    /// The request names something this participant may not touch (e.g. a dataset path outside
+    /// the trainer's data root); the message names no file.
+    Forbidden,
     /// An unexpected failure inside the service.
     Internal,
 }

@@ -81,6 +81,10 @@ pub struct AdapterStats {
     pub max_lateness_us: u64,
     /// Free-run: simulated time over wall time since the start of the run.
     pub real_time_factor: f64,
+    /// Free-run: commands with a value outside the simulator's `[u_min, u_max]`, applied
+    /// clipped to the bounds (the adapter is the last line of defence in front of the plant).
+    #[serde(default)]
+    pub clipped_commands: u64,
 }
 
 /// The JSON reply of `…/sim/{id}/info`.

@@ -268,6 +268,10 @@ impl Cluster {
                     "--state-dir",
                     opts.out_dir.join("state").display().to_string(),
                 ),
+                (
+                    "--data-root",
+                    opts.out_dir.join("data").display().to_string(),
+                ),
             ] {
                 a.push(k.into());
                 a.push(v);

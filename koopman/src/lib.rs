@@ -8,11 +8,13 @@
 //! - [`model`]: the neural Koopman model, EDMD and NNDM baselines, save/load;
 //! - [`train`]: losses with hand-written gradients, Adam, the training loop;
 //! - [`mpc`]: condensed linear MPC, its solvers and baselines;
-//! - [`analysis`]: conditioning, spectra, scaling-law fits.
+//! - [`analysis`]: conditioning, spectra, scaling-law fits;
+//! - [`fsutil`]: the one atomic file write everything uses.
 
 pub mod analysis;
 pub mod data;
 pub mod error;
+pub mod fsutil;
 pub mod model;
 pub mod mpc;
 pub mod rng;

@@ -497,21 +497,12 @@ fn print_row(m: &ClosedLoopMetrics) {
     );
 }
 
-/// Writes JSON to a temporary name beside `path`, then renames it into place.
+/// Writes JSON atomically (see [`koopman::fsutil::write_atomic`]).
 fn write_json_atomic<T: serde::Serialize>(path: &Path, value: &T) -> anyhow::Result<()> {
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    let tmp = dir.join(format!(
-        ".{}.{}.tmp",
-        path.file_name().and_then(|n| n.to_str()).unwrap_or("out"),
-        std::process::id()
-    ));
-    std::fs::write(&tmp, serde_json::to_vec_pretty(value)?)
-        .with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("renaming to {}", path.display()))
+    Ok(koopman::fsutil::write_atomic(
+        path,
+        &serde_json::to_vec_pretty(value)?,
+    )?)
 }
 
 fn plot_trajectory(

@@ -43,6 +43,11 @@ pub struct ServeArgs {
     /// Folder of the services' own state (trainer job specs, recordings).
     #[arg(long, default_value = ".koopbridge")]
     pub state_dir: PathBuf,
+    /// Trainer: the folder that every `{"path": …}` dataset of a job must lie inside (symlinks
+    /// followed; relative paths are taken relative to it). Default: `{state-dir}/data` (where
+    /// the recorder writes). Jobs naming anything else are refused with `forbidden`.
+    #[arg(long)]
+    pub data_root: Option<PathBuf>,
     /// Trainer: how many jobs run at the same time.
     #[arg(long, default_value_t = 1)]
     pub max_jobs: usize,
@@ -80,16 +85,23 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     };
     std::fs::create_dir_all(&args.store)?;
     std::fs::create_dir_all(&args.state_dir)?;
+    let data_root = bridge::fsutil::DataRoot::new(
+        &args
+            .data_root
+            .clone()
+            .unwrap_or_else(|| args.state_dir.join("data")),
+    )?;
     let session = open_session(&args.zenoh)?;
     let mut threads = Vec::new();
     for s in services {
-        let (session, keys, id, store, state, stop) = (
+        let (session, keys, id, store, state, stop, root) = (
             session.clone(),
             keys.clone(),
             args.id.clone(),
             args.store.clone(),
             args.state_dir.clone(),
             stop.clone(),
+            data_root.clone(),
         );
         let (max_jobs, train_threads) = (args.max_jobs, args.train_threads);
         threads.push((
@@ -108,6 +120,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
                         &id,
                         &store,
                         &state.join("trainer"),
+                        &root,
                         max_jobs,
                         train_threads,
                         &stop,

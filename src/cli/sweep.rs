@@ -181,7 +181,7 @@ pub fn run(args: SweepArgs) -> anyhow::Result<()> {
             );
         }
     }
-    koopman::model::store::write_atomic(
+    koopman::fsutil::write_atomic(
         &out.join("sweep.json"),
         &serde_json::to_vec_pretty(&grid)?,
     )?;
@@ -233,6 +233,8 @@ pub fn run(args: SweepArgs) -> anyhow::Result<()> {
                 state.display().to_string(),
                 "--train-threads".into(),
                 args.train_threads.to_string(),
+                "--data-root".into(),
+                data_dir.display().to_string(),
                 "--stdin-lifeline".into(),
             ];
             for c in &connect {

@@ -4,7 +4,7 @@
 use super::learning_curve::{CurvePoint, LearningCurve};
 use anyhow::Context;
 use koopman::data::{Dataset, Splits};
-use koopman::model::store::write_atomic;
+use koopman::fsutil::write_atomic;
 use koopman::train::{train, Precision, Progress, TrainConfig, TrainMetrics};
 use serde::Serialize;
 use std::ops::ControlFlow;

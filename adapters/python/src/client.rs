@@ -238,7 +238,8 @@ impl Client {
     }
 
     /// Submits a training job to trainer ``trainer_id``: the finished model is stored as
-    /// ``model``; datasets are ``.npz`` paths the trainer can read or ``recording:NAME`` for a
+    /// ``model``; datasets are ``.npz`` paths inside the trainer's data root (``koopbridge serve
+    /// --data-root``; others are refused with ``forbidden``) or ``recording:NAME`` for a
     /// recorder's dataset; ``config`` holds ``TrainConfig`` fields. Returns the job id.
     #[pyo3(signature = (trainer_id, model, train, val, test=None, config=None, timeout=30.0))]
     #[allow(clippy::too_many_arguments)]

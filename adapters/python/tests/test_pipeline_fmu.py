@@ -34,7 +34,7 @@ def test_collect_train_fetch_and_regulate_through_the_services(tmp_path, damped_
     ep = free_endpoint()
     store = tmp_path / "store"
     serve = [str(exe), "serve", "trainer", "mpc", "models", "--session", session_id, "--id", "s0", "--store", str(store),
-             "--state-dir", str(tmp_path / "state"), "--connect", ep]
+             "--state-dir", str(tmp_path / "state"), "--data-root", str(tmp_path), "--connect", ep]
     with koopbridge.Client(session=session_id, listen=[ep]) as c, \
             Child(fmu_adapter_cmd(damped_fmu, session_id, "pend", "--connect", ep), tmp_path / "adapter.log"), \
             Child(serve, tmp_path / "serve.log") as services:

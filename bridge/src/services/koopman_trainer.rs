@@ -14,9 +14,10 @@ use koopman::train::checkpoint::data_fingerprint;
 use koopman::train::{train_resumable, Checkpoint, TrainConfig};
 use zenoh::Session;
 
-use super::trainer::{serve_with, DatasetRef, JobSpec, Trainer};
+use super::trainer::{serve_with, DatasetRef, JobSpec, TrainProgress, Trainer};
 use crate::client::Client;
-use crate::error::{Error, Result};
+use crate::error::{Error, ErrorCode, ErrorReply, Result};
+use crate::fsutil::DataRoot;
 use crate::keyexpr::{validate_chunk, Keys};
 
 /// Threads (and so row parts of the gradient) of a job that does not set `threads`. The
@@ -104,8 +105,9 @@ fn usable_checkpoint(
     }
 }
 
-/// `TrainConfig` from SPEC defaults overlaid with the job's fields (unknown fields are an error).
-/// `threads` keeps its default (0 = all cores) here; the service fills it in, see
+/// `TrainConfig` from SPEC defaults overlaid with the job's fields. An unknown field or a value
+/// of the wrong type is a `bad_request` protocol error; an unknown field's error lists the valid
+/// settings. `threads` keeps its default (0 = all cores) here; the service fills it in, see
 /// [`DEFAULT_TRAIN_THREADS`].
 pub fn train_config(fields: &serde_json::Map<String, serde_json::Value>) -> Result<TrainConfig> {
     let mut v =
@@ -115,20 +117,37 @@ pub fn train_config(fields: &serde_json::Map<String, serde_json::Value>) -> Resu
         .ok_or_else(|| Error::Config("TrainConfig is not an object".into()))?;
     for (k, val) in fields {
         if !obj.contains_key(k) {
-            return Err(Error::Config(format!("unknown training setting '{k}'")));
+            let mut valid: Vec<&str> = obj.keys().map(String::as_str).collect();
+            valid.sort_unstable();
+            return Err(Error::protocol(
+                ErrorCode::BadRequest,
+                format!(
+                    "unknown training setting '{k}'; valid settings: {}",
+                    valid.join(", ")
+                ),
+            ));
         }
         obj.insert(k.clone(), val.clone());
     }
-    serde_json::from_value(v).map_err(|e| Error::Config(format!("training config: {e}")))
+    serde_json::from_value(v)
+        .map_err(|e| Error::protocol(ErrorCode::BadRequest, format!("training config: {e}")))
 }
 
 impl Trainer for KoopmanTrainer {
+    /// Refuses a job whose settings do not make a `TrainConfig` (`bad_request`, naming the
+    /// valid settings) before it is queued.
+    fn validate(&self, spec: &JobSpec) -> std::result::Result<(), ErrorReply> {
+        train_config(&spec.config)
+            .map(|_| ())
+            .map_err(|e| e.to_reply())
+    }
+
     fn train(
         &self,
         spec: &JobSpec,
         out_dir: &Path,
         checkpoint: &Path,
-        progress: &mut dyn FnMut(serde_json::Value) -> ControlFlow<()>,
+        progress: &mut dyn FnMut(&TrainProgress) -> ControlFlow<()>,
     ) -> Result<serde_json::Value> {
         let mut cfg = train_config(&spec.config)?;
         if !spec.config.contains_key("threads") {
@@ -146,11 +165,10 @@ impl Trainer for KoopmanTrainer {
             );
         }
         let mut obs = |p: &koopman::train::Progress| {
-            let mut v = serde_json::to_value(p).unwrap_or_default();
-            if let Some(o) = v.as_object_mut() {
-                o.insert("resumed_from".into(), resumed_from.into());
-            }
-            progress(v)
+            progress(&TrainProgress {
+                resumed_from: resumed_from as u64,
+                train: p.clone(),
+            })
         };
         let mut save = |c: &Checkpoint| {
             if let Err(e) = c.save(checkpoint) {
@@ -177,7 +195,7 @@ impl Trainer for KoopmanTrainer {
 }
 
 /// Serves trainer `id` with the Koopman trainer (see [`serve_with`]); jobs that do not set
-/// `threads` train with `threads` threads.
+/// `threads` train with `threads` threads; dataset paths must lie inside `data_root`.
 #[allow(clippy::too_many_arguments)]
 pub fn serve(
     session: &Session,
@@ -185,6 +203,7 @@ pub fn serve(
     id: &str,
     store: &Path,
     state_dir: &Path,
+    data_root: &DataRoot,
     max_jobs: usize,
     threads: usize,
     stop: &AtomicBool,
@@ -192,5 +211,7 @@ pub fn serve(
     let client = Client::new(session.clone(), keys.clone());
     let trainer =
         Arc::new(KoopmanTrainer::new(client, state_dir.join("fetched")).with_threads(threads));
-    serve_with(session, keys, id, store, state_dir, max_jobs, trainer, stop)
+    serve_with(
+        session, keys, id, store, state_dir, data_root, max_jobs, trainer, stop,
+    )
 }

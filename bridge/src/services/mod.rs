@@ -8,7 +8,7 @@ pub mod recorder;
 pub mod trainer;
 
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc;
+use std::sync::{mpsc, Mutex, MutexGuard};
 use std::time::Duration;
 
 use zenoh::query::Query;
@@ -16,6 +16,12 @@ use zenoh::{Session, Wait};
 
 use crate::error::{Error, ErrorCode, ErrorReply, Result};
 use crate::keyexpr::{validate_chunk, Keys, Role};
+
+/// Locks `m`, going on with the data if another thread panicked while holding it (every
+/// service keeps serving; the data of a mutex here is always left consistent between updates).
+pub fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
 
 /// Largest request payload a service accepts by default (1 MiB).
 pub const DEFAULT_MAX_PAYLOAD: usize = 1 << 20;

@@ -106,32 +106,29 @@ pub fn unpack(bytes: &[u8], dir: &Path) -> Result<(ArchiveHeader, PathBuf)> {
     let header: ArchiveHeader =
         serde_json::from_slice(&rest[..hl]).map_err(|e| bad(&format!("header: {e}")))?;
     validate_chunk("model name", &header.name)?;
+    // Every file is checked before anything is written.
     let mut body = &rest[hl..];
-    let final_dir = dir.join(&header.name);
-    let tmp = dir.join(format!(".{}.tmp-{}", header.name, std::process::id()));
-    let io = |p: &Path, e| Error::Io {
-        path: p.to_path_buf(),
-        source: e,
-    };
-    let _ = std::fs::remove_dir_all(&tmp);
-    std::fs::create_dir_all(&tmp).map_err(|e| io(&tmp, e))?;
+    let mut parts = Vec::with_capacity(header.files.len());
     for f in &header.files {
         if !safe_file_name(&f.name) {
             return Err(bad(&format!("unsafe file name {:?}", f.name)));
         }
-        let n = f.size as usize;
+        let n = usize::try_from(f.size).unwrap_or(usize::MAX);
         if body.len() < n {
             return Err(bad("truncated body"));
         }
-        let p = tmp.join(&f.name);
-        std::fs::write(&p, &body[..n]).map_err(|e| io(&p, e))?;
+        parts.push((f.name.as_str(), &body[..n]));
         body = &body[n..];
     }
     if !body.is_empty() {
         return Err(bad("trailing bytes"));
     }
-    let _ = std::fs::remove_dir_all(&final_dir);
-    std::fs::rename(&tmp, &final_dir).map_err(|e| io(&final_dir, e))?;
+    let final_dir = dir.join(&header.name);
+    koopman::fsutil::write_dir_atomic(&final_dir, |tmp| {
+        parts
+            .iter()
+            .try_for_each(|(name, bytes)| koopman::fsutil::write_atomic(&tmp.join(name), bytes))
+    })?;
     Ok((header, final_dir))
 }
 

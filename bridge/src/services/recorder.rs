@@ -167,7 +167,7 @@ pub fn serve(
                                     .map_err(|e| e.to_reply())?,
                             )
                             .callback(move |s| {
-                                let mut r = r2.lock().unwrap_or_else(|e| e.into_inner());
+                                let mut r = super::lock(&r2);
                                 match StateMsg::decode(&s.payload().to_bytes()) {
                                     Ok(m) => r.states.push(m),
                                     Err(_) => r.bad += 1,
@@ -201,7 +201,7 @@ pub fn serve(
                                 .map_err(|e| e.to_reply())?;
                             parse_json("info", &b)?
                         };
-                        let rec = rec.lock().unwrap_or_else(|e| e.into_inner());
+                        let rec = super::lock(&rec);
                         let (nx, nu) = (info.sim.nx(), info.sim.nu());
                         let (x, u, n, gaps, ooo) = windows_from_stream(&rec.states, steps, nx, nu);
                         let d = Dataset {

@@ -211,7 +211,7 @@ pub fn write_csv(out: &Path) -> Result<PathBuf> {
         s.push('\n');
     }
     let p = out.join("results.csv");
-    koopman::model::store::write_atomic(&p, s.as_bytes())?;
+    koopman::fsutil::write_atomic(&p, s.as_bytes())?;
     Ok(p)
 }
 
@@ -378,8 +378,18 @@ pub fn run_sweep(
                     // A typed refusal (bad request, forbidden) will not change: give the point
                     // up. Anything else (the trainer went away) is retried next round.
                     if let Error::Remote { reply, .. } = &e {
-                        if matches!(reply.code, ErrorCode::BadRequest | ErrorCode::NotFound) {
-                            let msg = e.to_string();
+                        if matches!(
+                            reply.code,
+                            ErrorCode::BadRequest | ErrorCode::NotFound | ErrorCode::Forbidden
+                        ) {
+                            let mut msg = e.to_string();
+                            if reply.code == ErrorCode::Forbidden {
+                                msg.push_str(&format!(
+                                    " (trainer '{t}' reads datasets only inside its --data-root: \
+                                     start it with --data-root holding the data, or run the \
+                                     sweep with --serve-data)"
+                                ));
+                            }
                             ledger.give_up(i, &msg);
                             on_event(SweepEvent::Failed {
                                 point: &points[i],
@@ -485,7 +495,7 @@ fn finish(
             format!("asked for model '{}', got '{}'", p.name, header.name),
         ));
     }
-    koopman::model::store::write_atomic(
+    koopman::fsutil::write_atomic(
         &dir.join("metrics.json"),
         &serde_json::to_vec_pretty(&metrics_json).map_err(|e| Error::Config(e.to_string()))?,
     )?;
@@ -514,7 +524,7 @@ fn finish(
         wall_seconds: metrics.wall_seconds,
         trainer: trainer.to_string(),
     };
-    koopman::model::store::write_atomic(
+    koopman::fsutil::write_atomic(
         &dir.join("result.json"),
         &serde_json::to_vec_pretty(&res).map_err(|e| Error::Config(e.to_string()))?,
     )?;

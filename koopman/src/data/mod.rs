@@ -16,13 +16,11 @@
 //! v1.0) and `meta.json` ([`DatasetMeta`] plus the dimensions), and a sidecar `<stem>.json` with
 //! the same metadata; see [`npz`].
 
-mod atomic;
 pub mod generate;
 pub mod npy;
 pub mod npz;
 pub mod splits;
 
-pub use atomic::{write_atomic, write_atomic_with};
 pub use generate::{generate, generate_with_progress, worker_threads};
 pub use splits::{generate_splits, generate_splits_with_progress, SplitSpec, Splits};
 

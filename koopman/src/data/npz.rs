@@ -3,7 +3,8 @@
 //! the same metadata for tools that do not open archives. Both are written atomically.
 
 use super::npy;
-use super::{write_atomic, write_atomic_with, Dataset, DatasetMeta, Pairing};
+use super::{Dataset, DatasetMeta, Pairing};
+use crate::fsutil::{write_atomic, write_atomic_with};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 use std::io::{Read, Write};

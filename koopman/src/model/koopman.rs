@@ -174,7 +174,7 @@ impl KoopmanModel {
                 data: self.params[lay.b..lay.len].to_vec(),
             });
         }
-        store::write_atomic(
+        crate::fsutil::write_atomic(
             &dir.join("model.safetensors"),
             &store::to_safetensors(&tensors)?,
         )?;
@@ -194,7 +194,7 @@ impl KoopmanModel {
         };
         let json =
             serde_json::to_vec_pretty(&cfg).map_err(|e| Error::InvalidArgument(e.to_string()))?;
-        store::write_atomic(&dir.join("config.json"), &json)
+        crate::fsutil::write_atomic(&dir.join("config.json"), &json)
     }
 
     /// Loads a model saved by [`KoopmanModel::save`] (F32 or F64 tensors).

@@ -4,7 +4,8 @@
 use super::loss::LossParts;
 use super::TrainConfig;
 use crate::data::Dataset;
-use crate::model::store::{read_file, read_tensor, write_atomic};
+use crate::fsutil::write_atomic;
+use crate::model::store::{read_file, read_tensor};
 use crate::{Error, Result};
 use safetensors::tensor::{Dtype, SafeTensors, TensorView};
 use serde::{Deserialize, Serialize};

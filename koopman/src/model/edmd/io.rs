@@ -3,7 +3,7 @@
 //! each written atomically.
 
 use super::{Dictionary, EdmdConfig, EdmdModel, FitInfo};
-use crate::data::write_atomic;
+use crate::fsutil::write_atomic;
 use crate::{Error, Result};
 use faer::Mat;
 use safetensors::tensor::{Dtype, SafeTensors, TensorView};

@@ -172,7 +172,7 @@ impl NndmModel {
                 data: self.params[lay.b..lay.b + lay.out].to_vec(),
             });
         }
-        store::write_atomic(
+        crate::fsutil::write_atomic(
             &dir.join("model.safetensors"),
             &store::to_safetensors(&tensors)?,
         )?;
@@ -193,7 +193,7 @@ impl NndmModel {
         };
         let json =
             serde_json::to_vec_pretty(&cfg).map_err(|e| Error::InvalidArgument(e.to_string()))?;
-        store::write_atomic(&dir.join("config.json"), &json)
+        crate::fsutil::write_atomic(&dir.join("config.json"), &json)
     }
 
     /// Loads a model saved by [`NndmModel::save`] (F32 or F64 tensors).

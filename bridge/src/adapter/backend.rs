@@ -1,0 +1,85 @@
+//! What an adapter serves: the [`SimBackend`] trait (plain synchronous calls), its error type,
+//! and [`SystemBackend`] for the built-in reference systems.
+
+use crate::error::{ErrorCode, ErrorReply};
+use crate::messages::{ResetRequest, SimInfo};
+
+/// A simulator as the adapter sees it: plain synchronous calls, one at a time, on one thread.
+pub trait SimBackend {
+    /// What the simulator is (called once when serving starts).
+    fn info(&self) -> SimInfo;
+    /// Resets and returns the first state `x_0` (`nx` values).
+    fn reset(&mut self, req: &ResetRequest) -> std::result::Result<Vec<f64>, SimError>;
+    /// Applies `u` (`nu` values, held over one `dt`) and returns the next state.
+    fn step(&mut self, u: &[f64]) -> std::result::Result<Vec<f64>, SimError>;
+}
+
+/// A failure reported by a backend.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum SimError {
+    /// The request was wrong (bad initial state, input out of range the simulator refuses, ...).
+    #[error("invalid input: {0}")]
+    InvalidInput(String),
+    /// The request is not supported by this simulator (e.g. an explicit `x0`).
+    #[error("unsupported: {0}")]
+    Unsupported(String),
+    /// The simulator failed (diverged, crashed, ...).
+    #[error("simulator failure: {0}")]
+    Failed(String),
+}
+
+impl SimError {
+    /// The error reply sent for this failure (`bad_request`, `unsupported`, `sim_failure`).
+    pub fn reply(&self) -> ErrorReply {
+        let code = match self {
+            SimError::InvalidInput(_) => ErrorCode::BadRequest,
+            SimError::Unsupported(_) => ErrorCode::Unsupported,
+            SimError::Failed(_) => ErrorCode::SimFailure,
+        };
+        ErrorReply::new(code, self.to_string())
+    }
+}
+
+/// A [`SimBackend`] for any built-in reference system of `koopman::systems`.
+pub struct SystemBackend {
+    system: Box<dyn koopman::systems::System>,
+    x: Vec<f64>,
+}
+
+impl SystemBackend {
+    /// Wraps a system.
+    pub fn new(system: Box<dyn koopman::systems::System>) -> Self {
+        let nx = system.nx();
+        SystemBackend {
+            system,
+            x: vec![0.0; nx],
+        }
+    }
+}
+
+impl SimBackend for SystemBackend {
+    fn info(&self) -> SimInfo {
+        SimInfo::from_system(self.system.as_ref())
+    }
+
+    fn reset(&mut self, req: &ResetRequest) -> std::result::Result<Vec<f64>, SimError> {
+        self.x = match (&req.x0, req.seed) {
+            (Some(x0), _) => x0.clone(),
+            (None, seed) => {
+                let mut rng = koopman::rng::Rng::new(seed.unwrap_or(0));
+                self.system.sample_initial_state(&mut rng)
+            }
+        };
+        Ok(self.x.clone())
+    }
+
+    fn step(&mut self, u: &[f64]) -> std::result::Result<Vec<f64>, SimError> {
+        let mut next = vec![0.0; self.x.len()];
+        self.system.step(&self.x, u, &mut next);
+        if !next.iter().all(|v| v.is_finite()) {
+            return Err(SimError::Failed("the state became non-finite".into()));
+        }
+        self.x = next;
+        Ok(self.x.clone())
+    }
+}

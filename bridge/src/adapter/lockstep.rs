@@ -1,0 +1,478 @@
+//! The adapter's protocol state machine apart from Zenoh: request bytes of `info`, `reset` or
+//! `step` in, reply bytes or a typed error out, with the per-k reply cache that makes a retried
+//! step idempotent. Free-run mode ([`super::free_run`]) steps the backend through it too.
+
+use std::collections::VecDeque;
+
+use crate::codec::{StepReply, StepRequest, PROTOCOL_VERSION};
+use crate::error::{Error, ErrorCode, ErrorReply, Result};
+use crate::keyexpr::SimLeaf;
+use crate::messages::{AdapterStats, InfoReply, ResetRequest, SimInfo};
+use crate::services::Reply;
+
+use super::backend::SimBackend;
+
+/// A step reply kept for retries: the step index, the input's bits and the reply bytes.
+struct Cached {
+    k: u64,
+    u: Vec<u64>,
+    reply: Vec<u8>,
+}
+
+/// One simulator's side of the protocol: its backend, step index, reply cache and counters.
+pub struct Lockstep<'a> {
+    backend: &'a mut dyn SimBackend,
+    info: SimInfo,
+    id: String,
+    cache_len: usize,
+    free_run: bool,
+    k: u64,
+    has_state: bool,
+    cache: VecDeque<Cached>,
+    stats: AdapterStats,
+}
+
+impl<'a> Lockstep<'a> {
+    /// The state machine of simulator `id` over `backend`, keeping the last `cache_len` (≥ 1)
+    /// step replies. Fails if the backend's info is inconsistent (bounds of another length than
+    /// the inputs, `dt` not positive and finite).
+    pub fn new(backend: &'a mut dyn SimBackend, id: &str, cache_len: usize) -> Result<Self> {
+        let info = backend.info();
+        if info.u_min.len() != info.nu() || info.u_max.len() != info.nu() {
+            return Err(Error::Config(format!(
+                "simulator info: {} inputs but {} lower and {} upper bounds",
+                info.nu(),
+                info.u_min.len(),
+                info.u_max.len()
+            )));
+        }
+        if !(info.dt > 0.0 && info.dt.is_finite()) {
+            return Err(Error::Config(format!("simulator info: dt = {}", info.dt)));
+        }
+        Ok(Lockstep {
+            backend,
+            info,
+            id: id.to_string(),
+            cache_len: cache_len.max(1),
+            free_run: false,
+            k: 0,
+            has_state: false,
+            cache: VecDeque::new(),
+            stats: AdapterStats::default(),
+        })
+    }
+
+    /// Marks the simulator as free-running: `info` says so and `reset`/`step` queries get `busy`.
+    pub fn set_free_run(&mut self, on: bool) {
+        self.free_run = on;
+    }
+
+    /// What the simulator is.
+    pub fn info(&self) -> &SimInfo {
+        &self.info
+    }
+
+    /// The current step index.
+    pub fn k(&self) -> u64 {
+        self.k
+    }
+
+    /// The counters so far.
+    pub fn stats(&self) -> &AdapterStats {
+        &self.stats
+    }
+
+    /// The counters, for the free-run loop to update.
+    pub fn stats_mut(&mut self) -> &mut AdapterStats {
+        &mut self.stats
+    }
+
+    /// Answers one query on `leaf` with request body `body`; an error reply is counted in
+    /// `stats.errors`.
+    pub fn answer(&mut self, leaf: SimLeaf, body: &[u8]) -> Reply {
+        let r = self.answer_inner(leaf, body);
+        if r.is_err() {
+            self.stats.errors += 1;
+        }
+        r
+    }
+
+    /// Counts and returns an error reply decided outside (e.g. a payload over the size limit).
+    pub fn refuse(&mut self, e: ErrorReply) -> Reply {
+        self.stats.errors += 1;
+        Err(e)
+    }
+
+    fn answer_inner(&mut self, leaf: SimLeaf, body: &[u8]) -> Reply {
+        match leaf {
+            SimLeaf::Info => {
+                let reply = InfoReply {
+                    protocol_version: PROTOCOL_VERSION,
+                    id: self.id.clone(),
+                    mode: if self.free_run {
+                        "free-run"
+                    } else {
+                        "lockstep"
+                    }
+                    .into(),
+                    k: self.k,
+                    sim: self.info.clone(),
+                    stats: self.stats.clone(),
+                };
+                crate::services::to_json(&reply)
+            }
+            SimLeaf::Reset => {
+                self.lockstep_only("reset")?;
+                let req: ResetRequest = if body.iter().all(|b| b.is_ascii_whitespace()) {
+                    ResetRequest::default()
+                } else {
+                    serde_json::from_slice(body).map_err(|e| {
+                        ErrorReply::new(
+                            ErrorCode::BadRequest,
+                            format!("reset request is not valid JSON: {e}"),
+                        )
+                    })?
+                };
+                let x = self.reset(&req)?;
+                Ok(StepReply { k: 0, t: 0.0, x }.encode())
+            }
+            SimLeaf::Step => {
+                self.lockstep_only("step")?;
+                let req = StepRequest::decode(body).map_err(|e| e.to_reply())?;
+                self.answer_step(&req)
+            }
+            SimLeaf::State | SimLeaf::Command => {
+                Err(ErrorReply::new(ErrorCode::Unsupported, "not a queryable"))
+            }
+        }
+    }
+
+    fn lockstep_only(&self, what: &str) -> std::result::Result<(), ErrorReply> {
+        if self.free_run {
+            return Err(ErrorReply::new(
+                ErrorCode::Busy,
+                format!("this simulator is free-running; {what} is lockstep only"),
+            ));
+        }
+        Ok(())
+    }
+
+    fn answer_step(&mut self, req: &StepRequest) -> Reply {
+        self.check_input(&req.u)?;
+        let bits: Vec<u64> = req.u.iter().map(|v| v.to_bits()).collect();
+        if let Some(c) = self.cache.iter().find(|c| c.k == req.k) {
+            if c.u == bits {
+                self.stats.cache_hits += 1;
+                return Ok(c.reply.clone());
+            }
+            return Err(ErrorReply::new(
+                ErrorCode::Conflict,
+                format!("step {} was already taken with a different input", req.k),
+            ));
+        }
+        if !self.has_state {
+            return Err(ErrorReply::new(
+                ErrorCode::OutOfOrder,
+                "no state yet: send a reset first",
+            ));
+        }
+        if req.k != self.k {
+            return Err(ErrorReply::new(
+                ErrorCode::OutOfOrder,
+                format!(
+                    "step request for k = {}, the simulator is at k = {}",
+                    req.k, self.k
+                ),
+            ));
+        }
+        let x = self.step(&req.u)?;
+        let reply = StepReply {
+            k: self.k,
+            t: self.k as f64 * self.info.dt,
+            x,
+        }
+        .encode();
+        self.cache.push_back(Cached {
+            k: req.k,
+            u: bits,
+            reply: reply.clone(),
+        });
+        while self.cache.len() > self.cache_len {
+            self.cache.pop_front();
+        }
+        Ok(reply)
+    }
+
+    /// `u` has `nu` finite values (`dimension` / `bad_request` otherwise).
+    pub fn check_input(&self, u: &[f64]) -> std::result::Result<(), ErrorReply> {
+        if u.len() != self.info.nu() {
+            return Err(ErrorReply::new(
+                ErrorCode::Dimension,
+                format!(
+                    "u has {} values, the simulator has {} inputs",
+                    u.len(),
+                    self.info.nu()
+                ),
+            ));
+        }
+        if !u.iter().all(|v| v.is_finite()) {
+            return Err(ErrorReply::new(ErrorCode::BadRequest, "u is not finite"));
+        }
+        Ok(())
+    }
+
+    /// Resets the backend (checking `x0` first): `k = 0`, the cache is cleared. Returns `x_0`.
+    pub fn reset(&mut self, req: &ResetRequest) -> std::result::Result<Vec<f64>, ErrorReply> {
+        if let Some(x0) = &req.x0 {
+            if x0.len() != self.info.nx() {
+                return Err(ErrorReply::new(
+                    ErrorCode::Dimension,
+                    format!(
+                        "x0 has {} values, the state has {}",
+                        x0.len(),
+                        self.info.nx()
+                    ),
+                ));
+            }
+            if !x0.iter().all(|v| v.is_finite()) {
+                return Err(ErrorReply::new(ErrorCode::BadRequest, "x0 is not finite"));
+            }
+        }
+        let x = self.backend.reset(req).map_err(|e| e.reply())?;
+        self.check_state(&x)?;
+        self.k = 0;
+        self.has_state = true;
+        self.cache.clear();
+        self.stats.resets += 1;
+        Ok(x)
+    }
+
+    /// Steps the backend with `u` (already checked) and returns the next state; `k` advances.
+    pub fn step(&mut self, u: &[f64]) -> std::result::Result<Vec<f64>, ErrorReply> {
+        let x = self.backend.step(u).map_err(|e| e.reply())?;
+        self.check_state(&x)?;
+        self.k += 1;
+        self.stats.steps += 1;
+        Ok(x)
+    }
+
+    fn check_state(&self, x: &[f64]) -> std::result::Result<(), ErrorReply> {
+        if x.len() != self.info.nx() {
+            return Err(ErrorReply::new(
+                ErrorCode::SimFailure,
+                format!(
+                    "simulator returned {} state values, info says {}",
+                    x.len(),
+                    self.info.nx()
+                ),
+            ));
+        }
+        if !x.iter().all(|v| v.is_finite()) {
+            return Err(ErrorReply::new(
+                ErrorCode::SimFailure,
+                "simulator returned a non-finite state",
+            ));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use crate::adapter::backend::SimError;
+
+    /// `x_{k+1} = x_k + u_k` (two states, one input in ±2) that counts its steps and fails
+    /// (returns a non-finite state) when `u` is exactly 1.5.
+    #[derive(Default)]
+    pub(crate) struct Counter {
+        pub(crate) x: Vec<f64>,
+        pub(crate) steps: usize,
+        pub(crate) applied: Vec<f64>,
+    }
+
+    impl SimBackend for Counter {
+        fn info(&self) -> SimInfo {
+            SimInfo {
+                env: "counter".into(),
+                kind: "test".into(),
+                version: "0".into(),
+                dt: 0.5,
+                state_names: vec!["a".into(), "b".into()],
+                input_names: vec!["u".into()],
+                u_min: vec![-2.0],
+                u_max: vec![2.0],
+                angle_indices: vec![],
+                extra: Default::default(),
+            }
+        }
+        fn reset(&mut self, req: &ResetRequest) -> std::result::Result<Vec<f64>, SimError> {
+            if req.seed == Some(99) {
+                return Err(SimError::Unsupported("no seed 99".into()));
+            }
+            self.x = req.x0.clone().unwrap_or(vec![0.0, 10.0]);
+            Ok(self.x.clone())
+        }
+        fn step(&mut self, u: &[f64]) -> std::result::Result<Vec<f64>, SimError> {
+            self.steps += 1;
+            self.applied.push(u[0]);
+            if u[0] == 1.5 {
+                return Ok(vec![f64::NAN, 0.0]);
+            }
+            self.x = vec![self.x[0] + u[0], self.x[1]];
+            Ok(self.x.clone())
+        }
+    }
+
+    fn step(s: &mut Lockstep<'_>, k: u64, u: &[f64]) -> Reply {
+        s.answer(SimLeaf::Step, &StepRequest { k, u: u.to_vec() }.encode())
+    }
+
+    fn code(r: Reply) -> ErrorCode {
+        r.expect_err("an error reply").code
+    }
+
+    #[test]
+    fn info_reports_mode_k_and_counters() {
+        let mut b = Counter::default();
+        let mut s = Lockstep::new(&mut b, "c1", 4).unwrap();
+        let i: InfoReply = serde_json::from_slice(&s.answer(SimLeaf::Info, b"").unwrap()).unwrap();
+        assert_eq!((i.id.as_str(), i.mode.as_str(), i.k), ("c1", "lockstep", 0));
+        assert_eq!(i.sim.nx(), 2);
+        s.answer(SimLeaf::Reset, b"").unwrap();
+        step(&mut s, 0, &[1.0]).unwrap();
+        s.set_free_run(true);
+        let i: InfoReply = serde_json::from_slice(&s.answer(SimLeaf::Info, b"").unwrap()).unwrap();
+        assert_eq!((i.mode.as_str(), i.k, i.stats.steps), ("free-run", 1, 1));
+        // Free-running: lockstep requests are busy, and counted as errors.
+        assert_eq!(code(s.answer(SimLeaf::Reset, b"")), ErrorCode::Busy);
+        assert_eq!(code(step(&mut s, 1, &[0.0])), ErrorCode::Busy);
+        assert_eq!(s.stats().errors, 2);
+    }
+
+    #[test]
+    fn steps_follow_k_and_a_retry_returns_the_cached_reply_without_stepping_twice() {
+        let mut b = Counter::default();
+        let mut s = Lockstep::new(&mut b, "c", 4).unwrap();
+        assert_eq!(
+            code(step(&mut s, 0, &[1.0])),
+            ErrorCode::OutOfOrder,
+            "before reset"
+        );
+        let r =
+            StepReply::decode(&s.answer(SimLeaf::Reset, br#"{"x0": [1, 2]}"#).unwrap()).unwrap();
+        assert_eq!((r.k, r.x), (0, vec![1.0, 2.0]));
+        let first = step(&mut s, 0, &[0.25]).unwrap();
+        let r = StepReply::decode(&first).unwrap();
+        assert_eq!((r.k, r.t, r.x), (1, 0.5, vec![1.25, 2.0]));
+        // The same k and the bit-identical u: the cached bytes, no second step.
+        assert_eq!(step(&mut s, 0, &[0.25]).unwrap(), first);
+        assert_eq!(s.stats().cache_hits, 1);
+        // The same k with another u: conflict; a k that is neither next nor cached: out_of_order.
+        assert_eq!(code(step(&mut s, 0, &[0.5])), ErrorCode::Conflict);
+        let e = step(&mut s, 5, &[0.5]).unwrap_err();
+        assert_eq!(e.code, ErrorCode::OutOfOrder);
+        assert!(e.message.contains("k = 1"), "{}", e.message);
+        step(&mut s, 1, &[1.0]).unwrap();
+        assert_eq!((s.k(), s.stats().steps, s.stats().errors), (2, 2, 3));
+        drop(s);
+        assert_eq!(b.steps, 2, "the backend stepped once per k");
+    }
+
+    #[test]
+    fn the_cache_keeps_the_last_replies_only_and_reset_clears_it() {
+        let mut b = Counter::default();
+        let mut s = Lockstep::new(&mut b, "c", 2).unwrap();
+        s.answer(SimLeaf::Reset, b"").unwrap();
+        for k in 0..3 {
+            step(&mut s, k, &[1.0]).unwrap();
+        }
+        assert!(step(&mut s, 2, &[1.0]).is_ok(), "cached");
+        assert!(step(&mut s, 1, &[1.0]).is_ok(), "cached");
+        assert_eq!(
+            code(step(&mut s, 0, &[1.0])),
+            ErrorCode::OutOfOrder,
+            "evicted"
+        );
+        s.answer(SimLeaf::Reset, b"{}").unwrap();
+        assert_eq!(s.k(), 0);
+        // After a reset, k = 0 is stepped afresh (not answered from the old cache).
+        let r = StepReply::decode(&step(&mut s, 0, &[2.0]).unwrap()).unwrap();
+        assert_eq!(r.x, vec![2.0, 10.0]);
+        assert_eq!(s.stats().cache_hits, 2);
+        assert_eq!(s.stats().resets, 2);
+    }
+
+    #[test]
+    fn bad_requests_get_typed_errors_and_change_nothing() {
+        let mut b = Counter::default();
+        let mut s = Lockstep::new(&mut b, "c", 4).unwrap();
+        s.answer(SimLeaf::Reset, b"").unwrap();
+        assert_eq!(code(step(&mut s, 0, &[1.0, 2.0])), ErrorCode::Dimension);
+        assert_eq!(code(step(&mut s, 0, &[])), ErrorCode::Dimension);
+        assert_eq!(code(step(&mut s, 0, &[f64::NAN])), ErrorCode::BadRequest);
+        assert_eq!(
+            code(step(&mut s, 0, &[f64::INFINITY])),
+            ErrorCode::BadRequest
+        );
+        assert_eq!(
+            code(s.answer(SimLeaf::Step, b"KB\x01")),
+            ErrorCode::BadRequest
+        );
+        let mut long = StepRequest { k: 0, u: vec![1.0] }.encode();
+        long.push(0);
+        assert_eq!(code(s.answer(SimLeaf::Step, &long)), ErrorCode::BadRequest);
+        assert_eq!(
+            code(s.answer(SimLeaf::Reset, b"{nope")),
+            ErrorCode::BadRequest
+        );
+        assert_eq!(
+            code(s.answer(SimLeaf::Reset, br#"{"x0": [1]}"#)),
+            ErrorCode::Dimension
+        );
+        assert_eq!(
+            code(s.answer(SimLeaf::Reset, br#"{"x0": [1, 2], "y": 1}"#)),
+            ErrorCode::BadRequest
+        );
+        assert_eq!(
+            code(s.answer(SimLeaf::Reset, br#"{"seed": 99}"#)),
+            ErrorCode::Unsupported
+        );
+        assert_eq!(code(s.answer(SimLeaf::State, b"")), ErrorCode::Unsupported);
+        assert_eq!((s.k(), s.stats().steps, s.stats().errors), (0, 0, 11));
+        // A backend returning a non-finite state: sim_failure, k does not advance.
+        assert_eq!(code(step(&mut s, 0, &[1.5])), ErrorCode::SimFailure);
+        assert_eq!(s.k(), 0);
+        assert_eq!(
+            code(s.refuse(ErrorReply::new(ErrorCode::TooLarge, "big"))),
+            ErrorCode::TooLarge
+        );
+        assert_eq!(s.stats().errors, 13);
+        drop(s);
+        assert_eq!(b.steps, 1, "only the failing step reached the backend");
+    }
+
+    #[test]
+    fn inconsistent_info_is_refused() {
+        struct NoBounds(Counter);
+        impl SimBackend for NoBounds {
+            fn info(&self) -> SimInfo {
+                SimInfo {
+                    u_min: vec![],
+                    ..self.0.info()
+                }
+            }
+            fn reset(&mut self, r: &ResetRequest) -> std::result::Result<Vec<f64>, SimError> {
+                self.0.reset(r)
+            }
+            fn step(&mut self, u: &[f64]) -> std::result::Result<Vec<f64>, SimError> {
+                self.0.step(u)
+            }
+        }
+        let mut b = NoBounds(Counter::default());
+        assert!(matches!(
+            Lockstep::new(&mut b, "c", 4),
+            Err(Error::Config(_))
+        ));
+    }
+}
