@@ -42,7 +42,7 @@ fn lockstep_through_a_router() {
     // Connecting as a client retries until the router listens.
     let z = ZenohOptions {
         connect: vec![ep.clone()],
-        mode: Mode::Client,
+        mode: Some(Mode::Client),
         ..Default::default()
     };
     let mut session_handle = None;

@@ -107,6 +107,11 @@ impl Keys {
         self.checked("mpc id", id, &["mpc", id, "solve"])
     }
 
+    /// `…/mpc/{id}/configure`.
+    pub fn mpc_configure(&self, id: &str) -> Result<String> {
+        self.checked("mpc id", id, &["mpc", id, "configure"])
+    }
+
     /// `…/mpc/{id}/attach`.
     pub fn mpc_attach(&self, id: &str) -> Result<String> {
         self.checked("mpc id", id, &["mpc", id, "attach"])
@@ -219,6 +224,10 @@ mod tests {
         assert_eq!(
             k.trainer_progress("t", "j1").unwrap(),
             "koopbridge/s1/trainer/t/jobs/j1/progress"
+        );
+        assert_eq!(
+            k.mpc_configure("m").unwrap(),
+            "koopbridge/s1/mpc/m/configure"
         );
         assert_eq!(
             k.alive(Role::Mpc, "m").unwrap(),

@@ -7,7 +7,6 @@ use std::time::Duration;
 
 use bridge::orchestrator::{run_scenario, Event, RunOptions};
 use bridge::scenario::Scenario;
-use bridge::session::ZenohOptions;
 
 /// Arguments of `koopbridge run`.
 #[derive(clap::Args)]
@@ -36,7 +35,7 @@ pub struct RunArgs {
     #[arg(long, default_value_t = 60.0)]
     pub ready_timeout: f64,
     #[command(flatten)]
-    pub zenoh: ZenohOptions,
+    pub zenoh: super::ZenohArgs,
 }
 
 /// Runs `koopbridge run`.
@@ -53,7 +52,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let opts = RunOptions {
         exe: std::env::current_exe()?,
         out_dir: out_dir.clone(),
-        zenoh: args.zenoh.clone(),
+        zenoh: args.zenoh.options(),
         session: args.session.clone(),
         ready_timeout: Duration::from_secs_f64(args.ready_timeout),
     };

@@ -79,6 +79,24 @@ pub struct AttachStats {
     pub latency_p99_us: f64,
 }
 
+/// Sends `req` to the `configure` queryable of MPC service `id` and returns its reply.
+pub fn configure(
+    client: &Client,
+    id: &str,
+    req: &ConfigureRequest,
+    timeout: Duration,
+) -> Result<ConfigureReply> {
+    let who = format!("MPC service '{id}'");
+    let body = serde_json::to_vec(req).map_err(|e| Error::Config(e.to_string()))?;
+    let b = client.query(&client.keys.mpc_configure(id)?, body, timeout, &who)?;
+    serde_json::from_slice(&b).map_err(|e| {
+        Error::protocol(
+            ErrorCode::BadRequest,
+            format!("{who}: configure reply is not valid: {e}"),
+        )
+    })
+}
+
 /// Maps the controller's status to the wire status.
 pub fn wire_status(s: &KStatus) -> SolveStatus {
     match s {
@@ -144,11 +162,7 @@ pub fn serve(
     let client = Client::new(session.clone(), keys.clone());
     let mut inbox = Inbox::new();
     inbox.declare(session, &keys.mpc_solve(id)?, Op::Solve)?;
-    inbox.declare(
-        session,
-        &keys.under(&["mpc", id, "configure"]),
-        Op::Configure,
-    )?;
+    inbox.declare(session, &keys.mpc_configure(id)?, Op::Configure)?;
     inbox.declare(session, &keys.mpc_attach(id)?, Op::Attach)?;
     let mut controllers: HashMap<String, MpcController<'static>> = HashMap::new();
     let mut configs: HashMap<String, ConfigureRequest> = HashMap::new();

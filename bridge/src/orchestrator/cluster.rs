@@ -1,0 +1,172 @@
+//! The processes of a run: the orchestrator's own session and liveliness tracker, the simulators
+//! and the services it starts as children, and the readiness barrier that waits for them.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use super::{RunOptions, SERVICES_ID};
+use crate::client::{Client, Liveliness};
+use crate::error::{Error, Result};
+use crate::keyexpr::{Keys, Role};
+use crate::procs::ChildProc;
+use crate::scenario::SimSpec;
+use crate::services::Service;
+use crate::session::{free_loopback_endpoint, open_session, ZenohOptions};
+
+/// Everything the orchestrator started, killed on drop.
+pub struct Cluster {
+    /// Child processes.
+    pub children: Vec<ChildProc>,
+    /// The orchestrator's client.
+    pub client: Client,
+    /// Liveliness of the session.
+    pub live: Liveliness,
+    /// The endpoint children connect to.
+    pub endpoint: String,
+}
+
+/// The program of an external adapter command: `{python}` is the project's venv Python if it
+/// exists (`.venv/bin/python`), else `python3` from `PATH`.
+fn external_program(first: &str) -> PathBuf {
+    if first == "{python}" {
+        let venv = Path::new(".venv/bin/python");
+        if venv.exists() {
+            return venv.to_path_buf();
+        }
+        return PathBuf::from("python3");
+    }
+    PathBuf::from(first)
+}
+
+impl Cluster {
+    /// Opens the orchestrator's session on a free loopback port and starts `sims` (id, env) and,
+    /// if `services` is non-empty, one `koopbridge serve` process with them (names as on the
+    /// `serve` command line; an unknown name is an error).
+    pub fn start(
+        opts: &RunOptions,
+        session_id: &str,
+        sims: &[(String, String)],
+        services: &[&str],
+    ) -> Result<Self> {
+        let specs: Vec<SimSpec> = sims
+            .iter()
+            .map(|(id, env)| SimSpec::builtin(id, env))
+            .collect();
+        Self::start_sims(opts, session_id, &specs, services)
+    }
+
+    /// Like [`Cluster::start`], with simulators that may be external adapter commands.
+    pub fn start_sims(
+        opts: &RunOptions,
+        session_id: &str,
+        sims: &[SimSpec],
+        services: &[&str],
+    ) -> Result<Self> {
+        Self::launch(opts, session_id, sims, &Service::parse_all(services)?)
+    }
+
+    /// Like [`Cluster::start_sims`], with typed services.
+    pub fn launch(
+        opts: &RunOptions,
+        session_id: &str,
+        sims: &[SimSpec],
+        services: &[Service],
+    ) -> Result<Self> {
+        let keys = Keys::new(session_id)?;
+        let mut z = opts.zenoh.clone();
+        let endpoint = match z.listen.first() {
+            Some(l) => l.clone(),
+            None => {
+                let ep = free_loopback_endpoint()?;
+                z.listen = vec![ep.clone()];
+                ep
+            }
+        };
+        let session = open_session(&z)?;
+        let client = Client::new(session, keys);
+        let live = Liveliness::new(&client)?;
+        let mut child_connect: Vec<String> = vec![endpoint.clone()];
+        child_connect.extend(opts.zenoh.connect.iter().cloned());
+        let child_zenoh = ZenohOptions {
+            connect: child_connect,
+            listen: Vec::new(),
+            mode: None,
+            zenoh_config: opts.zenoh.zenoh_config.clone(),
+        }
+        .to_args();
+        let mut children = Vec::new();
+        let logs = opts.out_dir.join("logs");
+        for spec in sims {
+            let id = &spec.id;
+            let (program, mut a) = match &spec.command {
+                Some(cmd) => match cmd.split_first() {
+                    Some((first, rest)) => (external_program(first), rest.to_vec()),
+                    None => return Err(Error::Config(format!("simulator '{id}': empty command"))),
+                },
+                None => (
+                    opts.exe.clone(),
+                    vec!["sim".into(), "--env".into(), spec.env.clone()],
+                ),
+            };
+            a.extend(["--id", id, "--session", session_id, "--stdin-lifeline"].map(String::from));
+            a.extend(child_zenoh.iter().cloned());
+            children.push(ChildProc::spawn(
+                &format!("simulator '{id}'"),
+                &program,
+                &a,
+                &logs.join(format!("sim-{id}.log")),
+            )?);
+        }
+        if !services.is_empty() {
+            let mut a: Vec<String> = vec!["serve".into()];
+            a.extend(services.iter().map(|s| s.as_str().to_string()));
+            for (k, v) in [
+                ("--session", session_id.to_string()),
+                ("--id", SERVICES_ID.to_string()),
+                ("--store", opts.out_dir.join("models").display().to_string()),
+                (
+                    "--state-dir",
+                    opts.out_dir.join("state").display().to_string(),
+                ),
+            ] {
+                a.push(k.into());
+                a.push(v);
+            }
+            a.push("--stdin-lifeline".into());
+            a.extend(child_zenoh.iter().cloned());
+            children.push(ChildProc::spawn(
+                "services",
+                &opts.exe,
+                &a,
+                &logs.join("services.log"),
+            )?);
+        }
+        let mut c = Cluster {
+            children,
+            client,
+            live,
+            endpoint,
+        };
+        let mut who: Vec<(Role, String)> = sims.iter().map(|s| (Role::Sim, s.id.clone())).collect();
+        who.extend(services.iter().map(|s| (s.role(), SERVICES_ID.to_string())));
+        c.wait_ready(&who, opts.ready_timeout)?;
+        Ok(c)
+    }
+
+    /// Waits for the liveliness tokens of `who`, failing early if a child exits.
+    pub fn wait_ready(&mut self, who: &[(Role, String)], timeout: Duration) -> Result<()> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            match self.live.wait_for(who, Duration::from_millis(200)) {
+                Ok(()) => return Ok(()),
+                Err(e) if Instant::now() > deadline => return Err(e),
+                Err(_) => {}
+            }
+            for ch in &mut self.children {
+                if let Some(msg) = ch.exited() {
+                    return Err(Error::Config(msg));
+                }
+            }
+        }
+    }
+}
