@@ -164,12 +164,10 @@ fn json_list(v: &[String]) -> String {
 /// Opens a Zenoh session (blocking; usable from any thread, inside or outside a tokio runtime).
 pub fn open_session(opts: &ZenohOptions) -> Result<Session> {
     let cfg = opts.config()?;
-    zenoh::open(cfg)
-        .wait()
-        .map_err(|e| {
-            let mode = opts.effective_mode().map_or("configured", Mode::as_str);
-            Error::Zenoh(format!("cannot open session ({mode} mode): {e}"))
-        })
+    zenoh::open(cfg).wait().map_err(|e| {
+        let mode = opts.effective_mode().map_or("configured", Mode::as_str);
+        Error::Zenoh(format!("cannot open session ({mode} mode): {e}"))
+    })
 }
 
 /// A free TCP port on 127.0.0.1, as an endpoint `tcp/127.0.0.1:PORT` (the OS picks it; it is
@@ -238,7 +236,10 @@ mod tests {
             ..from_file
         };
         assert_eq!(mode_of(&given.config().unwrap()), "\"peer\"");
-        assert_eq!(mode_of(&ZenohOptions::default().config().unwrap()), "\"peer\"");
+        assert_eq!(
+            mode_of(&ZenohOptions::default().config().unwrap()),
+            "\"peer\""
+        );
         std::fs::remove_dir_all(&dir).ok();
     }
 

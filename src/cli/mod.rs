@@ -10,6 +10,7 @@ pub mod control_diagnostics;
 pub mod data;
 pub mod eval;
 pub mod learning_curve;
+pub mod router;
 pub mod run;
 pub mod scaling;
 pub mod serve;

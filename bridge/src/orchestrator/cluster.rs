@@ -25,17 +25,30 @@ pub struct Cluster {
     pub endpoint: String,
 }
 
-/// The program of an external adapter command: `{python}` is the project's venv Python if it
-/// exists (`.venv/bin/python`), else `python3` from `PATH`.
-fn external_program(first: &str) -> PathBuf {
+/// The program of an external adapter command run in folder `base`: `{python}` is the venv
+/// Python `base/.venv/bin/python` if it exists, else `python3` from `PATH`; a relative path with
+/// a `/` is taken relative to `base`; a bare name is looked up in `PATH`.
+pub fn external_program(first: &str, base: &Path) -> PathBuf {
     if first == "{python}" {
-        let venv = Path::new(".venv/bin/python");
+        let venv = base.join(".venv/bin/python");
         if venv.exists() {
-            return venv.to_path_buf();
+            return venv;
         }
         return PathBuf::from("python3");
     }
-    PathBuf::from(first)
+    let p = Path::new(first);
+    if p.is_relative() && first.contains('/') {
+        return base.join(p);
+    }
+    p.to_path_buf()
+}
+
+/// `p` made absolute against the current folder (children may run elsewhere).
+fn absolute(p: &Path) -> Result<PathBuf> {
+    std::path::absolute(p).map_err(|e| Error::Io {
+        path: p.to_path_buf(),
+        source: e,
+    })
 }
 
 impl Cluster {
@@ -72,6 +85,18 @@ impl Cluster {
         sims: &[SimSpec],
         services: &[Service],
     ) -> Result<Self> {
+        Self::launch_in(opts, session_id, sims, services, None)
+    }
+
+    /// Like [`Cluster::launch`]; external simulator commands run in folder `base` (their
+    /// `{python}` and relative paths resolve there; default: the current folder).
+    pub fn launch_in(
+        opts: &RunOptions,
+        session_id: &str,
+        sims: &[SimSpec],
+        services: &[Service],
+        base: Option<&Path>,
+    ) -> Result<Self> {
         let keys = Keys::new(session_id)?;
         let mut z = opts.zenoh.clone();
         let endpoint = match z.listen.first() {
@@ -91,31 +116,41 @@ impl Cluster {
             connect: child_connect,
             listen: Vec::new(),
             mode: None,
-            zenoh_config: opts.zenoh.zenoh_config.clone(),
+            zenoh_config: opts
+                .zenoh
+                .zenoh_config
+                .as_deref()
+                .map(absolute)
+                .transpose()?,
         }
         .to_args();
+        let base = absolute(base.unwrap_or(Path::new(".")))?;
         let mut children = Vec::new();
-        let logs = opts.out_dir.join("logs");
+        let logs = absolute(&opts.out_dir.join("logs"))?;
         for spec in sims {
             let id = &spec.id;
-            let (program, mut a) = match &spec.command {
-                Some(cmd) => match cmd.split_first() {
-                    Some((first, rest)) => (external_program(first), rest.to_vec()),
-                    None => return Err(Error::Config(format!("simulator '{id}': empty command"))),
-                },
-                None => (
-                    opts.exe.clone(),
-                    vec!["sim".into(), "--env".into(), spec.env.clone()],
-                ),
+            let name = format!("simulator '{id}'");
+            let log = logs.join(format!("sim-{id}.log"));
+            let tail = ["--id", id, "--session", session_id, "--stdin-lifeline"].map(String::from);
+            let child = match &spec.command {
+                Some(cmd) => {
+                    let Some((first, rest)) = cmd.split_first() else {
+                        return Err(Error::Config(format!("{name}: empty command")));
+                    };
+                    let mut a = rest.to_vec();
+                    a.extend(tail);
+                    a.extend(child_zenoh.iter().cloned());
+                    let program = external_program(first, &base);
+                    ChildProc::spawn_in(&name, &program, &a, &base, &log)?
+                }
+                None => {
+                    let mut a: Vec<String> = vec!["sim".into(), "--env".into(), spec.env.clone()];
+                    a.extend(tail);
+                    a.extend(child_zenoh.iter().cloned());
+                    ChildProc::spawn(&name, &opts.exe, &a, &log)?
+                }
             };
-            a.extend(["--id", id, "--session", session_id, "--stdin-lifeline"].map(String::from));
-            a.extend(child_zenoh.iter().cloned());
-            children.push(ChildProc::spawn(
-                &format!("simulator '{id}'"),
-                &program,
-                &a,
-                &logs.join(format!("sim-{id}.log")),
-            )?);
+            children.push(child);
         }
         if !services.is_empty() {
             let mut a: Vec<String> = vec!["serve".into()];

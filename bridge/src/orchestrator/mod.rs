@@ -4,11 +4,15 @@
 //!
 //! - [`cluster`]: the child processes and the orchestrator's own session ([`Cluster`]);
 //! - [`closed_loop`]: lockstep regulation through the MPC service ([`closed_loop()`]);
+//! - [`validate`]: the whole scenario checked against the simulators' `info` before collection;
+//! - [`reuse`]: a rerun into the same folder reuses unchanged data and models;
 //! - [`run`]: the whole scenario ([`run_scenario`]) and its report.
 
 pub mod closed_loop;
 pub mod cluster;
+pub mod reuse;
 pub mod run;
+pub mod validate;
 
 use std::path::PathBuf;
 use std::time::Duration;

@@ -5,9 +5,10 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use koopman::data::Dataset;
-use koopman::mpc::MpcConfig;
 use serde::{Deserialize, Serialize};
 
+use super::reuse;
+use super::validate::{controlled_sim, mpc_config, validate_scenario};
 use super::{closed_loop, Cluster, ControlReport, ControlTask, Event, RunOptions, SERVICES_ID};
 use crate::client::SimClient;
 use crate::collect::{collect, CollectJob, Split};
@@ -51,6 +52,11 @@ pub struct CollectReport {
     pub macro_steps_per_second: f64,
     /// Dataset files written.
     pub files: Vec<PathBuf>,
+    /// True when this run reused the data a previous run collected into the same folder
+    /// (`[[sims]]`, `[collect]` and the simulators' `info` unchanged); the figures are that
+    /// run's.
+    #[serde(default)]
+    pub reused: bool,
 }
 
 /// Training result of one simulator's model.
@@ -64,30 +70,15 @@ pub struct TrainReport {
     pub job: String,
     /// Metrics reported by the trainer.
     pub metrics: serde_json::Value,
+    /// True when this run reused the model a previous run trained into the same folder from
+    /// the same data and `[train]` section.
+    #[serde(default)]
+    pub reused: bool,
 }
 
 fn save(d: &Dataset, p: &Path) -> Result<PathBuf> {
     d.save_npz(p)?;
     Ok(p.to_path_buf())
-}
-
-/// The MPC settings of a scenario's `[control].mpc` for a simulator: SPEC defaults with the
-/// simulator's input bounds, overlaid with the scenario's fields (unknown fields are an error).
-pub fn mpc_config(
-    info: &SimInfo,
-    overrides: &serde_json::Map<String, serde_json::Value>,
-) -> Result<MpcConfig> {
-    let mut v = serde_json::to_value(MpcConfig::with_bounds(
-        info.u_min.clone(),
-        info.u_max.clone(),
-    ))
-    .map_err(|e| Error::Config(e.to_string()))?;
-    if let Some(o) = v.as_object_mut() {
-        for (k, val) in overrides {
-            o.insert(k.clone(), val.clone());
-        }
-    }
-    serde_json::from_value(v).map_err(|e| Error::Config(format!("[control].mpc: {e}")))
 }
 
 /// The services a scenario needs.
@@ -102,7 +93,10 @@ fn services_of(sc: &Scenario) -> Vec<Service> {
     services
 }
 
-/// Runs a whole scenario. `on` receives progress events.
+/// Runs a whole scenario. `on` receives progress events. Right after the readiness barrier the
+/// whole scenario is checked against the simulators' `info` ([`validate_scenario`]); data and
+/// models a previous run left in the output folder are reused when their sections are
+/// unchanged ([`super::reuse`]).
 pub fn run_scenario(
     sc: &Scenario,
     opts: &RunOptions,
@@ -111,14 +105,90 @@ pub fn run_scenario(
     let t0 = Instant::now();
     let session_id = opts.session.clone().unwrap_or_else(fresh_session_id);
     on(Event::Phase("starting simulators and services"));
-    let cluster = Cluster::launch(opts, &session_id, &sc.sims, &services_of(sc))?;
-    let (client, live) = (&cluster.client, &cluster.live);
+    let cluster = Cluster::launch_in(
+        opts,
+        &session_id,
+        &sc.sims,
+        &services_of(sc),
+        sc.base_dir.as_deref(),
+    )?;
     let mut clients: Vec<SimClient> = sc
         .sims
         .iter()
-        .map(|s| SimClient::connect(client, &s.id, opts.ready_timeout))
+        .map(|s| SimClient::connect(&cluster.client, &s.id, opts.ready_timeout))
         .collect::<Result<_>>()?;
+    let infos: Vec<&SimInfo> = clients.iter().map(|c| &c.info.sim).collect();
+    validate_scenario(sc, &infos)?;
+    let collect_key = reuse::collect_key(sc, &infos);
 
+    let collect_report = collect_phase(sc, opts, &cluster, &mut clients, &collect_key, on)?;
+    let mut train_reports = Vec::new();
+    if let Some(t) = &sc.train {
+        on(Event::Phase("training (trainer service)"));
+        let key = reuse::train_key(&collect_key, t);
+        for s in &sc.sims {
+            train_reports.push(train_one(sc, opts, &cluster, &s.id, &key, on)?);
+        }
+    }
+
+    let mut control = None;
+    if let Some(ctrl) = &sc.control {
+        on(Event::Phase("closed-loop control (MPC service)"));
+        let j = controlled_sim(sc, ctrl);
+        let model = format!("{}-{}", sc.name, sc.sims[j].id);
+        let req = ConfigureRequest {
+            model: model.clone(),
+            mpc: Some(mpc_config(&clients[j].info.sim, &ctrl.mpc)?),
+        };
+        let client = &cluster.client;
+        configure(client, SERVICES_ID, &req, Duration::from_secs(60))?;
+        control = Some(closed_loop(
+            client,
+            &cluster.live,
+            &mut clients[j],
+            &ControlTask {
+                mpc_id: SERVICES_ID,
+                model: &model,
+                x0: &ctrl.x0,
+                reference: &ctrl.reference,
+                steps: ctrl.steps,
+            },
+            &mut |k, n| on(Event::Control(k, n)),
+        )?);
+    }
+    drop(cluster);
+    Ok(Report {
+        scenario: sc.name.clone(),
+        session: session_id,
+        collect: collect_report,
+        train: train_reports,
+        control,
+        wall_seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// Collects the three splits from every simulator and saves them under `out_dir/data/{sim}/`,
+/// or reuses what a previous run with the same `key` saved there.
+fn collect_phase(
+    sc: &Scenario,
+    opts: &RunOptions,
+    cluster: &Cluster,
+    clients: &mut [SimClient],
+    key: &serde_json::Value,
+    on: &mut dyn FnMut(Event<'_>),
+) -> Result<CollectReport> {
+    let record = reuse::collect_record(&opts.out_dir);
+    if let Some(mut r) = reuse::load::<CollectReport>(&record, key) {
+        if r.files.iter().all(|f| f.is_file()) {
+            on(Event::Phase(&format!(
+                "reusing the data collected before in {} ([[sims]], [collect] and the simulators' info are unchanged)",
+                opts.out_dir.join("data").display()
+            )));
+            r.reused = true;
+            return Ok(r);
+        }
+    }
+    reuse::forget(&record)?;
     on(Event::Phase("collecting data (lockstep)"));
     let c = &sc.collect;
     let tc = Instant::now();
@@ -135,7 +205,7 @@ pub fn run_scenario(
             seed: c.seed,
             split,
         };
-        let ds = collect(&mut clients, &job, Some(live), &mut |d, t| {
+        let ds = collect(clients, &job, Some(&cluster.live), &mut |d, t| {
             on(Event::Collect(name, d, t))
         })?;
         per_split.push(ds);
@@ -157,82 +227,74 @@ pub fn run_scenario(
             }
         }
     }
-    let collect_report = CollectReport {
+    let report = CollectReport {
         sims: sc.sims.iter().map(|s| s.id.clone()).collect(),
         windows: [c.train_windows, c.val_windows, c.test_windows],
         steps: c.steps,
         seconds,
         macro_steps_per_second: macro_steps as f64 / seconds.max(1e-9),
         files,
+        reused: false,
     };
+    reuse::store(&record, key, &report)?;
+    Ok(report)
+}
 
-    let mut train_reports = Vec::new();
-    if let Some(t) = &sc.train {
-        on(Event::Phase("training (trainer service)"));
-        for s in &sc.sims {
-            let dir = opts.out_dir.join("data").join(&s.id);
-            let abs = |n: &str| -> DatasetRef {
-                let p = dir.join(format!("{n}.npz"));
-                DatasetRef::Path {
-                    path: std::fs::canonicalize(&p).unwrap_or(p),
-                }
-            };
-            let model = format!("{}-{}", sc.name, s.id);
-            let spec = JobSpec {
-                model: model.clone(),
-                train: abs("train"),
-                val: abs("val"),
-                test: (c.test_windows > 0).then(|| abs("test")),
-                config: t.config.clone(),
-            };
-            // The simulators are needed again after training: a lost one ends the run now.
-            let sims: Vec<(Role, String)> =
-                sc.sims.iter().map(|s| (Role::Sim, s.id.clone())).collect();
-            let rec =
-                submit_and_wait_watching(client, live, SERVICES_ID, &spec, &sims, &mut |p| {
-                    on(Event::Train(p))
-                })?;
-            train_reports.push(TrainReport {
-                sim: s.id.clone(),
-                model,
-                job: rec.job,
-                metrics: rec.metrics.unwrap_or_default(),
-            });
+/// Trains simulator `sim`'s model through the trainer service, or reuses the model a previous
+/// run with the same `key` trained into the store.
+fn train_one(
+    sc: &Scenario,
+    opts: &RunOptions,
+    cluster: &Cluster,
+    sim: &str,
+    key: &serde_json::Value,
+    on: &mut dyn FnMut(Event<'_>),
+) -> Result<TrainReport> {
+    let model = format!("{}-{}", sc.name, sim);
+    let record = reuse::train_record(&opts.out_dir, sim);
+    let stored = opts.out_dir.join("models").join(&model);
+    if let Some(mut r) = reuse::load::<TrainReport>(&record, key) {
+        if stored.join("config.json").is_file() {
+            on(Event::Phase(&format!(
+                "reusing model '{model}' trained before in {} (same data and [train])",
+                stored.display()
+            )));
+            r.reused = true;
+            return Ok(r);
         }
     }
-
-    let mut control = None;
-    if let Some(ctrl) = &sc.control {
-        on(Event::Phase("closed-loop control (MPC service)"));
-        let sim_id = ctrl.sim.clone().unwrap_or_else(|| sc.sims[0].id.clone());
-        let j = sc.sims.iter().position(|s| s.id == sim_id).unwrap_or(0);
-        let model = format!("{}-{}", sc.name, sim_id);
-        let req = ConfigureRequest {
-            model: model.clone(),
-            mpc: Some(mpc_config(&clients[j].info.sim, &ctrl.mpc)?),
-        };
-        configure(client, SERVICES_ID, &req, Duration::from_secs(60))?;
-        control = Some(closed_loop(
-            client,
-            live,
-            &mut clients[j],
-            &ControlTask {
-                mpc_id: SERVICES_ID,
-                model: &model,
-                x0: &ctrl.x0,
-                reference: &ctrl.reference,
-                steps: ctrl.steps,
-            },
-            &mut |k, n| on(Event::Control(k, n)),
-        )?);
-    }
-    drop(cluster);
-    Ok(Report {
-        scenario: sc.name.clone(),
-        session: session_id,
-        collect: collect_report,
-        train: train_reports,
-        control,
-        wall_seconds: t0.elapsed().as_secs_f64(),
-    })
+    reuse::forget(&record)?;
+    let t = sc
+        .train
+        .as_ref()
+        .ok_or_else(|| Error::Config("no [train]".into()))?;
+    let dir = opts.out_dir.join("data").join(sim);
+    let abs = |n: &str| -> DatasetRef {
+        let p = dir.join(format!("{n}.npz"));
+        DatasetRef::Path {
+            path: std::fs::canonicalize(&p).unwrap_or(p),
+        }
+    };
+    let spec = JobSpec {
+        model: model.clone(),
+        train: abs("train"),
+        val: abs("val"),
+        test: (sc.collect.test_windows > 0).then(|| abs("test")),
+        config: t.config.clone(),
+    };
+    // The simulators are needed again after training: a lost one ends the run now.
+    let sims: Vec<(Role, String)> = sc.sims.iter().map(|s| (Role::Sim, s.id.clone())).collect();
+    let (client, live) = (&cluster.client, &cluster.live);
+    let rec = submit_and_wait_watching(client, live, SERVICES_ID, &spec, &sims, &mut |p| {
+        on(Event::Train(p))
+    })?;
+    let report = TrainReport {
+        sim: sim.to_string(),
+        model,
+        job: rec.job,
+        metrics: rec.metrics.unwrap_or_default(),
+        reused: false,
+    };
+    reuse::store(&record, key, &report)?;
+    Ok(report)
 }

@@ -84,7 +84,12 @@ mod tests {
             assert_eq!(s.as_str().parse::<Service>().unwrap(), s);
             assert_eq!(s.role().as_str(), s.as_str());
         }
-        let e = Service::parse_all(&["mpc", "modles"]).unwrap_err().to_string();
-        assert!(e.contains("'modles'") && e.contains("trainer, mpc, recorder, models"), "{e}");
+        let e = Service::parse_all(&["mpc", "modles"])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("'modles'") && e.contains("trainer, mpc, recorder, models"),
+            "{e}"
+        );
     }
 }
