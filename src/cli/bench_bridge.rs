@@ -113,6 +113,7 @@ pub fn run(args: BenchBridgeArgs) -> anyhow::Result<()> {
         zenoh: args.zenoh.options(),
         session: Some(session_id.clone()),
         ready_timeout: Duration::from_secs(60),
+        attach_existing: false,
     };
     let mut cluster = Cluster::start(
         &opts,

@@ -34,6 +34,12 @@ pub struct RunArgs {
     /// Session id (default: a fresh one).
     #[arg(long)]
     pub session: Option<String>,
+    /// Use the simulators and services already in the session (e.g. started by hand behind a
+    /// router given with --connect), found by their liveliness tokens, and start only the
+    /// missing ones. Without it the run refuses to start while a participant with the same role
+    /// and id is there.
+    #[arg(long)]
+    pub attach_existing: bool,
     /// Seconds to wait for every participant to be ready.
     #[arg(long, default_value_t = 60.0)]
     pub ready_timeout: f64,
@@ -58,6 +64,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         zenoh: args.zenoh.options(),
         session: args.session.clone(),
         ready_timeout: Duration::from_secs_f64(args.ready_timeout),
+        attach_existing: args.attach_existing,
     };
     let bar = indicatif::ProgressBar::new(0);
     bar.set_style(

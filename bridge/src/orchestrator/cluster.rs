@@ -23,6 +23,45 @@ pub struct Cluster {
     pub live: Liveliness,
     /// The endpoint children connect to.
     pub endpoint: String,
+    /// The participants that were already in the session and were used, not started
+    /// ([`RunOptions::attach_existing`]).
+    pub existing: Vec<(Role, String)>,
+}
+
+/// How long the liveliness tokens of participants already in the session are given to arrive.
+const DISCOVERY: Duration = Duration::from_millis(1500);
+
+/// The participants of `who` already in the session. Only looked for when this process connects
+/// somewhere (without `--connect` or a config file nobody else can be reached: multicast
+/// scouting is off); waits up to [`DISCOVERY`], less once all of `who` are found.
+fn already_present(
+    live: &Liveliness,
+    who: &[(Role, String)],
+    z: &ZenohOptions,
+) -> Vec<(Role, String)> {
+    if z.connect.is_empty() && z.zenoh_config.is_none() {
+        return Vec::new();
+    }
+    let deadline = Instant::now() + DISCOVERY;
+    loop {
+        let found: Vec<(Role, String)> = who
+            .iter()
+            .filter(|(r, id)| live.is_alive(*r, id))
+            .cloned()
+            .collect();
+        if found.len() == who.len() || Instant::now() >= deadline {
+            return found;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// `role/id, …` for messages.
+pub fn names(who: &[(Role, String)]) -> String {
+    who.iter()
+        .map(|(r, id)| format!("{}/{id}", r.as_str()))
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// The program of an external adapter command run in folder `base`: `{python}` is the venv
@@ -110,6 +149,21 @@ impl Cluster {
         let session = open_session(&z)?;
         let client = Client::new(session, keys);
         let live = Liveliness::new(&client)?;
+        let mut who: Vec<(Role, String)> = sims.iter().map(|s| (Role::Sim, s.id.clone())).collect();
+        who.extend(services.iter().map(|s| (s.role(), SERVICES_ID.to_string())));
+        let existing = already_present(&live, &who, &opts.zenoh);
+        if !existing.is_empty() && !opts.attach_existing {
+            return Err(Error::Config(format!(
+                "already in session '{session_id}': {}; use them with --attach-existing, or run in another --session",
+                names(&existing)
+            )));
+        }
+        let missing = |role: Role, id: &str| !existing.iter().any(|(r, i)| *r == role && i == id);
+        let services: Vec<Service> = services
+            .iter()
+            .copied()
+            .filter(|s| missing(s.role(), SERVICES_ID))
+            .collect();
         let mut child_connect: Vec<String> = vec![endpoint.clone()];
         child_connect.extend(opts.zenoh.connect.iter().cloned());
         let child_zenoh = ZenohOptions {
@@ -127,7 +181,7 @@ impl Cluster {
         let base = absolute(base.unwrap_or(Path::new(".")))?;
         let mut children = Vec::new();
         let logs = absolute(&opts.out_dir.join("logs"))?;
-        for spec in sims {
+        for spec in sims.iter().filter(|s| missing(Role::Sim, &s.id)) {
             let id = &spec.id;
             let name = format!("simulator '{id}'");
             let log = logs.join(format!("sim-{id}.log"));
@@ -181,9 +235,8 @@ impl Cluster {
             client,
             live,
             endpoint,
+            existing,
         };
-        let mut who: Vec<(Role, String)> = sims.iter().map(|s| (Role::Sim, s.id.clone())).collect();
-        who.extend(services.iter().map(|s| (s.role(), SERVICES_ID.to_string())));
         c.wait_ready(&who, opts.ready_timeout)?;
         Ok(c)
     }

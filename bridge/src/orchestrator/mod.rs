@@ -39,6 +39,10 @@ pub struct RunOptions {
     pub session: Option<String>,
     /// Readiness timeout.
     pub ready_timeout: Duration,
+    /// Use the simulators and services that are already in the session (found by their
+    /// liveliness tokens) and start only the missing ones; `false`: refuse to start while a
+    /// participant with the same role and id is already there.
+    pub attach_existing: bool,
 }
 
 /// What the progress callback is told.

@@ -112,6 +112,12 @@ pub fn run_scenario(
         &services_of(sc),
         sc.base_dir.as_deref(),
     )?;
+    if !cluster.existing.is_empty() {
+        on(Event::Phase(&format!(
+            "using the participants already in session '{session_id}': {}",
+            super::cluster::names(&cluster.existing)
+        )));
+    }
     let mut clients: Vec<SimClient> = sc
         .sims
         .iter()

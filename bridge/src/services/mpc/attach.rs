@@ -67,33 +67,45 @@ pub(super) struct Attached {
 /// `dimension` error.
 pub fn clamp_bounds_to_sim(cfg: &mut MpcConfig, info: &SimInfo) -> Result<()> {
     let nu = info.nu();
-    let sides: [(&str, &mut Option<Vec<f64>>, &[f64], fn(f64, f64) -> f64); 2] = [
-        ("u_min", &mut cfg.u_min, &info.u_min, f64::max),
-        ("u_max", &mut cfg.u_max, &info.u_max, f64::min),
-    ];
-    for (name, given, sim, tighter) in sides {
-        if sim.len() != nu {
-            return Err(Error::protocol(
-                ErrorCode::Dimension,
-                format!("simulator {name} has {} values for {nu} inputs", sim.len()),
-            ));
-        }
-        let merged = match given.as_deref() {
-            None => sim.to_vec(),
-            Some(g) if g.len() != nu => {
-                return Err(Error::protocol(
-                    ErrorCode::Dimension,
-                    format!(
-                        "{name} has {} values, the simulator has {nu} inputs",
-                        g.len()
-                    ),
-                ))
-            }
-            Some(g) => g.iter().zip(sim).map(|(&a, &b)| tighter(a, b)).collect(),
-        };
-        *given = Some(merged);
-    }
+    cfg.u_min = Some(tighten(
+        "u_min",
+        cfg.u_min.as_deref(),
+        &info.u_min,
+        nu,
+        f64::max,
+    )?);
+    cfg.u_max = Some(tighten(
+        "u_max",
+        cfg.u_max.as_deref(),
+        &info.u_max,
+        nu,
+        f64::min,
+    )?);
     Ok(())
+}
+
+/// One side of the input box: the simulator's bounds `sim`, tightened by `given` with `pick`.
+fn tighten(
+    name: &str,
+    given: Option<&[f64]>,
+    sim: &[f64],
+    nu: usize,
+    pick: fn(f64, f64) -> f64,
+) -> Result<Vec<f64>> {
+    let dim = |what: &str, n: usize| {
+        Error::protocol(
+            ErrorCode::Dimension,
+            format!("{what} {name} has {n} values for {nu} inputs"),
+        )
+    };
+    if sim.len() != nu {
+        return Err(dim("the simulator's", sim.len()));
+    }
+    match given {
+        None => Ok(sim.to_vec()),
+        Some(g) if g.len() != nu => Err(dim("the configured", g.len())),
+        Some(g) => Ok(g.iter().zip(sim).map(|(&a, &b)| pick(a, b)).collect()),
+    }
 }
 
 fn reply(code: ErrorCode, m: String) -> ErrorReply {
@@ -284,4 +296,33 @@ fn control_loop(
         stats.latency_p99_us = lat[((lat.len() as f64 * 0.99) as usize).min(lat.len() - 1)];
     }
     stats
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bounds_are_the_simulators_tightened_by_the_configured_ones() {
+        let sys = koopman::systems::by_name("double-pendulum").unwrap();
+        let info = SimInfo::from_system(sys.as_ref()); // ±6 on two inputs
+        let mut cfg = MpcConfig::default();
+        clamp_bounds_to_sim(&mut cfg, &info).unwrap();
+        assert_eq!(cfg.u_min, Some(vec![-6.0, -6.0]));
+        assert_eq!(cfg.u_max, Some(vec![6.0, 6.0]));
+        let mut cfg = MpcConfig {
+            u_min: Some(vec![-10.0, -2.0]),
+            u_max: Some(vec![1.0, 60.0]),
+            ..Default::default()
+        };
+        clamp_bounds_to_sim(&mut cfg, &info).unwrap();
+        assert_eq!(cfg.u_min, Some(vec![-6.0, -2.0]));
+        assert_eq!(cfg.u_max, Some(vec![1.0, 6.0]));
+        let mut bad = MpcConfig {
+            u_max: Some(vec![1.0]),
+            ..Default::default()
+        };
+        let e = clamp_bounds_to_sim(&mut bad, &info).unwrap_err();
+        assert_eq!(e.to_reply().code, ErrorCode::Dimension);
+    }
 }
