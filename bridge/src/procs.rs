@@ -1,8 +1,10 @@
 //! Child processes of the orchestrator: started from the current executable with a stdin
-//! "lifeline" (they exit when it closes), logs to files, killed when dropped.
+//! "lifeline" (they exit when it closes), logs to files; when dropped, released and given
+//! [`GRACE`] to exit on their own before they are killed.
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
 
 use crate::error::{Error, Result};
 
@@ -122,6 +124,25 @@ impl ChildProc {
         }
     }
 
+    /// Closes the lifeline (standard input): a child started with `--stdin-lifeline` closes its
+    /// Zenoh session and exits on its own.
+    pub fn release(&mut self) {
+        drop(self.child.stdin.take());
+    }
+
+    /// Waits until `deadline` for the process to exit, then kills it; reaps it.
+    pub fn reap(&mut self, deadline: Instant) {
+        loop {
+            match self.child.try_wait() {
+                Ok(None) if Instant::now() < deadline => {
+                    std::thread::sleep(Duration::from_millis(10))
+                }
+                Ok(None) => return self.kill(),
+                _ => return,
+            }
+        }
+    }
+
     /// Kills the process (if still running) and reaps it.
     pub fn kill(&mut self) {
         drop(self.child.stdin.take());
@@ -132,9 +153,25 @@ impl ChildProc {
     }
 }
 
+/// How long a released child is given to exit on its own before it is killed.
+pub const GRACE: Duration = Duration::from_secs(2);
+
+/// Releases every child first, then reaps each within [`GRACE`]: they close their sessions
+/// while their peers are still there (no transport errors in their logs).
+pub fn stop_all(children: &mut [ChildProc]) {
+    for c in children.iter_mut() {
+        c.release();
+    }
+    let deadline = Instant::now() + GRACE;
+    for c in children.iter_mut() {
+        c.reap(deadline);
+    }
+}
+
 impl Drop for ChildProc {
     fn drop(&mut self) {
-        self.kill();
+        self.release();
+        self.reap(Instant::now() + GRACE);
     }
 }
 
