@@ -55,8 +55,9 @@ pub fn repository_of(file: &Path) -> PathBuf {
 pub struct SimSpec {
     /// Its id (`[a-z0-9_-]`).
     pub id: String,
-    /// The built-in system (`koopbridge sim --env`), or, with `command`, the reference system the
-    /// external simulator implements (used in reports).
+    /// The built-in system (`koopbridge sim --env`); required without `command`. With `command`,
+    /// optionally the reference system the external simulator implements (for reports).
+    #[serde(default)]
     pub env: String,
     /// An external adapter to start instead of `koopbridge sim` (program and arguments). It runs
     /// in the repository of the scenario file ([`Scenario::base_dir`]): relative paths resolve
@@ -190,6 +191,12 @@ impl Scenario {
         }
         for (i, s) in self.sims.iter().enumerate() {
             validate_chunk("sim id", &s.id)?;
+            if s.command.is_none() && s.env.is_empty() {
+                return Err(Error::Config(format!(
+                    "sim '{}' needs `env` (a built-in system) or `command` (an external adapter)",
+                    s.id
+                )));
+            }
             if self.sims[..i].iter().any(|o| o.id == s.id) {
                 return Err(Error::Config(format!("sim id '{}' appears twice", s.id)));
             }
@@ -303,6 +310,11 @@ train_config = { iterations = 60000 }
         assert!(Scenario::parse(&GOOD.replace("\"demo\"", "\"De mo\"")).is_err());
         assert!(Scenario::parse(&GOOD.replace("train_windows = 10", "train_windows = 0")).is_err());
         assert!(Scenario::parse(&GOOD.replace("steps = 20", "steps = 20\nbogus = 1")).is_err());
+        // `env` is required for a built-in simulator only.
+        let no_env = GOOD.replace("env = \"damped-pendulum\"", "");
+        assert!(Scenario::parse(&no_env).is_err());
+        let cmd = no_env.replace("id = \"pend\"", "id = \"pend\"\ncommand = [\"my-adapter\"]");
+        assert_eq!(Scenario::parse(&cmd).unwrap().sims[0].env, "");
         assert!(Scenario::parse(&GOOD.replace("[[sims]]", "base_dir = \"/\"\n[[sims]]")).is_err());
         assert!(Scenario::parse(&GOOD.replace(
             "[[sims]]\nid = \"pend\"",
