@@ -88,9 +88,10 @@ fn attached_mpc_answers_every_state_of_a_free_running_simulator() {
         (0, 0, 0, &None)
     );
     assert_eq!(s.commands + s.skipped, s.states);
-    // Only the newest queued state is answered: a few may be skipped on a loaded machine.
+    // Only the newest queued state is answered: some are skipped when this process is not
+    // scheduled for a period (a loaded machine); the same bound as the adapter's below.
     assert!(
-        s.skipped < steps / 10,
+        s.skipped < steps / 4,
         "{} states skipped at 100 Hz",
         s.skipped
     );
