@@ -37,6 +37,8 @@ enum Command {
     Serve(cli::serve::ServeArgs),
     /// Run a scenario file: collection → training → control → report.
     Run(cli::run::RunArgs),
+    /// Run a plain Zenoh router (scale-out: services and simulators on several hosts).
+    Router(cli::router::RouterArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -54,6 +56,7 @@ fn main() -> std::process::ExitCode {
         Command::Sim(a) => cli::sim::run(a),
         Command::Serve(a) => cli::serve::run(a),
         Command::Run(a) => cli::run::run(a),
+        Command::Router(a) => cli::router::run(a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

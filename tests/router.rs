@@ -1,5 +1,6 @@
-//! A run through a node in router mode: the simulator and this test are Zenoh clients of a
-//! `koopbridge` process started with `--mode router`; nothing connects peer to peer.
+//! Runs through a router: the simulator and this test are Zenoh clients of a `koopbridge`
+//! process started with `--mode router` or of `koopbridge router`; nothing connects peer to
+//! peer. And a `--zenoh-config` file's mode is not overwritten by a `--mode` not given.
 
 mod common;
 
@@ -42,7 +43,7 @@ fn lockstep_through_a_router() {
     // Connecting as a client retries until the router listens.
     let z = ZenohOptions {
         connect: vec![ep.clone()],
-        mode: Mode::Client,
+        mode: Some(Mode::Client),
         ..Default::default()
     };
     let mut session_handle = None;
@@ -95,4 +96,118 @@ fn lockstep_through_a_router() {
     for k in 0..10 {
         assert_eq!(sim.step(&[1.0], Some(&live)).unwrap().k, k + 1);
     }
+}
+
+/// `koopbridge router` is a plain router: a simulator and this test, both Zenoh clients of it,
+/// run a lockstep exchange through it.
+#[test]
+fn the_router_command_carries_a_lockstep_run() {
+    let dir = common::scratch("router-cmd");
+    let session = fresh_session_id();
+    let ep = free_loopback_endpoint().unwrap();
+    let s = |v: &[&str]| v.iter().map(|x| x.to_string()).collect::<Vec<_>>();
+    let _router = ChildProc::spawn(
+        "router",
+        &common::exe(),
+        &s(&["router", "--listen", &ep, "--stdin-lifeline"]),
+        &dir.join("router.log"),
+    )
+    .unwrap();
+    let z = ZenohOptions {
+        connect: vec![ep.clone()],
+        mode: Some(Mode::Client),
+        ..Default::default()
+    };
+    let handle = (0..100)
+        .find_map(|_| {
+            open_session(&z)
+                .map_err(|_| std::thread::sleep(Duration::from_millis(200)))
+                .ok()
+        })
+        .expect("could not reach the router");
+    let client = Client::new(handle, Keys::new(&session).unwrap());
+    let live = Liveliness::new(&client).unwrap();
+    let _sim = ChildProc::spawn(
+        "sim",
+        &common::exe(),
+        &s(&[
+            "sim",
+            "--env",
+            "damped-pendulum",
+            "--id",
+            "r2",
+            "--session",
+            &session,
+            "--mode",
+            "client",
+            "--connect",
+            &ep,
+            "--stdin-lifeline",
+        ]),
+        &dir.join("sim.log"),
+    )
+    .unwrap();
+    live.wait_for(&[(bridge::keyexpr::Role::Sim, "r2".into())], common::READY)
+        .unwrap();
+    let mut sim = SimClient::connect(&client, "r2", common::READY).unwrap();
+    sim.reset(&ResetRequest {
+        seed: Some(3),
+        x0: None,
+    })
+    .unwrap();
+    for k in 0..5 {
+        assert_eq!(sim.step(&[0.5], Some(&live)).unwrap().k, k + 1);
+    }
+    // It says where it listens (once its session is open, which may be after it routes).
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
+    let log = loop {
+        let log = std::fs::read_to_string(dir.join("router.log")).unwrap();
+        if log.contains("listening on") || std::time::Instant::now() > deadline {
+            break log;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(log.contains(&format!("listening on [\"{ep}\"]")), "{log}");
+}
+
+/// A `--zenoh-config` file's `mode` is kept when `--mode` is not given (it used to be
+/// overwritten by the flag's default, `peer`): a file that makes the simulator a client of a
+/// router that is not there ends it at once with an error, where a peer would have kept running.
+#[test]
+fn a_config_files_mode_is_not_overwritten_by_an_absent_flag() {
+    let dir = common::scratch("zcfg-mode");
+    let dead = free_loopback_endpoint().unwrap();
+    let cfg = dir.join("client.json5");
+    std::fs::write(
+        &cfg,
+        format!("{{ mode: \"client\", connect: {{ endpoints: [\"{dead}\"] }} }}"),
+    )
+    .unwrap();
+    let mut sim = ChildProc::spawn(
+        "sim",
+        &common::exe(),
+        &[
+            "sim",
+            "--id",
+            "c",
+            "--zenoh-config",
+            cfg.to_str().unwrap(),
+            "--stdin-lifeline",
+        ]
+        .map(String::from),
+        &dir.join("sim.log"),
+    )
+    .unwrap();
+    let deadline = std::time::Instant::now() + Duration::from_secs(60);
+    let msg = loop {
+        if let Some(m) = sim.exited() {
+            break m;
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the simulator kept running: it ignored the file's client mode"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(msg.contains("cannot open session"), "{msg}");
 }

@@ -107,6 +107,11 @@ impl Keys {
         self.checked("mpc id", id, &["mpc", id, "solve"])
     }
 
+    /// `…/mpc/{id}/configure`.
+    pub fn mpc_configure(&self, id: &str) -> Result<String> {
+        self.checked("mpc id", id, &["mpc", id, "configure"])
+    }
+
     /// `…/mpc/{id}/attach`.
     pub fn mpc_attach(&self, id: &str) -> Result<String> {
         self.checked("mpc id", id, &["mpc", id, "attach"])
@@ -231,6 +236,10 @@ mod tests {
         assert_eq!(
             k.planner_plan("p0").unwrap(),
             "koopbridge/s1/planner/p0/plan"
+        );
+        assert_eq!(
+            k.mpc_configure("m").unwrap(),
+            "koopbridge/s1/mpc/m/configure"
         );
         assert_eq!(
             k.alive(Role::Mpc, "m").unwrap(),

@@ -1,8 +1,10 @@
 //! Child processes of the orchestrator: started from the current executable with a stdin
-//! "lifeline" (they exit when it closes), logs to files, killed when dropped.
+//! "lifeline" (they exit when it closes), logs to files; when dropped, released and given
+//! [`GRACE`] to exit on their own before they are killed.
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
 
 use crate::error::{Error, Result};
 
@@ -12,13 +14,41 @@ pub struct ChildProc {
     pub name: String,
     /// Its log file (stderr and stdout).
     pub log: PathBuf,
+    /// The command line it was started with (for messages).
+    pub command_line: String,
     child: Child,
+}
+
+/// `exe args…` as one line, arguments with spaces or quotes in single quotes.
+pub fn command_line(exe: &Path, args: &[String]) -> String {
+    std::iter::once(exe.display().to_string())
+        .chain(args.iter().cloned())
+        .map(|a| {
+            if a.is_empty() || a.contains([' ', '\'', '"', '\t']) {
+                format!("'{}'", a.replace('\'', "'\\''"))
+            } else {
+                a
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 impl ChildProc {
     /// Starts `exe args…` with stdin piped (the lifeline) and output to `log`.
     pub fn spawn(name: &str, exe: &Path, args: &[String], log: &Path) -> Result<Self> {
-        Self::spawn_env(name, exe, args, &[], log)
+        Self::start(name, exe, args, &[], None, log)
+    }
+
+    /// [`ChildProc::spawn`] in folder `dir`.
+    pub fn spawn_in(
+        name: &str,
+        exe: &Path,
+        args: &[String],
+        dir: &Path,
+        log: &Path,
+    ) -> Result<Self> {
+        Self::start(name, exe, args, &[], Some(dir), log)
     }
 
     /// [`ChildProc::spawn`] with extra environment variables `env` (name, value).
@@ -27,6 +57,19 @@ impl ChildProc {
         exe: &Path,
         args: &[String],
         env: &[(&str, &str)],
+        log: &Path,
+    ) -> Result<Self> {
+        Self::start(name, exe, args, env, None, log)
+    }
+
+    /// Starts the process; a program that cannot be started is a configuration error that names
+    /// the participant and the command line.
+    fn start(
+        name: &str,
+        exe: &Path,
+        args: &[String],
+        env: &[(&str, &str)],
+        dir: Option<&Path>,
         log: &Path,
     ) -> Result<Self> {
         let io = |p: &Path, e| Error::Io {
@@ -38,17 +81,26 @@ impl ChildProc {
         }
         let out = std::fs::File::create(log).map_err(|e| io(log, e))?;
         let err = out.try_clone().map_err(|e| io(log, e))?;
-        let child = Command::new(exe)
-            .args(args)
+        let command_line = command_line(exe, args);
+        let mut cmd = Command::new(exe);
+        cmd.args(args)
             .envs(env.iter().copied())
             .stdin(Stdio::piped())
             .stdout(Stdio::from(out))
-            .stderr(Stdio::from(err))
-            .spawn()
-            .map_err(|e| io(exe, e))?;
+            .stderr(Stdio::from(err));
+        if let Some(d) = dir {
+            cmd.current_dir(d);
+        }
+        let child = cmd.spawn().map_err(|e| {
+            let in_dir = dir.map_or(String::new(), |d| format!(" in {}", d.display()));
+            Error::Config(format!(
+                "{name} could not be started ({e}): {command_line}{in_dir}"
+            ))
+        })?;
         Ok(ChildProc {
             name: name.to_string(),
             log: log.to_path_buf(),
+            command_line,
             child,
         })
     }
@@ -62,12 +114,32 @@ impl ChildProc {
     pub fn exited(&mut self) -> Option<String> {
         match self.child.try_wait() {
             Ok(Some(status)) => Some(format!(
-                "{} exited ({status}); end of {}:\n{}",
+                "{} exited ({status}); its command line: {}\nend of {}:\n{}",
                 self.name,
+                self.command_line,
                 self.log.display(),
                 tail(&self.log, 1500)
             )),
             _ => None,
+        }
+    }
+
+    /// Closes the lifeline (standard input): a child started with `--stdin-lifeline` closes its
+    /// Zenoh session and exits on its own.
+    pub fn release(&mut self) {
+        drop(self.child.stdin.take());
+    }
+
+    /// Waits until `deadline` for the process to exit, then kills it; reaps it.
+    pub fn reap(&mut self, deadline: Instant) {
+        loop {
+            match self.child.try_wait() {
+                Ok(None) if Instant::now() < deadline => {
+                    std::thread::sleep(Duration::from_millis(10))
+                }
+                Ok(None) => return self.kill(),
+                _ => return,
+            }
         }
     }
 
@@ -81,9 +153,25 @@ impl ChildProc {
     }
 }
 
+/// How long a released child is given to exit on its own before it is killed.
+pub const GRACE: Duration = Duration::from_secs(2);
+
+/// Releases every child first, then reaps each within [`GRACE`]: they close their sessions
+/// while their peers are still there (no transport errors in their logs).
+pub fn stop_all(children: &mut [ChildProc]) {
+    for c in children.iter_mut() {
+        c.release();
+    }
+    let deadline = Instant::now() + GRACE;
+    for c in children.iter_mut() {
+        c.reap(deadline);
+    }
+}
+
 impl Drop for ChildProc {
     fn drop(&mut self) {
-        self.kill();
+        self.release();
+        self.reap(Instant::now() + GRACE);
     }
 }
 

@@ -1,7 +1,7 @@
 //! Scenario files (`scenarios/*.toml`): which simulators, how data is collected, how the model
 //! is trained and how it is used for control.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
@@ -30,6 +30,23 @@ pub struct Scenario {
     /// Overrides applied with `koopbridge run --full` (the SPEC budget).
     #[serde(default)]
     pub full: Option<FullSpec>,
+    /// The folder external simulator commands run in (where `{python}` and their relative
+    /// paths resolve): set by [`Scenario::load`] to the repository holding the scenario file
+    /// ([`repository_of`]); `None` (parsed text) = the current folder. Not a TOML field.
+    #[serde(skip)]
+    pub base_dir: Option<PathBuf>,
+}
+
+/// The repository a file belongs to: the nearest folder above it that holds `.git`, else the
+/// file's own folder.
+pub fn repository_of(file: &Path) -> PathBuf {
+    let dir = std::fs::canonicalize(file)
+        .ok()
+        .and_then(|p| p.parent().map(Path::to_path_buf))
+        .unwrap_or_else(|| PathBuf::from("."));
+    dir.ancestors()
+        .find(|d| d.join(".git").exists())
+        .map_or_else(|| dir.clone(), Path::to_path_buf)
 }
 
 /// A simulator to start.
@@ -38,12 +55,15 @@ pub struct Scenario {
 pub struct SimSpec {
     /// Its id (`[a-z0-9_-]`).
     pub id: String,
-    /// The built-in system (`koopbridge sim --env`), or, with `command`, the reference system the
-    /// external simulator implements (used in reports).
+    /// The built-in system (`koopbridge sim --env`); required without `command`. With `command`,
+    /// optionally the reference system the external simulator implements (for reports).
+    #[serde(default)]
     pub env: String,
-    /// An external adapter to start instead of `koopbridge sim` (program and arguments). `{python}`
-    /// as the program means the project's venv Python (`.venv/bin/python`, else `python3`). The
-    /// orchestrator appends `--id ID --session S --stdin-lifeline --connect ENDPOINT`.
+    /// An external adapter to start instead of `koopbridge sim` (program and arguments). It runs
+    /// in the repository of the scenario file ([`Scenario::base_dir`]): relative paths resolve
+    /// there, and `{python}` as the program means that repository's venv Python
+    /// (`.venv/bin/python`, else `python3` from `PATH`). The orchestrator appends
+    /// `--id ID --session S --stdin-lifeline --connect ENDPOINT`.
     #[serde(default)]
     pub command: Option<Vec<String>>,
 }
@@ -148,7 +168,10 @@ impl Scenario {
             path: path.to_path_buf(),
             source: e,
         })?;
-        Self::parse(&text).map_err(|e| Error::Config(format!("{}: {e}", path.display())))
+        let mut s =
+            Self::parse(&text).map_err(|e| Error::Config(format!("{}: {e}", path.display())))?;
+        s.base_dir = Some(repository_of(path));
+        Ok(s)
     }
 
     /// Parses and validates scenario text.
@@ -168,6 +191,12 @@ impl Scenario {
         }
         for (i, s) in self.sims.iter().enumerate() {
             validate_chunk("sim id", &s.id)?;
+            if s.command.is_none() && s.env.is_empty() {
+                return Err(Error::Config(format!(
+                    "sim '{}' needs `env` (a built-in system) or `command` (an external adapter)",
+                    s.id
+                )));
+            }
             if self.sims[..i].iter().any(|o| o.id == s.id) {
                 return Err(Error::Config(format!("sim id '{}' appears twice", s.id)));
             }
@@ -227,6 +256,23 @@ impl Scenario {
 mod tests {
     use super::*;
 
+    #[test]
+    fn commands_resolve_against_the_scenario_files_repository() {
+        let root = std::env::temp_dir().join(format!("kb-repo-{}", std::process::id()));
+        let sc = root.join("scenarios/deep");
+        std::fs::create_dir_all(&sc).unwrap();
+        std::fs::create_dir_all(root.join(".git")).unwrap();
+        let file = sc.join("s.toml");
+        std::fs::write(&file, GOOD).unwrap();
+        let s = Scenario::load(&file).unwrap();
+        let root = std::fs::canonicalize(&root).unwrap();
+        assert_eq!(s.base_dir.as_deref(), Some(root.as_path()));
+        // Outside any repository: the file's folder.
+        std::fs::remove_dir_all(root.join(".git")).unwrap();
+        assert_eq!(repository_of(&file), std::fs::canonicalize(&sc).unwrap());
+        std::fs::remove_dir_all(&root).ok();
+    }
+
     const GOOD: &str = r#"
 name = "demo"
 [[sims]]
@@ -264,6 +310,12 @@ train_config = { iterations = 60000 }
         assert!(Scenario::parse(&GOOD.replace("\"demo\"", "\"De mo\"")).is_err());
         assert!(Scenario::parse(&GOOD.replace("train_windows = 10", "train_windows = 0")).is_err());
         assert!(Scenario::parse(&GOOD.replace("steps = 20", "steps = 20\nbogus = 1")).is_err());
+        // `env` is required for a built-in simulator only.
+        let no_env = GOOD.replace("env = \"damped-pendulum\"", "");
+        assert!(Scenario::parse(&no_env).is_err());
+        let cmd = no_env.replace("id = \"pend\"", "id = \"pend\"\ncommand = [\"my-adapter\"]");
+        assert_eq!(Scenario::parse(&cmd).unwrap().sims[0].env, "");
+        assert!(Scenario::parse(&GOOD.replace("[[sims]]", "base_dir = \"/\"\n[[sims]]")).is_err());
         assert!(Scenario::parse(&GOOD.replace(
             "[[sims]]\nid = \"pend\"",
             "[[sims]]\nid = \"pend\"\n[[sims]]\nid = \"pend\""

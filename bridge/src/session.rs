@@ -13,7 +13,7 @@ use zenoh::{Session, Wait};
 use crate::error::{Error, Result};
 
 /// Zenoh's role for this process.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Mode {
     /// A peer: connects directly to other peers (the embedded default).
     #[default]
@@ -25,7 +25,8 @@ pub enum Mode {
 }
 
 impl Mode {
-    fn as_str(self) -> &'static str {
+    /// The name Zenoh and the command line use (`peer`, `client`, `router`).
+    pub fn as_str(self) -> &'static str {
         match self {
             Mode::Peer => "peer",
             Mode::Client => "client",
@@ -34,23 +35,36 @@ impl Mode {
     }
 }
 
-/// Zenoh options shared by every koopbridge command that talks over Zenoh.
-#[derive(Clone, Debug, Default, clap::Args)]
+impl std::str::FromStr for Mode {
+    type Err = Error;
+
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "peer" => Ok(Mode::Peer),
+            "client" => Ok(Mode::Client),
+            "router" => Ok(Mode::Router),
+            other => Err(Error::Config(format!(
+                "zenoh mode '{other}': expected peer, client or router"
+            ))),
+        }
+    }
+}
+
+/// Zenoh options shared by every koopbridge command that talks over Zenoh (the binary's
+/// command-line flags `--connect`, `--listen`, `--mode`, `--zenoh-config` fill it).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct ZenohOptions {
-    /// Endpoint to connect to, e.g. `tcp/127.0.0.1:7447` (a router or another koopbridge
-    /// process). Repeatable.
-    #[arg(long = "connect", value_name = "ENDPOINT")]
+    /// Endpoints to connect to, e.g. `tcp/127.0.0.1:7447` (a router or another koopbridge
+    /// process).
     pub connect: Vec<String>,
-    /// Endpoint to listen on. Repeatable. Default: `tcp/127.0.0.1:0` (a free loopback port) for a
-    /// peer, `tcp/127.0.0.1:7447` for a router, nothing for a client.
-    #[arg(long = "listen", value_name = "ENDPOINT")]
+    /// Endpoints to listen on. Empty: `tcp/127.0.0.1:0` (a free loopback port) for a peer,
+    /// `tcp/127.0.0.1:7447` for a router, nothing for a client — or what the config file says.
     pub listen: Vec<String>,
-    /// Zenoh mode of this process.
-    #[arg(long = "mode", value_enum, default_value_t = Mode::Peer)]
-    pub mode: Mode,
-    /// A Zenoh JSON5 configuration file (routers, TLS, access control). The flags above are
+    /// Zenoh mode. `None`: the config file's `mode` if there is a file, else [`Mode::Peer`]. A
+    /// mode that is not given never overrides the file.
+    pub mode: Option<Mode>,
+    /// A Zenoh JSON5 configuration file (routers, TLS, access control). The options above are
     /// applied on top of it; multicast scouting is then left as the file says.
-    #[arg(long = "zenoh-config", value_name = "FILE")]
     pub zenoh_config: Option<PathBuf>,
 }
 
@@ -60,12 +74,13 @@ impl ZenohOptions {
         ZenohOptions {
             connect,
             listen,
-            mode: Mode::Peer,
+            mode: Some(Mode::Peer),
             zenoh_config: None,
         }
     }
 
-    /// The command-line arguments that reproduce these options (for spawning children).
+    /// The command-line arguments that reproduce these options (for spawning children); a mode
+    /// that is not set is not passed.
     pub fn to_args(&self) -> Vec<String> {
         let mut a = Vec::new();
         for c in &self.connect {
@@ -76,13 +91,25 @@ impl ZenohOptions {
             a.push("--listen".into());
             a.push(l.clone());
         }
-        a.push("--mode".into());
-        a.push(self.mode.as_str().into());
+        if let Some(m) = self.mode {
+            a.push("--mode".into());
+            a.push(m.as_str().into());
+        }
         if let Some(p) = &self.zenoh_config {
             a.push("--zenoh-config".into());
             a.push(p.display().to_string());
         }
         a
+    }
+
+    /// The mode a session opened with these options has, if known without reading the file:
+    /// the given mode, else peer when there is no file; `None` = the file decides.
+    pub fn effective_mode(&self) -> Option<Mode> {
+        match (self.mode, &self.zenoh_config) {
+            (Some(m), _) => Some(m),
+            (None, None) => Some(Mode::Peer),
+            (None, Some(_)) => None,
+        }
     }
 
     /// The Zenoh configuration these options describe.
@@ -98,14 +125,17 @@ impl ZenohOptions {
                 c
             }
         };
-        c.insert_json5("mode", &json_str(self.mode.as_str()))
-            .map_err(|e| cfg_err("mode", &e))?;
+        let mode = self.effective_mode();
+        if let Some(m) = mode {
+            c.insert_json5("mode", &json_str(m.as_str()))
+                .map_err(|e| cfg_err("mode", &e))?;
+        }
         let listen = if !self.listen.is_empty() {
             self.listen.clone()
         } else if self.zenoh_config.is_some() {
             Vec::new()
         } else {
-            match self.mode {
+            match mode.unwrap_or_default() {
                 Mode::Peer => vec!["tcp/127.0.0.1:0".to_string()],
                 Mode::Router => vec!["tcp/127.0.0.1:7447".to_string()],
                 Mode::Client => Vec::new(),
@@ -134,9 +164,10 @@ fn json_list(v: &[String]) -> String {
 /// Opens a Zenoh session (blocking; usable from any thread, inside or outside a tokio runtime).
 pub fn open_session(opts: &ZenohOptions) -> Result<Session> {
     let cfg = opts.config()?;
-    zenoh::open(cfg)
-        .wait()
-        .map_err(|e| Error::Zenoh(format!("cannot open session ({:?} mode): {e}", opts.mode)))
+    zenoh::open(cfg).wait().map_err(|e| {
+        let mode = opts.effective_mode().map_or("configured", Mode::as_str);
+        Error::Zenoh(format!("cannot open session ({mode} mode): {e}"))
+    })
 }
 
 /// A free TCP port on 127.0.0.1, as an endpoint `tcp/127.0.0.1:PORT` (the OS picks it; it is
@@ -159,30 +190,57 @@ pub fn free_loopback_endpoint() -> Result<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use clap::Parser;
-
-    #[derive(Parser)]
-    struct Cli {
-        #[command(flatten)]
-        z: ZenohOptions,
-    }
 
     #[test]
-    fn options_parse_and_round_trip_through_args() {
-        let cli = Cli::parse_from(["x", "--connect", "tcp/127.0.0.1:7447", "--mode", "client"]);
-        assert_eq!(cli.z.mode, Mode::Client);
-        assert_eq!(cli.z.connect, vec!["tcp/127.0.0.1:7447"]);
-        let again = Cli::parse_from(std::iter::once("x".to_string()).chain(cli.z.to_args()));
-        assert_eq!(again.z.to_args(), cli.z.to_args());
-        let c = cli.z.config().unwrap();
+    fn options_round_trip_through_args() {
+        let z = ZenohOptions {
+            connect: vec!["tcp/127.0.0.1:7447".into()],
+            mode: Some(Mode::Client),
+            ..Default::default()
+        };
+        assert_eq!(
+            z.to_args(),
+            ["--connect", "tcp/127.0.0.1:7447", "--mode", "client"]
+        );
+        let c = z.config().unwrap();
         let s = format!("{c:?}");
         assert!(s.contains("7447"), "{s}");
-        assert!(Cli::try_parse_from(["x", "--mode", "bogus"]).is_err());
+        assert!("bogus".parse::<Mode>().is_err());
+        assert_eq!("router".parse::<Mode>().unwrap(), Mode::Router);
         let bad = ZenohOptions {
             zenoh_config: Some("/nonexistent/z.json5".into()),
             ..Default::default()
         };
         assert!(matches!(bad.config(), Err(Error::Config(_))));
+        // No mode given: nothing passed on, so a child's config file keeps its own mode.
+        assert!(!ZenohOptions::default().to_args().contains(&"--mode".into()));
+    }
+
+    /// The mode of a `--zenoh-config` file survives when no mode is given, and a given mode
+    /// wins over it (issue 15: the flag's default used to overwrite the file).
+    #[test]
+    fn a_mode_not_given_leaves_the_files_mode() {
+        let dir = std::env::temp_dir().join(format!("kb-zcfg-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("client.json5");
+        std::fs::write(&file, "{ mode: \"client\" }").unwrap();
+        let from_file = ZenohOptions {
+            zenoh_config: Some(file.clone()),
+            ..Default::default()
+        };
+        let mode_of = |c: &zenoh::Config| c.get_json("mode").unwrap();
+        assert_eq!(mode_of(&from_file.config().unwrap()), "\"client\"");
+        assert_eq!(from_file.effective_mode(), None);
+        let given = ZenohOptions {
+            mode: Some(Mode::Peer),
+            ..from_file
+        };
+        assert_eq!(mode_of(&given.config().unwrap()), "\"peer\"");
+        assert_eq!(
+            mode_of(&ZenohOptions::default().config().unwrap()),
+            "\"peer\""
+        );
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]

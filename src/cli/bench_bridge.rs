@@ -37,7 +37,7 @@ pub struct BenchBridgeArgs {
     #[arg(long, hide = true, value_name = "SESSION")]
     pub echo_server: Option<String>,
     #[command(flatten)]
-    pub zenoh: ZenohOptions,
+    pub zenoh: super::ZenohArgs,
 }
 
 fn stats(mut v: Vec<f64>) -> (f64, f64) {
@@ -97,7 +97,7 @@ fn line(json: bool, what: &str, samples: Vec<f64>, extra: serde_json::Value) -> 
 /// Runs `koopbridge bench bridge`.
 pub fn run(args: BenchBridgeArgs) -> anyhow::Result<()> {
     if let Some(s) = &args.echo_server {
-        return echo_server(s, &args.zenoh);
+        return echo_server(s, &args.zenoh.options());
     }
     let session_id = fresh_session_id();
     std::fs::create_dir_all(&args.out)?;
@@ -110,9 +110,10 @@ pub fn run(args: BenchBridgeArgs) -> anyhow::Result<()> {
     let opts = RunOptions {
         exe: std::env::current_exe()?,
         out_dir: out.clone(),
-        zenoh: args.zenoh.clone(),
+        zenoh: args.zenoh.options(),
         session: Some(session_id.clone()),
         ready_timeout: Duration::from_secs(60),
+        attach_existing: false,
     };
     let mut cluster = Cluster::start(
         &opts,
@@ -202,16 +203,11 @@ pub fn run(args: BenchBridgeArgs) -> anyhow::Result<()> {
     );
 
     // MPC solve round trip.
-    let body = serde_json::to_vec(&serde_json::json!({
-        "model": model_name,
-        "mpc": koopman::mpc::MpcConfig::with_bounds(vec![-8.0], vec![8.0]),
-    }))?;
-    client.query(
-        &client.keys.under(&["mpc", SERVICES_ID, "configure"]),
-        body,
-        Duration::from_secs(60),
-        "MPC service",
-    )?;
+    let configure = bridge::services::mpc::ConfigureRequest {
+        model: model_name.into(),
+        mpc: Some(koopman::mpc::MpcConfig::with_bounds(vec![-8.0], vec![8.0])),
+    };
+    bridge::services::mpc::configure(client, SERVICES_ID, &configure, Duration::from_secs(60))?;
     let key = client.keys.mpc_solve(SERVICES_ID)?;
     let mut rt = Vec::with_capacity(n);
     let mut inside = Vec::with_capacity(n);

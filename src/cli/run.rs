@@ -7,7 +7,6 @@ use std::time::Duration;
 
 use bridge::orchestrator::{run_scenario, Event, RunOptions};
 use bridge::scenario::Scenario;
-use bridge::session::ZenohOptions;
 
 /// Arguments of `koopbridge run`.
 #[derive(clap::Args)]
@@ -16,9 +15,12 @@ use bridge::session::ZenohOptions;
     Nothing has to be started by hand: the simulators (`koopbridge sim`) and services\n\
     (`koopbridge serve`) are started from this executable, connect to this process on a free\n\
     loopback port, and exit with it. Logs: results/{scenario}/logs/.\n\n\
-    A simulator that dies ends the run at once, naming it. Running the same scenario again into\n\
-    the same output folder needs no cleaning: an interrupted training resumes from its checkpoint\n\
-    (results/{scenario}/state/trainer/jobs/)."
+    The whole scenario ([train].config, [control].mpc, x0 and reference lengths) is checked\n\
+    against the simulators' info before collection. A simulator that dies ends the run at once,\n\
+    naming it. Running the same scenario again into the same output folder needs no cleaning:\n\
+    data and models whose sections are unchanged are reused (and it says so), and an\n\
+    interrupted training resumes from its checkpoint (results/{scenario}/state/trainer/jobs/).\n\
+    External simulator commands run in the repository of the scenario file."
 )]
 pub struct RunArgs {
     /// The scenario file (TOML, see scenarios/).
@@ -32,11 +34,17 @@ pub struct RunArgs {
     /// Session id (default: a fresh one).
     #[arg(long)]
     pub session: Option<String>,
+    /// Use the simulators and services already in the session (e.g. started by hand behind a
+    /// router given with --connect), found by their liveliness tokens, and start only the
+    /// missing ones. Without it the run refuses to start while a participant with the same role
+    /// and id is there.
+    #[arg(long)]
+    pub attach_existing: bool,
     /// Seconds to wait for every participant to be ready.
     #[arg(long, default_value_t = 60.0)]
     pub ready_timeout: f64,
     #[command(flatten)]
-    pub zenoh: ZenohOptions,
+    pub zenoh: super::ZenohArgs,
 }
 
 /// Runs `koopbridge run`.
@@ -53,9 +61,10 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let opts = RunOptions {
         exe: std::env::current_exe()?,
         out_dir: out_dir.clone(),
-        zenoh: args.zenoh.clone(),
+        zenoh: args.zenoh.options(),
         session: args.session.clone(),
         ready_timeout: Duration::from_secs_f64(args.ready_timeout),
+        attach_existing: args.attach_existing,
     };
     let bar = indicatif::ProgressBar::new(0);
     bar.set_style(
@@ -105,15 +114,29 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         "scenario '{}' done in {:.1} s (session {})",
         report.scenario, report.wall_seconds, report.session
     );
+    let reused = |r: bool| {
+        if r {
+            " (reused from the previous run)"
+        } else {
+            ""
+        }
+    };
     println!(
-        "  collected {:?} windows × {} steps from {:?} at {:.0} macro steps/s",
+        "  collected {:?} windows × {} steps from {:?} at {:.0} macro steps/s{}",
         report.collect.windows,
         report.collect.steps,
         report.collect.sims,
-        report.collect.macro_steps_per_second
+        report.collect.macro_steps_per_second,
+        reused(report.collect.reused)
     );
     for t in &report.train {
-        println!("  model '{}' (job {}): {}", t.model, t.job, t.metrics);
+        println!(
+            "  model '{}' (job {}){}: {}",
+            t.model,
+            t.job,
+            reused(t.reused),
+            t.metrics
+        );
     }
     if let Some(c) = &report.control {
         let png = out_dir.join("control.png");
@@ -122,12 +145,21 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             Err(e) => eprintln!("warning: could not draw {}: {e:#}", png.display()),
         }
         println!(
-            "  control of '{}': final error {:.4}, time to goal {:?} steps, solve median {:.0} µs, round trip median {:.0} µs",
-            c.sim, c.final_error, c.time_to_goal_steps, c.solve_median_us, c.solve_round_trip_median_us
+            "  control of '{}': final error {:.4}, time to goal {}, solve median {:.0} µs, round trip median {:.0} µs",
+            c.sim,
+            c.final_error,
+            time_to_goal(c.time_to_goal_steps),
+            c.solve_median_us,
+            c.solve_round_trip_median_us
         );
     }
     println!("  report: {}", path.display());
     Ok(())
+}
+
+/// `"N steps"`, or `"never"` when the goal was not reached and held.
+fn time_to_goal(steps: Option<usize>) -> String {
+    steps.map_or_else(|| "never".into(), |k| format!("{k} steps"))
 }
 
 /// States against their references, then inputs, of a closed-loop run.
@@ -165,4 +197,13 @@ fn plot_control(
         &panels,
         900,
     )
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn a_goal_never_reached_reads_never() {
+        assert_eq!(super::time_to_goal(None), "never");
+        assert_eq!(super::time_to_goal(Some(31)), "31 steps");
+    }
 }

@@ -6,7 +6,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 use bridge::keyexpr::Keys;
-use bridge::session::{open_session, ZenohOptions};
+use bridge::session::open_session;
 
 /// A service that `koopbridge serve` can run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -61,7 +61,7 @@ pub struct ServeArgs {
     #[arg(long)]
     pub stdin_lifeline: bool,
     #[command(flatten)]
-    pub zenoh: ZenohOptions,
+    pub zenoh: super::ZenohArgs,
 }
 
 /// Runs `koopbridge serve`.
@@ -91,7 +91,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
             .clone()
             .unwrap_or_else(|| args.state_dir.join("data")),
     )?;
-    let session = open_session(&args.zenoh)?;
+    let session = open_session(&args.zenoh.options())?;
     let mut threads = Vec::new();
     for s in services {
         let (session, keys, id, store, state, stop, root) = (

@@ -5,7 +5,7 @@ use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
 use bridge::adapter::{serve, AdapterOptions, FreeRunOptions, ResetRequest, SystemBackend};
-use bridge::session::{open_session, ZenohOptions};
+use bridge::session::open_session;
 
 /// Arguments of `koopbridge sim`.
 #[derive(clap::Args)]
@@ -44,7 +44,7 @@ pub struct SimArgs {
     #[arg(long)]
     pub stdin_lifeline: bool,
     #[command(flatten)]
-    pub zenoh: ZenohOptions,
+    pub zenoh: super::ZenohArgs,
 }
 
 /// Sets the returned flag when standard input reaches end of file.
@@ -81,7 +81,7 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
     } else {
         Arc::new(AtomicBool::new(false))
     };
-    let session = open_session(&args.zenoh)?;
+    let session = open_session(&args.zenoh.options())?;
     tracing::info!(
         "simulator '{}' ({}) serving in session '{}'{}",
         args.id,

@@ -10,7 +10,7 @@ use bridge::client::{Client, Liveliness};
 use bridge::keyexpr::{fresh_session_id, Keys};
 use bridge::procs::ChildProc;
 use bridge::services::trainer::DatasetRef;
-use bridge::session::{free_loopback_endpoint, open_session, ZenohOptions};
+use bridge::session::{free_loopback_endpoint, open_session};
 use bridge::sweep::{
     data_budget, read_results, run_sweep, write_csv, Regularisers, SweepData, SweepEvent,
     SweepGrid, SweepOptions,
@@ -95,7 +95,7 @@ pub struct SweepArgs {
     #[arg(long)]
     pub json: bool,
     #[command(flatten)]
-    pub zenoh: ZenohOptions,
+    pub zenoh: super::ZenohArgs,
 }
 
 /// Runs `koopbridge sweep`.
@@ -181,13 +181,10 @@ pub fn run(args: SweepArgs) -> anyhow::Result<()> {
             );
         }
     }
-    koopman::fsutil::write_atomic(
-        &out.join("sweep.json"),
-        &serde_json::to_vec_pretty(&grid)?,
-    )?;
+    koopman::fsutil::write_atomic(&out.join("sweep.json"), &serde_json::to_vec_pretty(&grid)?)?;
 
     // The session: the given one, or a fresh one on a free port for trainers started here.
-    let mut z = args.zenoh.clone();
+    let mut z = args.zenoh.options();
     let session_id = match (&args.session, args.local_trainers) {
         (Some(s), _) => s.clone(),
         (None, 0) => "default".to_string(),

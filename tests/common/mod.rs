@@ -39,6 +39,7 @@ pub fn options(name: &str) -> (RunOptions, String) {
             zenoh: ZenohOptions::default(),
             session: Some(session.clone()),
             ready_timeout: READY,
+            attach_existing: false,
         },
         session,
     )

@@ -134,7 +134,7 @@ impl Adapter {
         let zopts = ZenohOptions {
             connect: connect.unwrap_or_default(),
             listen: listen.unwrap_or_default(),
-            mode,
+            mode: Some(mode),
             zenoh_config,
         };
         let mut opts = AdapterOptions::new(session, id).map_err(bridge_err)?;

@@ -59,7 +59,7 @@ impl Client {
         let opts = ZenohOptions {
             connect: connect.unwrap_or_default(),
             listen: listen.unwrap_or_default(),
-            mode,
+            mode: Some(mode),
             zenoh_config,
         };
         let s = py.detach(|| open_session(&opts)).map_err(bridge_err)?;

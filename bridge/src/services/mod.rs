@@ -5,7 +5,10 @@ pub mod koopman_trainer;
 pub mod models;
 pub mod mpc;
 pub mod recorder;
+mod service;
 pub mod trainer;
+
+pub use service::Service;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{mpsc, Mutex, MutexGuard};

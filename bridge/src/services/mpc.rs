@@ -1,6 +1,8 @@
 //! The MPC service: `configure` (model + MPC settings → controller built once), `solve`
 //! (state + reference → input plan) and `attach` (free-run control of a simulator's stream).
 
+mod attach;
+
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -9,13 +11,16 @@ use std::time::{Duration, Instant};
 
 use koopman::mpc::{MpcConfig, MpcController, SolveStatus as KStatus};
 use serde::{Deserialize, Serialize};
-use zenoh::{Session, Wait};
+use zenoh::Session;
 
 use super::{parse_json, serve_queries, to_json, Inbox};
 use crate::client::Client;
-use crate::codec::{CommandMsg, SolveReply, SolveRequest, SolveStatus, StateMsg};
+use crate::codec::{SolveReply, SolveRequest, SolveStatus};
 use crate::error::{Error, ErrorCode, ErrorReply, Result};
-use crate::keyexpr::{validate_chunk, Keys, Role, SimLeaf};
+use crate::keyexpr::{validate_chunk, Keys, Role};
+
+use attach::Attached;
+pub use attach::{clamp_bounds_to_sim, AttachStats};
 
 /// `…/mpc/{id}/configure` request: build (or rebuild) the controller of a model.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -60,23 +65,22 @@ pub struct AttachRequest {
     pub detach: bool,
 }
 
-/// Statistics of an attachment (the `attach` reply when detaching).
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct AttachStats {
-    /// States received.
-    pub states: u64,
-    /// Commands published.
-    pub commands: u64,
-    /// Sequence numbers missing in the state stream.
-    pub gaps: u64,
-    /// State→command latency inside the service: histogram bucket upper bounds in µs.
-    pub latency_bounds_us: Vec<u64>,
-    /// Counts per bucket (last bucket: everything above the last bound).
-    pub latency_counts: Vec<u64>,
-    /// Median latency in µs.
-    pub latency_median_us: f64,
-    /// 99th percentile latency in µs.
-    pub latency_p99_us: f64,
+/// Sends `req` to the `configure` queryable of MPC service `id` and returns its reply.
+pub fn configure(
+    client: &Client,
+    id: &str,
+    req: &ConfigureRequest,
+    timeout: Duration,
+) -> Result<ConfigureReply> {
+    let who = format!("MPC service '{id}'");
+    let body = serde_json::to_vec(req).map_err(|e| Error::Config(e.to_string()))?;
+    let b = client.query(&client.keys.mpc_configure(id)?, body, timeout, &who)?;
+    serde_json::from_slice(&b).map_err(|e| {
+        Error::protocol(
+            ErrorCode::BadRequest,
+            format!("{who}: configure reply is not valid: {e}"),
+        )
+    })
 }
 
 /// Maps the controller's status to the wire status.
@@ -96,11 +100,6 @@ enum Op {
     Attach,
 }
 
-struct Attached {
-    stop: Arc<AtomicBool>,
-    thread: std::thread::JoinHandle<AttachStats>,
-}
-
 /// Resolves model `name` to a directory: `store/{name}`, else fetched from the model store.
 fn model_dir(client: &Client, store: &Path, name: &str) -> Result<PathBuf> {
     validate_chunk("model name", name)?;
@@ -112,14 +111,23 @@ fn model_dir(client: &Client, store: &Path, name: &str) -> Result<PathBuf> {
     super::models::fetch(client, name, &cache, Duration::from_secs(30))
 }
 
+/// Loads model `name` (local store, else fetched from the model store).
+fn load_model(
+    client: &Client,
+    store: &Path,
+    name: &str,
+) -> Result<Arc<dyn koopman::model::LiftedModel>> {
+    let dir = model_dir(client, store, name)?;
+    Ok(Arc::from(koopman::model::load_lifted(&dir)?))
+}
+
 fn build(
     client: &Client,
     store: &Path,
     req: &ConfigureRequest,
 ) -> Result<(MpcController<'static>, ConfigureReply)> {
     let t = Instant::now();
-    let dir = model_dir(client, store, &req.model)?;
-    let model: Arc<dyn koopman::model::LiftedModel> = Arc::from(koopman::model::load_lifted(&dir)?);
+    let model = load_model(client, store, &req.model)?;
     let cfg = req.mpc.clone().unwrap_or_default();
     let c = MpcController::from_shared(model, &cfg)?;
     let reply = ConfigureReply {
@@ -144,11 +152,7 @@ pub fn serve(
     let client = Client::new(session.clone(), keys.clone());
     let mut inbox = Inbox::new();
     inbox.declare(session, &keys.mpc_solve(id)?, Op::Solve)?;
-    inbox.declare(
-        session,
-        &keys.under(&["mpc", id, "configure"]),
-        Op::Configure,
-    )?;
+    inbox.declare(session, &keys.mpc_configure(id)?, Op::Configure)?;
     inbox.declare(session, &keys.mpc_attach(id)?, Op::Attach)?;
     let mut controllers: HashMap<String, MpcController<'static>> = HashMap::new();
     let mut configs: HashMap<String, ConfigureRequest> = HashMap::new();
@@ -227,25 +231,19 @@ pub fn serve(
                         format!("already attached to '{}'", req.sim),
                     ));
                 }
-                let creq = configs
+                // The configured settings of the model (SPEC defaults if none), with the
+                // simulator's input bounds intersected in, always.
+                let cfg = configs
                     .get(&req.model)
-                    .cloned()
-                    .unwrap_or(ConfigureRequest {
-                        model: req.model.clone(),
-                        mpc: None,
-                    });
-                let (c, _) = build(&client, store, &creq).map_err(|e| e.to_reply())?;
-                let flag = Arc::new(AtomicBool::new(false));
-                let thread = attach(
-                    session.clone(),
-                    keys.clone(),
-                    req.sim.clone(),
-                    c,
-                    req.reference.clone(),
-                    flag.clone(),
-                )
-                .map_err(|e| e.to_reply())?;
-                attached.insert(req.sim.clone(), Attached { stop: flag, thread });
+                    .and_then(|c| c.mpc.clone())
+                    .unwrap_or_default();
+                // Loaded before attaching: the controller is then built in microseconds once
+                // the simulator's bounds are known, while its states already arrive.
+                let model = load_model(&client, store, &req.model).map_err(|e| e.to_reply())?;
+                let a = attach::start(&client, &req.sim, &req.reference, cfg, |cfg| {
+                    Ok(MpcController::from_shared(model, cfg)?)
+                })?;
+                attached.insert(req.sim.clone(), a);
                 to_json(&serde_json::json!({"attached": req.sim}))
             }
         },
@@ -255,85 +253,4 @@ pub fn serve(
         let _ = a.thread.join();
     }
     Ok(())
-}
-
-const LATENCY_BOUNDS_US: [u64; 12] = [
-    50, 100, 200, 500, 1000, 2000, 5000, 10_000, 20_000, 50_000, 100_000, 1_000_000,
-];
-
-fn attach(
-    session: Session,
-    keys: Keys,
-    sim: String,
-    controller: MpcController<'static>,
-    reference: Vec<f64>,
-    stop: Arc<AtomicBool>,
-) -> Result<std::thread::JoinHandle<AttachStats>> {
-    let (tx, rx) = std::sync::mpsc::channel::<(Instant, Vec<u8>)>();
-    let sub = session
-        .declare_subscriber(keys.sim(&sim, SimLeaf::State)?)
-        .callback(move |s| {
-            let _ = tx.send((Instant::now(), s.payload().to_bytes().into_owned()));
-        })
-        .wait()
-        .map_err(Error::zenoh)?;
-    let publisher = session
-        .declare_publisher(keys.sim(&sim, SimLeaf::Command)?)
-        .wait()
-        .map_err(Error::zenoh)?;
-    Ok(std::thread::spawn(move || {
-        let _sub = sub;
-        let mut c = controller;
-        let nu = c.nu();
-        let mut stats = AttachStats {
-            latency_bounds_us: LATENCY_BOUNDS_US.to_vec(),
-            latency_counts: vec![0; LATENCY_BOUNDS_US.len() + 1],
-            ..Default::default()
-        };
-        let mut lat = Vec::new();
-        let mut last_seq: Option<u64> = None;
-        let mut seq = 0u64;
-        while !stop.load(Ordering::Relaxed) {
-            let Ok((arrived, bytes)) = rx.recv_timeout(Duration::from_millis(100)) else {
-                continue;
-            };
-            // Skip to the newest state if several are queued.
-            let (arrived, bytes) = rx.try_iter().last().unwrap_or((arrived, bytes));
-            let Ok(s) = StateMsg::decode(&bytes) else {
-                continue;
-            };
-            stats.states += 1;
-            if let Some(l) = last_seq {
-                if s.seq > l + 1 {
-                    stats.gaps += s.seq - l - 1;
-                }
-            }
-            last_seq = Some(s.seq);
-            let Ok(sol) = c.solve(&s.x, &reference) else {
-                continue;
-            };
-            let cmd = CommandMsg {
-                seq,
-                k: s.k,
-                u: sol.u[..nu].to_vec(),
-            };
-            seq += 1;
-            if publisher.put(cmd.encode()).wait().is_ok() {
-                stats.commands += 1;
-            }
-            let us = arrived.elapsed().as_micros() as u64;
-            lat.push(us as f64);
-            let b = LATENCY_BOUNDS_US
-                .iter()
-                .position(|&x| us <= x)
-                .unwrap_or(LATENCY_BOUNDS_US.len());
-            stats.latency_counts[b] += 1;
-        }
-        lat.sort_by(|a, b| a.total_cmp(b));
-        if !lat.is_empty() {
-            stats.latency_median_us = lat[lat.len() / 2];
-            stats.latency_p99_us = lat[((lat.len() as f64 * 0.99) as usize).min(lat.len() - 1)];
-        }
-        stats
-    }))
 }

@@ -77,6 +77,14 @@ pub fn time_to_goal(errors: &[Vec<f64>], angles: &[usize], spec: &GoalSpec) -> O
     None
 }
 
+/// The Euclidean norm of the last error vector (the closed loop's final error); NaN when there
+/// is none.
+pub fn final_error(errors: &[Vec<f64>]) -> f64 {
+    errors
+        .last()
+        .map_or(f64::NAN, |e| e.iter().map(|v| v * v).sum::<f64>().sqrt())
+}
+
 /// Root mean square of every component of every error vector.
 pub fn rms(errors: &[Vec<f64>]) -> f64 {
     let n: usize = errors.iter().map(Vec::len).sum();
@@ -137,6 +145,8 @@ mod tests {
         // The rate tolerance applies to non-angle components.
         let errs2: Vec<Vec<f64>> = (0..60).map(|_| vec![0.0, 0.11]).collect();
         assert_eq!(time_to_goal(&errs2, &[0], &spec), None);
+        assert!((final_error(&[vec![9.0], vec![3.0, 4.0]]) - 5.0).abs() < 1e-12);
+        assert!(final_error(&[]).is_nan());
         assert!((rms(&[vec![3.0, 4.0]]) - (12.5f64).sqrt()).abs() < 1e-12);
         assert!((frobenius(&[vec![3.0], vec![4.0]]) - 5.0).abs() < 1e-12);
         assert_eq!(quantile(&[3.0, 1.0, 2.0], 0.5), 2.0);

@@ -1,0 +1,58 @@
+//! `koopbridge run`: starts the scenario's simulators and services as child processes, passes
+//! the readiness barrier, collects data in lockstep, trains through the trainer service and
+//! closes the loop through the MPC service; returns a report.
+//!
+//! - [`cluster`]: the child processes and the orchestrator's own session ([`Cluster`]);
+//! - [`closed_loop`]: lockstep regulation through the MPC service ([`closed_loop()`]);
+//! - [`validate`]: the whole scenario checked against the simulators' `info` before collection;
+//! - [`reuse`]: a rerun into the same folder reuses unchanged data and models;
+//! - [`run`]: the whole scenario ([`run_scenario`]) and its report.
+
+pub mod closed_loop;
+pub mod cluster;
+pub mod reuse;
+pub mod run;
+pub mod validate;
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use crate::session::ZenohOptions;
+
+pub use closed_loop::{closed_loop, ControlReport, ControlTask};
+pub use cluster::Cluster;
+pub use run::{run_scenario, CollectReport, Report, TrainReport};
+
+/// Id of the services process started by the orchestrator.
+pub const SERVICES_ID: &str = "main";
+
+/// How to run a scenario.
+#[derive(Clone, Debug)]
+pub struct RunOptions {
+    /// The `koopbridge` executable to start children with.
+    pub exe: PathBuf,
+    /// Output folder (`results/{scenario}`).
+    pub out_dir: PathBuf,
+    /// Zenoh options of the orchestrator (its children connect to it, and to `connect`).
+    pub zenoh: ZenohOptions,
+    /// Session id (fresh when `None`).
+    pub session: Option<String>,
+    /// Readiness timeout.
+    pub ready_timeout: Duration,
+    /// Use the simulators and services that are already in the session (found by their
+    /// liveliness tokens) and start only the missing ones; `false`: refuse to start while a
+    /// participant with the same role and id is already there.
+    pub attach_existing: bool,
+}
+
+/// What the progress callback is told.
+pub enum Event<'a> {
+    /// A phase starts.
+    Phase(&'a str),
+    /// Collection progress: (split, done, total).
+    Collect(&'static str, usize, usize),
+    /// A training progress message from the trainer.
+    Train(&'a serde_json::Value),
+    /// A control step: (k, total).
+    Control(usize, usize),
+}

@@ -1,0 +1,306 @@
+//! A whole scenario: start the cluster, collect in lockstep, train through the trainer service,
+//! regulate through the MPC service, and the report of it all.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use koopman::data::Dataset;
+use serde::{Deserialize, Serialize};
+
+use super::reuse;
+use super::validate::{controlled_sim, mpc_config, validate_scenario};
+use super::{closed_loop, Cluster, ControlReport, ControlTask, Event, RunOptions, SERVICES_ID};
+use crate::client::SimClient;
+use crate::collect::{collect, CollectJob, Split};
+use crate::error::{Error, Result};
+use crate::keyexpr::{fresh_session_id, Role};
+use crate::messages::SimInfo;
+use crate::scenario::Scenario;
+use crate::services::mpc::{configure, ConfigureRequest};
+use crate::services::trainer::{submit_and_wait_watching, DatasetRef, JobSpec};
+use crate::services::Service;
+
+/// The outcome of one scenario run (written as `report.json`).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Report {
+    /// Scenario name.
+    pub scenario: String,
+    /// Session id used.
+    pub session: String,
+    /// Collection summary.
+    pub collect: CollectReport,
+    /// Training results, one per simulator.
+    pub train: Vec<TrainReport>,
+    /// Closed-loop control result.
+    pub control: Option<ControlReport>,
+    /// Total wall time in seconds.
+    pub wall_seconds: f64,
+}
+
+/// Collection summary.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct CollectReport {
+    /// Simulators stepped.
+    pub sims: Vec<String>,
+    /// Windows per split (train, val, test) and simulator.
+    pub windows: [usize; 3],
+    /// Transitions per window.
+    pub steps: usize,
+    /// Seconds spent collecting.
+    pub seconds: f64,
+    /// Lockstep macro steps per second (all simulators stepped once = one macro step).
+    pub macro_steps_per_second: f64,
+    /// Dataset files written.
+    pub files: Vec<PathBuf>,
+    /// True when this run reused the data a previous run collected into the same folder
+    /// (`[[sims]]`, `[collect]` and the simulators' `info` unchanged); the figures are that
+    /// run's.
+    #[serde(default)]
+    pub reused: bool,
+}
+
+/// Training result of one simulator's model.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct TrainReport {
+    /// Simulator id.
+    pub sim: String,
+    /// Model name in the store.
+    pub model: String,
+    /// Trainer job id.
+    pub job: String,
+    /// Metrics reported by the trainer.
+    pub metrics: serde_json::Value,
+    /// True when this run reused the model a previous run trained into the same folder from
+    /// the same data and `[train]` section.
+    #[serde(default)]
+    pub reused: bool,
+}
+
+fn save(d: &Dataset, p: &Path) -> Result<PathBuf> {
+    d.save_npz(p)?;
+    Ok(p.to_path_buf())
+}
+
+/// The services a scenario needs.
+fn services_of(sc: &Scenario) -> Vec<Service> {
+    let mut services = Vec::new();
+    if sc.train.is_some() {
+        services.extend([Service::Trainer, Service::Models]);
+    }
+    if sc.control.is_some() {
+        services.push(Service::Mpc);
+    }
+    services
+}
+
+/// Runs a whole scenario. `on` receives progress events. Right after the readiness barrier the
+/// whole scenario is checked against the simulators' `info` ([`validate_scenario`]); data and
+/// models a previous run left in the output folder are reused when their sections are
+/// unchanged ([`super::reuse`]).
+pub fn run_scenario(
+    sc: &Scenario,
+    opts: &RunOptions,
+    on: &mut dyn FnMut(Event<'_>),
+) -> Result<Report> {
+    let t0 = Instant::now();
+    let session_id = opts.session.clone().unwrap_or_else(fresh_session_id);
+    on(Event::Phase("starting simulators and services"));
+    let cluster = Cluster::launch_in(
+        opts,
+        &session_id,
+        &sc.sims,
+        &services_of(sc),
+        sc.base_dir.as_deref(),
+    )?;
+    if !cluster.existing.is_empty() {
+        on(Event::Phase(&format!(
+            "using the participants already in session '{session_id}': {}",
+            super::cluster::names(&cluster.existing)
+        )));
+    }
+    let mut clients: Vec<SimClient> = sc
+        .sims
+        .iter()
+        .map(|s| SimClient::connect(&cluster.client, &s.id, opts.ready_timeout))
+        .collect::<Result<_>>()?;
+    let infos: Vec<&SimInfo> = clients.iter().map(|c| &c.info.sim).collect();
+    validate_scenario(sc, &infos)?;
+    let collect_key = reuse::collect_key(sc, &infos);
+
+    let collect_report = collect_phase(sc, opts, &cluster, &mut clients, &collect_key, on)?;
+    let mut train_reports = Vec::new();
+    if let Some(t) = &sc.train {
+        on(Event::Phase("training (trainer service)"));
+        let key = reuse::train_key(&collect_key, t);
+        for s in &sc.sims {
+            train_reports.push(train_one(sc, opts, &cluster, &s.id, &key, on)?);
+        }
+    }
+
+    let mut control = None;
+    if let Some(ctrl) = &sc.control {
+        on(Event::Phase("closed-loop control (MPC service)"));
+        let j = controlled_sim(sc, ctrl);
+        let model = format!("{}-{}", sc.name, sc.sims[j].id);
+        let req = ConfigureRequest {
+            model: model.clone(),
+            mpc: Some(mpc_config(&clients[j].info.sim, &ctrl.mpc)?),
+        };
+        let client = &cluster.client;
+        configure(client, SERVICES_ID, &req, Duration::from_secs(60))?;
+        control = Some(closed_loop(
+            client,
+            &cluster.live,
+            &mut clients[j],
+            &ControlTask {
+                mpc_id: SERVICES_ID,
+                model: &model,
+                x0: &ctrl.x0,
+                reference: &ctrl.reference,
+                steps: ctrl.steps,
+            },
+            &mut |k, n| on(Event::Control(k, n)),
+        )?);
+    }
+    drop(cluster);
+    Ok(Report {
+        scenario: sc.name.clone(),
+        session: session_id,
+        collect: collect_report,
+        train: train_reports,
+        control,
+        wall_seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// Collects the three splits from every simulator and saves them under `out_dir/data/{sim}/`,
+/// or reuses what a previous run with the same `key` saved there.
+fn collect_phase(
+    sc: &Scenario,
+    opts: &RunOptions,
+    cluster: &Cluster,
+    clients: &mut [SimClient],
+    key: &serde_json::Value,
+    on: &mut dyn FnMut(Event<'_>),
+) -> Result<CollectReport> {
+    let record = reuse::collect_record(&opts.out_dir);
+    if let Some(mut r) = reuse::load::<CollectReport>(&record, key) {
+        if r.files.iter().all(|f| f.is_file()) {
+            on(Event::Phase(&format!(
+                "reusing the data collected before in {} ([[sims]], [collect] and the simulators' info are unchanged)",
+                opts.out_dir.join("data").display()
+            )));
+            r.reused = true;
+            return Ok(r);
+        }
+    }
+    reuse::forget(&record)?;
+    on(Event::Phase("collecting data (lockstep)"));
+    let c = &sc.collect;
+    let tc = Instant::now();
+    let mut per_split: Vec<Vec<Dataset>> = Vec::new();
+    for (split, name, n) in [
+        (Split::Train, "train", c.train_windows),
+        (Split::Val, "val", c.val_windows),
+        (Split::Test, "test", c.test_windows),
+    ] {
+        let job = CollectJob {
+            policy: &c.policy,
+            windows: n,
+            steps: c.steps,
+            seed: c.seed,
+            split,
+        };
+        let ds = collect(clients, &job, Some(&cluster.live), &mut |d, t| {
+            on(Event::Collect(name, d, t))
+        })?;
+        per_split.push(ds);
+    }
+    let seconds = tc.elapsed().as_secs_f64();
+    let macro_steps = (c.train_windows + c.val_windows + c.test_windows) * c.steps;
+    let mut files = Vec::new();
+    for (j, s) in sc.sims.iter().enumerate() {
+        for (i, name) in ["train", "val", "test"].iter().enumerate() {
+            if per_split[i][j].n > 0 {
+                files.push(save(
+                    &per_split[i][j],
+                    &opts
+                        .out_dir
+                        .join("data")
+                        .join(&s.id)
+                        .join(format!("{name}.npz")),
+                )?);
+            }
+        }
+    }
+    let report = CollectReport {
+        sims: sc.sims.iter().map(|s| s.id.clone()).collect(),
+        windows: [c.train_windows, c.val_windows, c.test_windows],
+        steps: c.steps,
+        seconds,
+        macro_steps_per_second: macro_steps as f64 / seconds.max(1e-9),
+        files,
+        reused: false,
+    };
+    reuse::store(&record, key, &report)?;
+    Ok(report)
+}
+
+/// Trains simulator `sim`'s model through the trainer service, or reuses the model a previous
+/// run with the same `key` trained into the store.
+fn train_one(
+    sc: &Scenario,
+    opts: &RunOptions,
+    cluster: &Cluster,
+    sim: &str,
+    key: &serde_json::Value,
+    on: &mut dyn FnMut(Event<'_>),
+) -> Result<TrainReport> {
+    let model = format!("{}-{}", sc.name, sim);
+    let record = reuse::train_record(&opts.out_dir, sim);
+    let stored = opts.out_dir.join("models").join(&model);
+    if let Some(mut r) = reuse::load::<TrainReport>(&record, key) {
+        if stored.join("config.json").is_file() {
+            on(Event::Phase(&format!(
+                "reusing model '{model}' trained before in {} (same data and [train])",
+                stored.display()
+            )));
+            r.reused = true;
+            return Ok(r);
+        }
+    }
+    reuse::forget(&record)?;
+    let t = sc
+        .train
+        .as_ref()
+        .ok_or_else(|| Error::Config("no [train]".into()))?;
+    let dir = opts.out_dir.join("data").join(sim);
+    let abs = |n: &str| -> DatasetRef {
+        let p = dir.join(format!("{n}.npz"));
+        DatasetRef::Path {
+            path: std::fs::canonicalize(&p).unwrap_or(p),
+        }
+    };
+    let spec = JobSpec {
+        model: model.clone(),
+        train: abs("train"),
+        val: abs("val"),
+        test: (sc.collect.test_windows > 0).then(|| abs("test")),
+        config: t.config.clone(),
+    };
+    // The simulators are needed again after training: a lost one ends the run now.
+    let sims: Vec<(Role, String)> = sc.sims.iter().map(|s| (Role::Sim, s.id.clone())).collect();
+    let (client, live) = (&cluster.client, &cluster.live);
+    let rec = submit_and_wait_watching(client, live, SERVICES_ID, &spec, &sims, &mut |p| {
+        on(Event::Train(p))
+    })?;
+    let report = TrainReport {
+        sim: sim.to_string(),
+        model,
+        job: rec.job,
+        metrics: rec.metrics.unwrap_or_default(),
+        reused: false,
+    };
+    reuse::store(&record, key, &report)?;
+    Ok(report)
+}

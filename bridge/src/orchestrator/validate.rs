@@ -1,0 +1,112 @@
+//! The whole scenario checked against its simulators' `info` right after the readiness barrier,
+//! before the expensive phases: `[train].config`, `[control].mpc`, and the lengths of
+//! `control.x0`/`control.reference`, so that a typo fails in seconds, not after collection.
+
+use koopman::mpc::{MatrixModel, MpcConfig, MpcController};
+use koopman::train::TrainConfig;
+
+use crate::error::{Error, Result};
+use crate::messages::SimInfo;
+use crate::scenario::{ControlSpec, Scenario};
+use crate::services::koopman_trainer::train_config;
+
+/// The MPC settings of a scenario's `[control].mpc` for a simulator: SPEC defaults with the
+/// simulator's input bounds, overlaid with the scenario's fields (unknown fields are an error),
+/// then the input bounds intersected with the simulator's (it cannot take more).
+pub fn mpc_config(
+    info: &SimInfo,
+    overrides: &serde_json::Map<String, serde_json::Value>,
+) -> Result<MpcConfig> {
+    let mut v =
+        serde_json::to_value(MpcConfig::default()).map_err(|e| Error::Config(e.to_string()))?;
+    if let Some(o) = v.as_object_mut() {
+        for (k, val) in overrides {
+            o.insert(k.clone(), val.clone());
+        }
+    }
+    let mut cfg: MpcConfig =
+        serde_json::from_value(v).map_err(|e| Error::Config(format!("[control].mpc: {e}")))?;
+    crate::services::mpc::clamp_bounds_to_sim(&mut cfg, info)
+        .map_err(|e| Error::Config(format!("[control].mpc: {e}")))?;
+    Ok(cfg)
+}
+
+/// Checks every setting of `sc` that the services would only check later: the training
+/// settings, and for `[control]` the MPC settings (by building a controller on a stand-in
+/// linear model of the controlled simulator's dimensions) and the lengths of `x0` and
+/// `reference`. `infos[j]` is the `info` of `sc.sims[j]`.
+pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
+    if let Some(t) = &sc.train {
+        train_config(&t.config).map_err(|e| {
+            Error::Config(format!(
+                "[train].config: {e}; valid settings: {}",
+                train_setting_names().join(", ")
+            ))
+        })?;
+    }
+    if let Some(ctrl) = &sc.control {
+        let j = controlled_sim(sc, ctrl);
+        validate_control(ctrl, &sc.sims[j].id, infos[j])?;
+    }
+    Ok(())
+}
+
+/// The index in `sc.sims` of the simulator `[control]` regulates (`control.sim`, else the first).
+pub fn controlled_sim(sc: &Scenario, ctrl: &ControlSpec) -> usize {
+    ctrl.sim
+        .as_ref()
+        .and_then(|id| sc.sims.iter().position(|s| &s.id == id))
+        .unwrap_or(0)
+}
+
+/// The names of every `TrainConfig` field (what `[train].config` may set).
+pub fn train_setting_names() -> Vec<String> {
+    serde_json::to_value(TrainConfig::default())
+        .ok()
+        .and_then(|v| v.as_object().map(|o| o.keys().cloned().collect()))
+        .unwrap_or_default()
+}
+
+fn validate_control(ctrl: &ControlSpec, sim: &str, info: &SimInfo) -> Result<()> {
+    let (nx, nu) = (info.nx(), info.nu());
+    let bad = |m: String| {
+        Err(Error::Config(format!(
+            "[control] for simulator '{sim}': {m}"
+        )))
+    };
+    if ctrl.x0.len() != nx {
+        return bad(format!(
+            "x0 has {} values, the simulator has {nx} states ({})",
+            ctrl.x0.len(),
+            info.state_names.join(", ")
+        ));
+    }
+    let cfg = mpc_config(info, &ctrl.mpc)?;
+    let h = cfg.horizon;
+    if ctrl.reference.len() != nx && ctrl.reference.len() != h * nx {
+        return bad(format!(
+            "reference has {} values; expected {nx} (one state) or {} (horizon {h} × {nx})",
+            ctrl.reference.len(),
+            h * nx
+        ));
+    }
+    if let Some(v) = ctrl
+        .x0
+        .iter()
+        .chain(&ctrl.reference)
+        .find(|v| !v.is_finite())
+    {
+        return bad(format!("x0 and reference must be finite, got {v}"));
+    }
+    if nx == 0 || nu == 0 {
+        return bad(format!(
+            "MPC needs states and inputs (nx = {nx}, nu = {nu})"
+        ));
+    }
+    // The real controller is built by the MPC service from the trained model after training;
+    // the same settings on a stand-in model of the same dimensions fail the same way now.
+    let stand_in = MatrixModel::random_stable(nx, nx, nu, 0.9, 0).map_err(Error::from)?;
+    MpcController::new(&stand_in, &cfg)
+        .map(|_| ())
+        .map_err(|e| Error::Config(format!("[control].mpc: {e}")))
+}

@@ -1,0 +1,98 @@
+//! `scenarios/README.md` is the scenario reference: every TOML example in it parses and passes
+//! the checks `koopbridge run` makes against a damped-pendulum simulator's `info`; every
+//! `TrainConfig` and `MpcConfig` field has a row; every scenario in `scenarios/` parses.
+
+use bridge::messages::SimInfo;
+use bridge::orchestrator::validate::{train_setting_names, validate_scenario};
+use bridge::scenario::Scenario;
+
+fn readme() -> String {
+    std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/README.md")).unwrap()
+}
+
+/// The bodies of the ```toml blocks of `text`.
+fn toml_blocks(text: &str) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut cur: Option<String> = None;
+    for line in text.lines() {
+        match (&mut cur, line.trim_end()) {
+            (None, "```toml") => cur = Some(String::new()),
+            (Some(b), "```") => {
+                out.push(std::mem::take(b));
+                cur = None;
+            }
+            (Some(b), l) => {
+                b.push_str(l);
+                b.push('\n');
+            }
+            (None, _) => {}
+        }
+    }
+    out
+}
+
+#[test]
+fn every_example_parses_and_passes_the_checks() {
+    let sys = koopman::systems::by_name("damped-pendulum").unwrap();
+    let info = SimInfo::from_system(sys.as_ref());
+    let blocks = toml_blocks(&readme());
+    assert!(blocks.len() >= 3, "only {} examples", blocks.len());
+    for b in &blocks {
+        let mut sc = Scenario::parse(b).unwrap_or_else(|e| panic!("{e}\n{b}"));
+        let infos = vec![&info; sc.sims.len()];
+        validate_scenario(&sc, &infos).unwrap_or_else(|e| panic!("{e}\n{b}"));
+        sc.apply_full();
+        validate_scenario(&sc, &infos).unwrap_or_else(|e| panic!("--full: {e}\n{b}"));
+    }
+}
+
+#[test]
+fn every_setting_has_a_row() {
+    let text = readme();
+    let row = |name: &str| text.contains(&format!("| `{name}` |"));
+    let mpc = serde_json::to_value(koopman::mpc::MpcConfig::default()).unwrap();
+    let names: Vec<String> = train_setting_names()
+        .into_iter()
+        .chain(mpc.as_object().unwrap().keys().cloned())
+        .collect();
+    assert!(names.len() > 20);
+    for n in names {
+        assert!(row(&n), "scenarios/README.md has no row for `{n}`");
+    }
+    for key in [
+        "name",
+        "description",
+        "id",
+        "env",
+        "command",
+        "policy",
+        "train_windows",
+        "val_windows",
+        "test_windows",
+        "steps",
+        "seed",
+        "config",
+        "x0",
+        "reference",
+        "sim",
+        "mpc",
+        "train_config",
+        "\"uniform\"",
+        "\"scripted\"",
+    ] {
+        assert!(row(key), "scenarios/README.md has no row for `{key}`");
+    }
+}
+
+#[test]
+fn the_shipped_scenarios_parse() {
+    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios");
+    let mut n = 0;
+    for e in std::fs::read_dir(dir).unwrap().flatten() {
+        if e.path().extension().is_some_and(|x| x == "toml") {
+            Scenario::load(&e.path()).unwrap_or_else(|err| panic!("{}: {err}", e.path().display()));
+            n += 1;
+        }
+    }
+    assert!(n >= 2);
+}
