@@ -33,6 +33,7 @@ pub trait LiftedModel: Send + Sync {
 }
 
 pub mod arch;
+pub mod bilinear;
 pub mod edmd;
 pub mod encoder;
 pub mod init;

@@ -14,6 +14,7 @@
 //! - On solver failure the controller returns the shifted previous plan clamped to the bounds
 //!   ([`SolveStatus::Fallback`]), never NaN; bad input is a typed [`crate::Error`].
 
+pub mod bilinear;
 pub mod boxqp;
 pub mod chol;
 pub mod clarabel_qp;
@@ -31,6 +32,7 @@ pub mod policy;
 pub mod qp;
 pub mod shooting;
 
+pub use bilinear::{BilinearMpc, BilinearSolution, ScpOptions, ScpStatus};
 pub use closed_loop::{run_closed_loop, ClosedLoopMetrics, Task, TaskKind, Trajectory};
 pub use config::{MpcConfig, SolverKind};
 pub use controller::{FallbackReason, MpcController, MpcSolution, SolveStatus};
