@@ -3,6 +3,7 @@
 - ``Adapter``: base class of simulators written in Python, served over Zenoh (lockstep or
   free-run) by the one Rust implementation of the protocol;
 - ``KoopmanModel``: a trained neural Koopman model (``encode``, ``predict``, ``A``, ``B``, ``P``);
+- ``BilinearModel``: a trained bilinear Koopman model (``predict``, ``A``, ``B``, ``N``);
 - ``Mpc``: in-process receding-horizon MPC solves on a model;
 - ``Client``: the querying side (simulators, MPC service, raw queries of the other services);
 - ``ReferenceSystem``: the built-in Rust reference dynamics;
@@ -12,6 +13,7 @@
 from ._native import (
     PROTOCOL_VERSION,
     Adapter,
+    BilinearModel,
     GoneError,
     InvalidInput,
     KoopbridgeError,
@@ -28,6 +30,7 @@ from .client import Client
 __all__ = [
     "PROTOCOL_VERSION",
     "Adapter",
+    "BilinearModel",
     "Client",
     "GoneError",
     "InvalidInput",
