@@ -11,6 +11,9 @@
 //! - Baselines: [`SolverKind::ClosedForm`] (unconstrained optimum, clamped), [`Lqr`] with
 //!   feed-forward on the lifted model, [`RandomShooting`] on any [`OneStepModel`]; every
 //!   controller is a [`Policy`] that [`run_closed_loop`] evaluates on a reference system.
+//! - [`BilinearMpc`]: sequential convex MPC on a bilinear model (`z⁺ = A z + B u + Σ u_i N_i z`),
+//!   re-linearised along each new plan (at most [`ScpOptions::max_linearisations`] QPs on the
+//!   dedicated box solver); [`ScpStatus`] says whether it converged.
 //! - On solver failure the controller returns the shifted previous plan clamped to the bounds
 //!   ([`SolveStatus::Fallback`]), never NaN; bad input is a typed [`crate::Error`].
 
