@@ -58,5 +58,5 @@ def test_predict_is_the_bilinear_rollout(tmp_path):
     assert b.metadata is None or isinstance(b.metadata, dict)
     nmat[0, 0, 0] = np.nan
     _set_n(tmp_path, nmat)
-    with pytest.raises(koopbridge.KoopbridgeError):
+    with pytest.raises(ValueError, match="non-finite"):
         koopbridge.BilinearModel.load(str(tmp_path))

@@ -373,8 +373,8 @@ impl<'m> BilinearMpc<'m> {
             next.fill(0.0);
             gemv_acc(MatRef::from_column_major_slice(at, nn, nn), cur, next);
             gemv_acc(MatRef::from_column_major_slice(&self.b, nn, nu), ut, next);
-            for i in 0..nx {
-                let d = next[i] - self.r[t * nx + i];
+            for (i, &v) in next[..nx].iter().enumerate() {
+                let d = v - self.r[t * nx + i];
                 cost += self.qbar[t * nx + i] * d * d;
             }
             for (i, &ui) in ut.iter().enumerate() {
