@@ -4,18 +4,19 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
+use koopman::model::bilinear::BilinearModel;
 use koopman::model::nndm::NndmModel;
 use koopman::model::LiftedModel;
 use koopman::mpc::metrics::GoalSpec;
 use koopman::mpc::{
-    run_closed_loop, ClosedLoopMetrics, ConstantPolicy, Lqr, LqrPolicy, MpcConfig, MpcController,
-    OneStepModel, Policy, RandomShooting, ShootingPolicy, SolverKind, SystemAsModel, Task,
-    TaskKind, Trajectory,
+    run_closed_loop, BilinearMpc, ClosedLoopMetrics, ConstantPolicy, Lqr, LqrPolicy, MpcConfig,
+    MpcController, OneStepModel, Policy, RandomShooting, ScpOptions, ShootingPolicy, SolverKind,
+    SystemAsModel, Task, TaskKind, Trajectory,
 };
 use koopman::systems::System;
 
-use super::control_diagnostics::diagnose;
-use crate::plot::{time_series_png, Panel, Series};
+use super::control_diagnostics::{diagnose, linearised_at};
+use super::control_plot::plot_trajectory;
 
 /// Controller choices of `--solver`.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -32,6 +33,8 @@ pub enum ControllerChoice {
     Shooting,
     /// Random-shooting MPC (1000 samples) on the true system as its own one-step model (oracle).
     ShootingOracle,
+    /// Sequential convex MPC on a bilinear model (--model of kind bilinear, or --bilinear DIR).
+    Bilinear,
     /// u = 0 throughout: the free response every controller must beat.
     ZeroInput,
     /// Every controller above that the given models allow, one after the other, as one table.
@@ -61,6 +64,9 @@ pub struct ControlArgs {
     /// NNDM model directory (kind nndm) for --solver shooting/all next to a lifted --model.
     #[arg(long, value_name = "DIR")]
     pub nndm: Option<PathBuf>,
+    /// Bilinear model directory (kind bilinear) for --solver bilinear/all next to --model.
+    #[arg(long, value_name = "DIR")]
+    pub bilinear: Option<PathBuf>,
     /// Fit an in-process stand-in model instead (least squares on random tanh features, this
     /// many features, 2000 windows of aligned data, seed 42).
     #[arg(long, value_name = "FEATURES", conflicts_with = "model")]
@@ -129,9 +135,23 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
     let out = args.out.clone().unwrap_or_else(|| {
         PathBuf::from("results/control").join(format!("{}-{task_name}", system.name()))
     });
-    let model_is_nndm = match &args.model {
-        Some(dir) => koopman::model::store::read_kind(dir)? == "nndm",
-        None => false,
+    let model_kind = match &args.model {
+        Some(dir) => Some(koopman::model::store::read_kind(dir)?),
+        None => None,
+    };
+    let model_is_nndm = model_kind.as_deref() == Some("nndm");
+    let model_is_bilinear = model_kind.as_deref() == Some("bilinear");
+    let bilinear_dir = match (model_is_bilinear, &args.bilinear) {
+        (true, Some(_)) => bail!("--model is already a bilinear model: leave out --bilinear"),
+        (true, None) => args.model.clone(),
+        (false, dir) => dir.clone(),
+    };
+    let bilinear = match &bilinear_dir {
+        Some(dir) => Some(
+            BilinearModel::load(dir)
+                .with_context(|| format!("loading the bilinear model in {}", dir.display()))?,
+        ),
+        None => None,
     };
     let nndm_dir = match (model_is_nndm, &args.nndm) {
         (true, Some(_)) => bail!("--model is already an NNDM: leave out --nndm"),
@@ -145,8 +165,9 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
         ),
         None => None,
     };
-    let lifted_given =
-        !model_is_nndm && (args.model.is_some() || args.fit.is_some() || args.train.is_some());
+    let lifted_given = !model_is_nndm
+        && !model_is_bilinear
+        && (args.model.is_some() || args.fit.is_some() || args.train.is_some());
     let choices = match args.solver {
         ControllerChoice::All => {
             let mut c = Vec::new();
@@ -157,6 +178,9 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
                     ControllerChoice::ClosedForm,
                     ControllerChoice::Lqr,
                 ]);
+            }
+            if bilinear.is_some() {
+                c.insert(0, ControllerChoice::Bilinear);
             }
             c.push(ControllerChoice::ShootingOracle);
             if nndm.is_some() {
@@ -169,8 +193,12 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
             "--solver shooting plans on an NNDM: give --model DIR of kind nndm or --nndm DIR \
              (random shooting on the true system is --solver shooting-oracle)"
         ),
+        ControllerChoice::Bilinear if bilinear.is_none() => bail!(
+            "--solver bilinear needs a bilinear model: --model DIR of kind bilinear or --bilinear DIR"
+        ),
         ControllerChoice::ShootingOracle
         | ControllerChoice::Shooting
+        | ControllerChoice::Bilinear
         | ControllerChoice::ZeroInput => vec![args.solver],
         c if !lifted_given => bail!(
             "--solver {} needs a lifted model: --model DIR of kind koopman or edmd, --fit or --train{}",
@@ -191,6 +219,9 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
     let dims = [
         model.as_ref().map(|m| ("model", m.nx(), m.nu())),
         nndm.as_ref().map(|m| ("NNDM", m.arch().nx, m.arch().nu)),
+        bilinear
+            .as_ref()
+            .map(|m| ("bilinear model", m.nx(), m.nu())),
     ];
     for (what, nx, nu) in dims.into_iter().flatten() {
         if nx != system.nx() || nu != system.nu() {
@@ -223,9 +254,17 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
         Some(b) => bail!("--u-bound must be a positive number, got {b}"),
         None => system.input_bounds(),
     };
+    let target = task.reference(task.steps);
+    // Without a linear model, the bilinear one linearised at the target is diagnosed.
+    let at_target = match (&model, &bilinear) {
+        (None, Some(b)) => Some(linearised_at(system.as_ref(), b, &target, &lo, &hi)?),
+        _ => None,
+    };
     let diagnostics = diagnose(
         system.as_ref(),
-        model.as_deref(),
+        model
+            .as_deref()
+            .or(at_target.as_ref().map(|m| m as &dyn LiftedModel)),
         &task.reference(task.steps),
         kind == TaskKind::Regulate,
         (&lo, &hi),
@@ -246,6 +285,7 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
             Models {
                 lifted: model.as_deref(),
                 nndm: nndm.as_ref().map(|m| m as &dyn OneStepModel),
+                bilinear: bilinear.as_ref(),
             },
             &task,
             &lo,
@@ -287,6 +327,7 @@ fn controller_stem(c: ControllerChoice) -> &'static str {
         ControllerChoice::Lqr => "lqr",
         ControllerChoice::Shooting => "shooting",
         ControllerChoice::ShootingOracle => "shooting-oracle",
+        ControllerChoice::Bilinear => "bilinear",
         ControllerChoice::ZeroInput => "zero-input",
         ControllerChoice::All => "all",
     }
@@ -380,6 +421,7 @@ fn train_stand_in(
 struct Models<'m> {
     lifted: Option<&'m dyn LiftedModel>,
     nndm: Option<&'m dyn OneStepModel>,
+    bilinear: Option<&'m BilinearModel>,
 }
 
 fn run_one(
@@ -394,6 +436,7 @@ fn run_one(
     let Models {
         lifted: model,
         nndm,
+        bilinear,
     } = models;
     let lifted = || model.context("this controller needs a lifted model (koopman or edmd)");
     let nu = system.nu();
@@ -454,6 +497,15 @@ fn run_one(
                 Box::new(ShootingPolicy::new(planner, &oracle, "true-system"))
             }
         }
+        ControllerChoice::Bilinear => {
+            let cfg = MpcConfig {
+                horizon: args.horizon,
+                r: Some(vec![args.r; nu]),
+                ..MpcConfig::with_bounds(lo.to_vec(), hi.to_vec())
+            };
+            let model = bilinear.context("--solver bilinear needs a bilinear model")?;
+            Box::new(BilinearMpc::new(model, &cfg, ScpOptions::default())?)
+        }
         ControllerChoice::ZeroInput => Box::new(ConstantPolicy::zero(nu)),
         ControllerChoice::All => unreachable!("expanded by the caller"),
     };
@@ -503,74 +555,4 @@ fn write_json_atomic<T: serde::Serialize>(path: &Path, value: &T) -> anyhow::Res
         path,
         &serde_json::to_vec_pretty(value)?,
     )?)
-}
-
-fn plot_trajectory(
-    path: &Path,
-    system: &dyn System,
-    m: &ClosedLoopMetrics,
-    tr: &Trajectory,
-    lo: &[f64],
-    hi: &[f64],
-) -> anyhow::Result<()> {
-    let names = system.state_names();
-    let angles = system.angle_indices();
-    let column = |rows: &[Vec<f64>], i: usize| rows.iter().map(|r| r[i]).collect::<Vec<f64>>();
-    let mut angle_panel = Panel {
-        title: "angles".into(),
-        y_label: "rad".into(),
-        series: vec![],
-    };
-    let mut rate_panel = Panel {
-        title: "other states".into(),
-        y_label: "value".into(),
-        series: vec![],
-    };
-    for (i, name) in names.iter().enumerate() {
-        let panel = if angles.contains(&i) {
-            &mut angle_panel
-        } else {
-            &mut rate_panel
-        };
-        panel
-            .series
-            .push(Series::new(name.clone(), &tr.t, &column(&tr.x, i)));
-        panel
-            .series
-            .push(Series::new(format!("{name} ref"), &tr.t, &column(&tr.r, i)).dashed());
-    }
-    let tu: Vec<f64> = tr.t[..tr.u.len()].to_vec();
-    let mut input_panel = Panel {
-        title: "inputs".into(),
-        y_label: "u".into(),
-        series: vec![],
-    };
-    for (i, name) in system.input_names().iter().enumerate() {
-        input_panel
-            .series
-            .push(Series::new(name.clone(), &tu, &column(&tr.u, i)));
-    }
-    let ends = [
-        tu.first().copied().unwrap_or(0.0),
-        tu.last().copied().unwrap_or(1.0),
-    ];
-    if let (Some(l), Some(h)) = (
-        lo.iter().copied().reduce(f64::min),
-        hi.iter().copied().reduce(f64::max),
-    ) {
-        input_panel
-            .series
-            .push(Series::new("u max", &ends, &[h, h]).dashed());
-        input_panel
-            .series
-            .push(Series::new("u min", &ends, &[l, l]).dashed());
-    }
-    let title = format!("{} {:?} — {}", m.env, m.task, m.controller).to_lowercase();
-    time_series_png(
-        path,
-        &title,
-        "t [s]",
-        &[angle_panel, rate_panel, input_panel],
-        1000,
-    )
 }

@@ -4,6 +4,7 @@
 use koopman::analysis::{
     gain_agreement, holding_input, model_input_gain, system_input_gain, GainAgreement, HoldingInput,
 };
+use koopman::model::bilinear::{BilinearModel, Linearised};
 use koopman::model::LiftedModel;
 use koopman::systems::System;
 use serde::Serialize;
@@ -126,6 +127,21 @@ impl ControlDiagnostics {
             eprintln!("warning: {w}");
         }
     }
+}
+
+/// The bilinear model linearised at the target and the input that holds it (zero when the
+/// target cannot be held), for the authority diagnostic.
+pub fn linearised_at<'m>(
+    system: &dyn System,
+    model: &'m BilinearModel,
+    target: &[f64],
+    lo: &[f64],
+    hi: &[f64],
+) -> anyhow::Result<Linearised<'m>> {
+    let u = koopman::analysis::holding_input(system, target, lo, hi)
+        .map(|h| clamp(&h.u, lo, hi))
+        .unwrap_or_else(|_| vec![0.0; system.nu()]);
+    Ok(model.linearised(&model.try_lift(target)?, &u)?)
 }
 
 fn clamp(u: &[f64], lo: &[f64], hi: &[f64]) -> Vec<f64> {

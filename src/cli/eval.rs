@@ -55,26 +55,51 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     if kind == "nndm" {
         return eval_nndm(&args, &data);
     }
-    let model: Box<dyn LiftedModel> = load_lifted(&args.model)?;
-    if data.nx != model.nx() || data.nu != model.nu() {
-        anyhow::bail!(
-            "the model expects nx = {}, nu = {} but {} has nx = {}, nu = {}",
-            model.nx(),
-            model.nu(),
-            args.data.display(),
-            data.nx,
-            data.nu
-        );
+    if kind == "bilinear" {
+        // The diagnostics are those of the linear part (encoder, A, B); the prediction error
+        // is the bilinear rollout's.
+        let bil = koopman::model::bilinear::BilinearModel::load(&args.model)?;
+        check_dims(&args, &data, bil.nx(), bil.nu())?;
+        let err = koopman::train::bilinear_prediction_error(&bil, &data, args.gamma)?;
+        let rep = lifted_report(kind, bil.linear(), err, &data);
+        return print_report(&args, &rep);
     }
+    let model: Box<dyn LiftedModel> = load_lifted(&args.model)?;
+    check_dims(&args, &data, model.nx(), model.nu())?;
     let prediction_error = if kind == "koopman" {
         let km = KoopmanModel::load(&args.model)?;
         koopman::train::prediction_error(&km, &data, args.gamma)?
     } else {
         koopman::analysis::prediction_error(model.as_ref(), &data, args.gamma)?
     };
-    let gram_condition = koopman::analysis::gram_condition(model.as_ref(), &data).ok();
+    let rep = lifted_report(kind, model.as_ref(), prediction_error, &data);
+    print_report(&args, &rep)
+}
+
+fn check_dims(args: &EvalArgs, data: &Dataset, nx: usize, nu: usize) -> anyhow::Result<()> {
+    if data.nx != nx || data.nu != nu {
+        anyhow::bail!(
+            "the model expects nx = {}, nu = {} but {} has nx = {}, nu = {}",
+            nx,
+            nu,
+            args.data.display(),
+            data.nx,
+            data.nu
+        );
+    }
+    Ok(())
+}
+
+/// The report of a lifted model: its prediction error and the diagnostics of its lifting, A, B.
+fn lifted_report(
+    kind: String,
+    model: &dyn LiftedModel,
+    prediction_error: f64,
+    data: &Dataset,
+) -> EvalReport {
+    let gram_condition = koopman::analysis::gram_condition(model, data).ok();
     let bbt_condition = if model.nu() > 0 {
-        koopman::analysis::bbt_condition(model.as_ref()).ok()
+        koopman::analysis::bbt_condition(model).ok()
     } else {
         None
     };
@@ -85,7 +110,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                 .map(|c| (c.re * c.re + c.im * c.im).sqrt())
                 .fold(0.0, f64::max)
         });
-    let rep = EvalReport {
+    EvalReport {
         kind,
         windows: data.n,
         pairing: data.meta.pairing,
@@ -94,8 +119,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         bbt_condition,
         spectral_radius,
         latent_dim: model.latent_dim(),
-    };
-    print_report(&args, &rep)
+    }
 }
 
 /// An NNDM (one-step MLP): the prediction error by rollout from every window's first state.

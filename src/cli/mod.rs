@@ -7,6 +7,7 @@ pub mod bench_mpc;
 pub mod bench_train;
 pub mod control;
 pub mod control_diagnostics;
+pub mod control_plot;
 pub mod data;
 pub mod eval;
 pub mod learning_curve;

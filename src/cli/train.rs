@@ -17,6 +17,9 @@ use std::time::Instant;
 pub enum ModelKind {
     /// Neural Koopman model (SPEC.md).
     Koopman,
+    /// Bilinear Koopman model z⁺ = A z + B u + Σ u_i N_i z: SPEC's encoder, losses and recipe,
+    /// N_i starting at zero (the inverse-control loss uses B(z) = B + [N_1 z … N_nu z]).
+    Bilinear,
     /// EDMD with control (polynomial dictionary, least squares).
     Edmd,
     /// NNDM baseline: an MLP x⁺ = x + g([x, u]) with equal hidden layers (as many as --hidden)
@@ -116,6 +119,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         .with_context(|| format!("loading the dataset folder {}", args.data.display()))?;
     match args.model {
         ModelKind::Koopman => train_koopman(&args, &splits),
+        ModelKind::Bilinear => train_bilinear(&args, &splits),
         ModelKind::Edmd => train_edmd(&args, &splits),
         ModelKind::Nndm => train_nndm(&args, &splits),
     }
@@ -194,6 +198,38 @@ fn train_koopman(args: &TrainArgs, splits: &Splits) -> anyhow::Result<()> {
     let mut curve = LearningCurve::default();
     let mut observer = observer(&bar, Instant::now(), &mut curve);
     let outcome = train(
+        &cfg,
+        &splits.train,
+        &splits.val,
+        Some(&splits.test),
+        &mut observer,
+    )?;
+    drop(observer);
+    bar.finish_and_clear();
+    outcome
+        .model
+        .save(&args.out)
+        .with_context(|| format!("saving the model to {}", args.out.display()))?;
+    write_metrics(args, &outcome.metrics, &curve)?;
+    report(
+        args,
+        &outcome.metrics,
+        &outcome.metrics,
+        &curve,
+        &splits.test,
+    )
+}
+
+/// The bilinear Koopman model: SPEC's recipe with `z⁺ = A z + B u + Σ u_i N_i z`.
+fn train_bilinear(args: &TrainArgs, splits: &Splits) -> anyhow::Result<()> {
+    let cfg = TrainConfig {
+        bilinear: true,
+        ..config(args)
+    };
+    let bar = progress_bar(cfg.iterations);
+    let mut curve = LearningCurve::default();
+    let mut observer = observer(&bar, Instant::now(), &mut curve);
+    let outcome = koopman::train::train_bilinear(
         &cfg,
         &splits.train,
         &splits.val,

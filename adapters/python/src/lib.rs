@@ -28,6 +28,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
     m.add_class::<adapter::Adapter>()?;
     m.add_class::<model::KoopmanModel>()?;
+    m.add_class::<model::BilinearModel>()?;
     m.add_class::<mpc::Mpc>()?;
     m.add_class::<client::Client>()?;
     m.add_class::<systems::ReferenceSystem>()?;

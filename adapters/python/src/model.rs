@@ -188,3 +188,131 @@ fn check_finite(v: &[f64], what: &str) -> PyResult<()> {
         )))
     }
 }
+
+/// A bilinear Koopman model ``z = [x, ψ(x)]``, ``z⁺ = A z + B u + Σ_i u_i N_i z`` (f64 weights).
+///
+/// Load one written by ``koopbridge train --model bilinear`` with ``BilinearModel.load(dir)``
+/// (``config.json`` kind ``bilinear``).
+#[pyclass(module = "koopbridge._native", frozen)]
+pub struct BilinearModel {
+    inner: Arc<koopman::model::bilinear::BilinearModel>,
+}
+
+#[pymethods]
+impl BilinearModel {
+    /// Loads the model saved in directory ``path``.
+    #[staticmethod]
+    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+        let inner = py
+            .detach(|| koopman::model::bilinear::BilinearModel::load(&path))
+            .map_err(koopman_err)?;
+        Ok(BilinearModel {
+            inner: Arc::new(inner),
+        })
+    }
+
+    /// A freshly initialised model: SPEC's initialisation (the encoder, A and B of
+    /// ``KoopmanModel.init`` with the same arguments) and every N_i = 0.
+    #[staticmethod]
+    #[pyo3(signature = (nx, nu, hidden=vec![256, 256, 256], n_mult=16, seed=17382))]
+    fn init(nx: usize, nu: usize, hidden: Vec<usize>, n_mult: usize, seed: u64) -> PyResult<Self> {
+        let arch = koopman::model::arch::Arch::new(nx, nu, &hidden, n_mult).map_err(koopman_err)?;
+        let inner =
+            koopman::model::bilinear::BilinearModel::init(arch, seed).map_err(koopman_err)?;
+        Ok(BilinearModel {
+            inner: Arc::new(inner),
+        })
+    }
+
+    /// Saves the model into directory ``path`` (``model.safetensors`` + ``config.json``).
+    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        py.detach(|| self.inner.save(&path)).map_err(koopman_err)
+    }
+
+    /// State dimension nx.
+    #[getter]
+    fn nx(&self) -> usize {
+        self.inner.nx()
+    }
+
+    /// Input dimension nu.
+    #[getter]
+    fn nu(&self) -> usize {
+        self.inner.nu()
+    }
+
+    /// Latent dimension N = nx + n_enc.
+    #[getter]
+    fn latent_dim(&self) -> usize {
+        self.inner.latent_dim()
+    }
+
+    /// The latent transition matrix A, shape (N, N).
+    #[getter(A)]
+    fn a<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        mat(py, self.inner.linear().a_ref())
+    }
+
+    /// The constant part B of the input matrix, shape (N, nu).
+    #[getter(B)]
+    fn b<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        mat(py, self.inner.linear().b_ref())
+    }
+
+    /// The bilinear matrices [N_1, …, N_nu], each of shape (N, N).
+    #[getter(N)]
+    fn n<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyArray2<f64>>>> {
+        (0..self.inner.nu())
+            .map(|i| mat(py, self.inner.n_mat(i)))
+            .collect()
+    }
+
+    /// The metadata saved with the model (training configuration, metrics, data), as a dict.
+    #[getter]
+    fn metadata(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
+        let s = self.inner.metadata.to_string();
+        Ok(py.import("json")?.call_method1("loads", (s,))?.unbind())
+    }
+
+    /// Forecasts from ``x0`` (nx,) under ``u_seq`` (T, nu): encodes once, rolls out the bilinear
+    /// latent dynamics and returns the predicted states x_1..x_T, shape (T, nx).
+    fn predict<'py>(
+        &self,
+        py: Python<'py>,
+        x0: &Bound<'py, PyAny>,
+        u_seq: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let (nx, nu, n) = (self.inner.nx(), self.inner.nu(), self.inner.latent_dim());
+        let x0 = crate::convert::vec_n(x0, nx, "x0")?;
+        check_finite(&x0, "x0")?;
+        let (t, cols, u) = rows_f64(u_seq, "u_seq")?;
+        if cols != nu {
+            return Err(PyValueError::new_err(format!(
+                "u_seq: inputs have {cols} values, the model has nu = {nu}"
+            )));
+        }
+        check_finite(&u, "u_seq")?;
+        let inner = self.inner.clone();
+        let out = py.detach(move || {
+            let mut z = inner.lift(&x0);
+            let mut next = vec![0.0; n];
+            let mut out = Vec::with_capacity(t * nx);
+            for s in 0..t {
+                inner.step(&z, &u[s * nu..(s + 1) * nu], &mut next);
+                std::mem::swap(&mut z, &mut next);
+                out.extend_from_slice(&z[..nx]);
+            }
+            out
+        });
+        array2(py, t, nx, &out)
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "BilinearModel(nx={}, nu={}, latent_dim={})",
+            self.inner.nx(),
+            self.inner.nu(),
+            self.inner.latent_dim()
+        )
+    }
+}

@@ -131,6 +131,18 @@ impl KoopmanModel {
     /// Saves `model.safetensors` and `config.json` (with `"kind": "koopman"`) into `dir`,
     /// creating it if needed; each file is written atomically.
     pub fn save(&self, dir: &Path) -> Result<()> {
+        self.save_kind(dir, "koopman", Vec::new(), &self.metadata)
+    }
+
+    /// [`KoopmanModel::save`] with another `"kind"`, `extra` tensors in the same file and the
+    /// given metadata (for models that extend this one, e.g. the bilinear model).
+    pub(crate) fn save_kind(
+        &self,
+        dir: &Path,
+        kind: &str,
+        extra: Vec<Tensor>,
+        metadata: &serde_json::Value,
+    ) -> Result<()> {
         store::ensure_dir(dir)?;
         let lay = self.arch.layout();
         let mut tensors = Vec::new();
@@ -174,12 +186,13 @@ impl KoopmanModel {
                 data: self.params[lay.b..lay.len].to_vec(),
             });
         }
+        tensors.extend(extra);
         crate::fsutil::write_atomic(
             &dir.join("model.safetensors"),
             &store::to_safetensors(&tensors)?,
         )?;
         let cfg = ConfigFile {
-            kind: "koopman".into(),
+            kind: kind.into(),
             format_version: FORMAT_VERSION,
             nx: self.arch.nx,
             nu: self.arch.nu,
@@ -190,7 +203,7 @@ impl KoopmanModel {
             block: "y = relu(W x + b) + R(x); R linear with bias if widths differ, identity otherwise; \
                     z = [x, psi(x)]; z+ = A z + B u; tensors row-major [out, in]"
                 .into(),
-            metadata: self.metadata.clone(),
+            metadata: metadata.clone(),
         };
         let json =
             serde_json::to_vec_pretty(&cfg).map_err(|e| Error::InvalidArgument(e.to_string()))?;
@@ -199,8 +212,18 @@ impl KoopmanModel {
 
     /// Loads a model saved by [`KoopmanModel::save`] (F32 or F64 tensors).
     pub fn load(dir: &Path) -> Result<Self> {
-        let (value, cfg_path) =
-            store::read_config_checked(dir, "koopman", FORMAT_VERSION, "a Koopman model")?;
+        Ok(Self::load_kind(dir, "koopman", "a Koopman model", |_, _, _| Ok(()))?.0)
+    }
+
+    /// [`KoopmanModel::load`] of a model saved with [`KoopmanModel::save_kind`]: checks
+    /// `"kind"`, and `extra` reads the extending model's tensors from the same file.
+    pub(crate) fn load_kind<X>(
+        dir: &Path,
+        kind: &str,
+        label: &str,
+        extra: impl FnOnce(&safetensors::SafeTensors<'_>, &Path, &Arch) -> Result<X>,
+    ) -> Result<(Self, X)> {
+        let (value, cfg_path) = store::read_config_checked(dir, kind, FORMAT_VERSION, label)?;
         let cfg: ConfigFile = serde_json::from_value(value)
             .map_err(|e| Error::format(&cfg_path, format!("not a Koopman model config: {e}")))?;
         let arch = Arch {
@@ -248,9 +271,10 @@ impl KoopmanModel {
             let b = store::read_tensor(&st, &st_path, "B", &[n, arch.nu])?;
             params[lay.b..lay.len].copy_from_slice(&b);
         }
+        let x = extra(&st, &st_path, &arch)?;
         let mut model = Self::from_params(arch, params)?;
         model.metadata = cfg.metadata;
-        Ok(model)
+        Ok((model, x))
     }
 }
 

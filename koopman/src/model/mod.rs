@@ -1,5 +1,6 @@
 //! Models with linear latent dynamics `z⁺ = A z + B u` and a lifting `z = Φ(x)`: the neural Koopman
-//! model, EDMD with control, and the NNDM baseline; save/load.
+//! model, EDMD with control, and the NNDM baseline; the bilinear Koopman model
+//! (`+ Σ u_i N_i z`, [`bilinear`]); save/load.
 
 use faer::Mat;
 
@@ -33,6 +34,7 @@ pub trait LiftedModel: Send + Sync {
 }
 
 pub mod arch;
+pub mod bilinear;
 pub mod edmd;
 pub mod encoder;
 pub mod init;

@@ -100,6 +100,17 @@ impl BoxQp {
         self.n
     }
 
+    /// Replaces the Hessian (same size, symmetric positive definite) for the next solves, as a
+    /// time-varying QP needs; copies into the existing buffer and drops the cached factor.
+    pub fn set_hessian(&mut self, h: MatRef<'_, f64>) -> Result<()> {
+        if h.nrows() != self.n || h.ncols() != self.n {
+            return Err(Error::dimension("Hessian rows", self.n, h.nrows()));
+        }
+        self.h.copy_from(h);
+        self.chol_valid = false;
+        Ok(())
+    }
+
     fn gradient(&mut self, q: &[f64], u: &[f64]) {
         self.g.copy_from_slice(q);
         gemv_acc(self.h.as_ref(), u, &mut self.g);

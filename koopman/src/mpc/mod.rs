@@ -11,9 +11,13 @@
 //! - Baselines: [`SolverKind::ClosedForm`] (unconstrained optimum, clamped), [`Lqr`] with
 //!   feed-forward on the lifted model, [`RandomShooting`] on any [`OneStepModel`]; every
 //!   controller is a [`Policy`] that [`run_closed_loop`] evaluates on a reference system.
+//! - [`BilinearMpc`]: sequential convex MPC on a bilinear model (`z⁺ = A z + B u + Σ u_i N_i z`),
+//!   re-linearised along each new plan (at most [`ScpOptions::max_linearisations`] QPs on the
+//!   dedicated box solver); [`ScpStatus`] says whether it converged.
 //! - On solver failure the controller returns the shifted previous plan clamped to the bounds
 //!   ([`SolveStatus::Fallback`]), never NaN; bad input is a typed [`crate::Error`].
 
+pub mod bilinear;
 pub mod boxqp;
 pub mod chol;
 pub mod clarabel_qp;
@@ -31,6 +35,7 @@ pub mod policy;
 pub mod qp;
 pub mod shooting;
 
+pub use bilinear::{BilinearMpc, BilinearSolution, ScpOptions, ScpStatus};
 pub use closed_loop::{run_closed_loop, ClosedLoopMetrics, Task, TaskKind, Trajectory};
 pub use config::{MpcConfig, SolverKind};
 pub use controller::{FallbackReason, MpcController, MpcSolution, SolveStatus};

@@ -18,11 +18,20 @@ pub struct PredEval<T: Real> {
     zc: Vec<T>,
     zn: Vec<T>,
     uk: Vec<T>,
+    /// Bilinear dynamics (the parameters end with N_1..N_nu); `tmp` is its scratch.
+    bil: bool,
+    tmp: Vec<T>,
 }
 
 impl<T: Real> PredEval<T> {
     /// Buffers for `arch`, `chunk` windows at a time; `par` for the encoder.
     pub fn new(arch: &Arch, chunk: usize, par: Par) -> Self {
+        Self::with_dynamics(arch, chunk, par, false)
+    }
+
+    /// Like [`PredEval::new`]; with `bilinear` the rollout is `ẑ⁺ = A ẑ + B u + Σ_i u_i N_i ẑ`
+    /// and parameter vectors end with the N_i (see [`super::bilinear`]).
+    pub fn with_dynamics(arch: &Arch, chunk: usize, par: Par, bilinear: bool) -> Self {
         let chunk = chunk.max(1);
         let nn = arch.latent_dim();
         PredEval {
@@ -32,6 +41,8 @@ impl<T: Real> PredEval<T> {
             zc: vec![T::default(); chunk * nn],
             zn: vec![T::default(); chunk * nn],
             uk: vec![T::default(); chunk * arch.nu],
+            bil: bilinear,
+            tmp: vec![T::default(); if bilinear { chunk * nn } else { 0 }],
         }
     }
 
@@ -41,13 +52,19 @@ impl<T: Real> PredEval<T> {
         let (nx, nu, nn) = (self.arch.nx, self.arch.nu, self.arch.latent_dim());
         check_dataset(data, nx, nu)?;
         let lay = self.arch.layout();
-        if params.len() != lay.len {
-            return Err(Error::dimension("parameter vector", lay.len, params.len()));
+        let total = lay.len + if self.bil { nu * nn * nn } else { 0 };
+        if params.len() != total {
+            return Err(Error::dimension("parameter vector", total, params.len()));
         }
         let d = self.arch.n_enc();
         let steps = data.steps;
         let a = MatRef::from_row_major_slice(&params[lay.a..lay.a + nn * nn], nn, nn);
         let bm = MatRef::from_row_major_slice(&params[lay.b..lay.len], nn, nu);
+        let dynamics = super::bilinear::Dynamics {
+            a,
+            b: bm,
+            n: &params[lay.len..],
+        };
         let mut sums = vec![0.0f64; steps];
         let mut start = 0;
         while start < data.n {
@@ -86,12 +103,20 @@ impl<T: Real> PredEval<T> {
                     );
                     if nu > 0 {
                         matmul(
-                            zn,
+                            zn.rb_mut(),
                             Accum::Add,
                             view(&self.uk, r, nu),
                             bm.transpose(),
                             T::one(),
                             Par::Seq,
+                        );
+                    }
+                    if self.bil {
+                        dynamics.add_forward(
+                            zn,
+                            view(&self.zc, r, nn),
+                            view(&self.uk, r, nu),
+                            &mut self.tmp,
                         );
                     }
                 }

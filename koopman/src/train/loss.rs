@@ -5,6 +5,7 @@
 //! states at one time form a contiguous block of `b` rows and "all current / all next states" are
 //! two overlapping row ranges of one matrix.
 
+use super::bilinear::{CtrlGrads, Dynamics};
 use crate::model::arch::{Arch, Layout};
 use crate::model::encoder::{view, view_mut, EncoderWs};
 use crate::model::scalar::Real;
@@ -65,6 +66,11 @@ pub struct LossWs<T: Real> {
     q: Vec<T>,
     cen: Vec<T>,
     cmat: Vec<T>,
+    /// Bilinear dynamics `z⁺ = A z + B u + Σ u_i N_i z` (parameters end with the N_i).
+    bil: bool,
+    /// Bilinear scratch: T·b × N, and T·b × nu·N (empty for the linear model).
+    tmp: Vec<T>,
+    bw: Vec<T>,
 }
 
 impl<T: Real> LossWs<T> {
@@ -72,6 +78,13 @@ impl<T: Real> LossWs<T> {
     /// encoder's rows are split into `k` parts that run on `k` threads (each with sequential
     /// GEMMs, so the threads never wait on each other inside a pass); `Par::Seq` runs one part.
     pub fn new(arch: &Arch, b: usize, steps: usize, par: Par) -> Self {
+        Self::with_dynamics(arch, b, steps, par, false)
+    }
+
+    /// Like [`LossWs::new`], for the bilinear model `z⁺ = A z + B u + Σ_i u_i N_i z` when
+    /// `bilinear`: its parameter vectors are the linear layout followed by N_1..N_nu
+    /// ([`super::bilinear::bilinear_len`] values, row-major).
+    pub fn with_dynamics(arch: &Arch, b: usize, steps: usize, par: Par, bilinear: bool) -> Self {
         let n = (steps + 1) * b;
         let nn = arch.latent_dim();
         let nu = arch.nu;
@@ -107,6 +120,9 @@ impl<T: Real> LossWs<T> {
             q: vec![T::default(); 2 * nu * nn],
             cen: vec![T::default(); b * d],
             cmat: vec![T::default(); d * d],
+            bil: bilinear,
+            tmp: vec![T::default(); if bilinear { steps * b * nn } else { 0 }],
+            bw: vec![T::default(); if bilinear { steps * b * nu * nn } else { 0 }],
         }
     }
 
@@ -137,10 +153,12 @@ impl<T: Real> LossWs<T> {
         let n = (steps + 1) * b;
         let tb = steps * b;
         let lay = &self.layout;
-        if params.len() != lay.len || grad.len() != lay.len {
+        let n_bil = if self.bil { nu * nn * nn } else { 0 };
+        let total = lay.len + n_bil;
+        if params.len() != total || grad.len() != total {
             return Err(Error::dimension(
                 "parameter vector",
-                lay.len,
+                total,
                 params.len().min(grad.len()),
             ));
         }
@@ -171,14 +189,21 @@ impl<T: Real> LossWs<T> {
             }
         }
         self.dz.fill(zero);
-        for v in &mut grad[lay.a..lay.len] {
+        for v in &mut grad[lay.a..] {
             *v = zero;
         }
         let (gp, ga_gb) = grad.split_at_mut(lay.a);
         let _ = gp;
-        let (ga, gb) = ga_gb.split_at_mut(nn * nn);
+        let (ga, gb_gn) = ga_gb.split_at_mut(nn * nn);
+        let (gb, gn) = gb_gn.split_at_mut(nn * nu);
         let a = MatRef::from_row_major_slice(&params[lay.a..lay.a + nn * nn], nn, nn);
         let bm = MatRef::from_row_major_slice(&params[lay.b..lay.len], nn, nu);
+        let dynamics = Dynamics {
+            a,
+            b: bm,
+            n: &params[lay.len..],
+        };
+        let bil = self.bil;
         let weights: Vec<f64> = (0..steps).map(|k| opts.gamma.powi(k as i32)).collect();
         let wsum: f64 = weights.iter().sum();
         let z = view(&self.z, n, nn);
@@ -204,13 +229,16 @@ impl<T: Real> LossWs<T> {
                 );
                 if nu > 0 {
                     matmul(
-                        next,
+                        next.rb_mut(),
                         Accum::Add,
                         u.subrows(k * b, b),
                         bm.transpose(),
                         one,
                         Par::Seq,
                     );
+                }
+                if bil {
+                    dynamics.add_forward(next, cur, u.subrows(k * b, b), &mut self.tmp);
                 }
             }
         }
@@ -238,14 +266,11 @@ impl<T: Real> LossWs<T> {
             for k in (0..steps.saturating_sub(1)).rev() {
                 let (head, tail) = g.rb_mut().split_at_row_mut((k + 1) * b);
                 let nextg = tail.rb().subrows(0, b);
-                matmul(
-                    head.subrows_mut(k * b, b),
-                    Accum::Add,
-                    nextg,
-                    a,
-                    one,
-                    Par::Seq,
-                );
+                let mut dst = head.subrows_mut(k * b, b);
+                matmul(dst.rb_mut(), Accum::Add, nextg, a, one, Par::Seq);
+                if bil {
+                    dynamics.add_adjoint(dst, nextg, u.subrows((k + 1) * b, b), &mut self.tmp);
+                }
             }
             let g = view(&self.g, tb, nn);
             let mut dz = view_mut(&mut self.dz, n, nn);
@@ -257,6 +282,15 @@ impl<T: Real> LossWs<T> {
                 one,
                 Par::Seq,
             );
+            if bil {
+                dynamics.add_adjoint(
+                    dz.rb_mut().subrows_mut(0, b),
+                    g.subrows(0, b),
+                    u.subrows(0, b),
+                    &mut self.tmp,
+                );
+                dynamics.grad_n(&mut *gn, g, zhat.subrows(0, tb), u, &mut self.tmp);
+            }
             let ga_m = MatMut::from_row_major_slice_mut(&mut *ga, nn, nn);
             matmul(
                 ga_m,
@@ -272,8 +306,25 @@ impl<T: Real> LossWs<T> {
             }
         }
 
+        // Bilinear inverse control: û = pinv(B(Φ(x_t))) (Φ(x_{t+1}) − A Φ(x_t)) per sample.
+        if opts.ctrl && nu > 0 && bil {
+            parts.ctrl = dynamics.ctrl_loss(
+                z,
+                u,
+                b,
+                &weights,
+                &mut self.bw,
+                &mut self.tmp,
+                CtrlGrads {
+                    dz: view_mut(&mut self.dz, n, nn),
+                    ga: &mut *ga,
+                    gb: &mut *gb,
+                    gn: &mut *gn,
+                },
+            )?;
+        }
         // Inverse control: û = pinv(B) (Φ(x_{t+1}) − A Φ(x_t)).
-        if opts.ctrl && nu > 0 {
+        if opts.ctrl && nu > 0 && !bil {
             // M = BᵀB and its inverse (f64, nu × nu, Cholesky).
             let mut mmat = vec![0.0; nu * nu];
             for r in 0..nu {

@@ -2,6 +2,7 @@
 //! Adam with step decay and gradient clipping, validation and best-checkpoint selection.
 
 pub mod adam;
+pub mod bilinear;
 pub mod checkpoint;
 pub mod eval;
 pub mod loss;
@@ -10,7 +11,7 @@ mod run;
 mod tracker;
 
 pub use checkpoint::Checkpoint;
-pub use run::{train, train_resumable};
+pub use run::{train, train_bilinear, train_bilinear_resumable, train_resumable};
 
 use crate::data::Dataset;
 use crate::model::koopman::KoopmanModel;
@@ -64,6 +65,9 @@ pub struct TrainConfig {
     pub precision: Precision,
     /// Threads for the large products (0 = rayon's pool size).
     pub threads: usize,
+    /// Bilinear latent dynamics `z⁺ = A z + B u + Σ_i u_i N_i z` (N_i start at zero) instead of
+    /// SPEC's linear ones; train with [`train_bilinear`].
+    pub bilinear: bool,
 }
 
 impl Default for TrainConfig {
@@ -85,6 +89,7 @@ impl Default for TrainConfig {
             train_samples: None,
             precision: Precision::F32,
             threads: 0,
+            bilinear: false,
         }
     }
 }
@@ -143,6 +148,26 @@ pub struct TrainOutcome {
     pub model: KoopmanModel,
     /// Figures of the run.
     pub metrics: TrainMetrics,
+}
+
+/// A trained bilinear model and its metrics.
+pub struct BilinearOutcome {
+    /// The best checkpoint (by validation prediction error), in f64.
+    pub model: crate::model::bilinear::BilinearModel,
+    /// Figures of the run.
+    pub metrics: TrainMetrics,
+}
+
+/// SPEC's prediction error of a bilinear model (the rollout with `Σ u_i N_i ẑ`), as
+/// [`prediction_error`].
+pub fn bilinear_prediction_error(
+    model: &crate::model::bilinear::BilinearModel,
+    data: &Dataset,
+    gamma: f64,
+) -> Result<f64> {
+    let mut ev =
+        eval::PredEval::<f64>::with_dynamics(model.arch(), 4096, faer::Par::rayon(0), true);
+    ev.pred_loss(&model.params(), data, gamma)
 }
 
 /// SPEC's prediction error of `model` on `data` (f64): `L_pred` with discount `gamma` over all

@@ -5,9 +5,10 @@ use super::checkpoint::{data_fingerprint, Checkpoint};
 use super::eval::{check_dataset, PredEval};
 use super::loss::{LossOptions, LossParts, LossWs};
 use super::tracker::{RunTracker, StepInfo};
-use super::{Precision, Progress, TrainConfig, TrainMetrics, TrainOutcome};
+use super::{BilinearOutcome, Precision, Progress, TrainConfig, TrainMetrics, TrainOutcome};
 use crate::data::Dataset;
 use crate::model::arch::Arch;
+use crate::model::bilinear::BilinearModel;
 use crate::model::init::init_params;
 use crate::model::koopman::KoopmanModel;
 use crate::model::scalar::Real;
@@ -44,6 +45,78 @@ pub fn train_resumable(
     observer: &mut dyn FnMut(&Progress) -> ControlFlow<()>,
     on_checkpoint: &mut dyn FnMut(&Checkpoint),
 ) -> Result<TrainOutcome> {
+    if cfg.bilinear {
+        return Err(Error::InvalidArgument(
+            "the configuration asks for a bilinear model: use train_bilinear".into(),
+        ));
+    }
+    let (arch, best, mut metrics) =
+        train_params(cfg, train, val, test, resume, observer, on_checkpoint)?;
+    let mut model = KoopmanModel::from_params(arch, best)?;
+    if let Some(t) = test {
+        metrics.test_prediction_error = Some(super::prediction_error(&model, t, cfg.gamma)?);
+    }
+    model.metadata = run_metadata(&metrics, train);
+    Ok(TrainOutcome { model, metrics })
+}
+
+/// [`train`] for the bilinear model `z⁺ = A z + B u + Σ_i u_i N_i z` (`cfg.bilinear` must be
+/// set): SPEC's encoder, losses and optimiser, N_i initialised to zero.
+pub fn train_bilinear(
+    cfg: &TrainConfig,
+    train: &Dataset,
+    val: &Dataset,
+    test: Option<&Dataset>,
+    observer: &mut dyn FnMut(&Progress) -> ControlFlow<()>,
+) -> Result<BilinearOutcome> {
+    train_bilinear_resumable(cfg, train, val, test, None, observer, &mut |_| {})
+}
+
+/// [`train_resumable`] for the bilinear model (`cfg.bilinear` must be set).
+pub fn train_bilinear_resumable(
+    cfg: &TrainConfig,
+    train: &Dataset,
+    val: &Dataset,
+    test: Option<&Dataset>,
+    resume: Option<&Checkpoint>,
+    observer: &mut dyn FnMut(&Progress) -> ControlFlow<()>,
+    on_checkpoint: &mut dyn FnMut(&Checkpoint),
+) -> Result<BilinearOutcome> {
+    if !cfg.bilinear {
+        return Err(Error::InvalidArgument(
+            "train_bilinear needs a configuration with bilinear = true".into(),
+        ));
+    }
+    let (arch, best, mut metrics) =
+        train_params(cfg, train, val, test, resume, observer, on_checkpoint)?;
+    let mut model = BilinearModel::from_params(arch, best)?;
+    if let Some(t) = test {
+        metrics.test_prediction_error =
+            Some(super::bilinear_prediction_error(&model, t, cfg.gamma)?);
+    }
+    model.metadata = run_metadata(&metrics, train);
+    Ok(BilinearOutcome { model, metrics })
+}
+
+fn run_metadata(metrics: &TrainMetrics, train: &Dataset) -> serde_json::Value {
+    serde_json::json!({
+        "trainer": "koopbridge",
+        "metrics": metrics,
+        "dataset": train.meta,
+    })
+}
+
+/// The shared run: checks, the loop, and the metrics without the test error. Returns the
+/// architecture and the best parameters (the bilinear ones end with the N_i).
+fn train_params(
+    cfg: &TrainConfig,
+    train: &Dataset,
+    val: &Dataset,
+    test: Option<&Dataset>,
+    resume: Option<&Checkpoint>,
+    observer: &mut dyn FnMut(&Progress) -> ControlFlow<()>,
+    on_checkpoint: &mut dyn FnMut(&Checkpoint),
+) -> Result<(Arch, Vec<f64>, TrainMetrics)> {
     check_config(cfg)?;
     let (nx, nu) = (train.nx, train.nu);
     check_dataset(train, nx, nu)?;
@@ -73,9 +146,15 @@ pub fn train_resumable(
         )));
     }
     let arch = Arch::new(nx, nu, &cfg.hidden, cfg.n_mult)?;
+    if cfg.bilinear && nu == 0 {
+        return Err(Error::InvalidArgument(
+            "a bilinear model needs inputs: this dataset has nu = 0".into(),
+        ));
+    }
+    let num_params = arch.num_params() + n_bilinear(cfg, &arch);
     let fingerprint = data_fingerprint(train, m, val);
     if let Some(ck) = resume {
-        ck.check_compatible(cfg, arch.num_params(), fingerprint)?;
+        ck.check_compatible(cfg, num_params, fingerprint)?;
     }
     let start = Instant::now();
     let ctx = LoopCtx {
@@ -91,31 +170,30 @@ pub fn train_resumable(
         Precision::F64 => run_loop::<f64>(&ctx, resume, observer, on_checkpoint)?,
     };
     let train_secs = its;
-    let mut model = KoopmanModel::from_params(arch.clone(), best)?;
-    let test_err = match test {
-        Some(t) => Some(super::prediction_error(&model, t, cfg.gamma)?),
-        None => None,
-    };
     let metrics = TrainMetrics {
-        test_prediction_error: test_err,
+        test_prediction_error: None,
         best_validation_prediction_error: best_val,
         best_iteration: best_it,
         iterations: cfg.iterations,
         iterations_per_second: cfg.iterations as f64 / train_secs,
         wall_seconds: start.elapsed().as_secs_f64(),
         train_samples: m,
-        num_params: arch.num_params(),
+        num_params,
         final_loss: last,
         pairing: train.meta.pairing,
         env: train.meta.env.clone(),
         config: cfg.clone(),
     };
-    model.metadata = serde_json::json!({
-        "trainer": "koopbridge",
-        "metrics": metrics,
-        "dataset": train.meta,
-    });
-    Ok(TrainOutcome { model, metrics })
+    Ok((arch, best, metrics))
+}
+
+/// Bilinear parameters of the run (0 for the linear model).
+fn n_bilinear(cfg: &TrainConfig, arch: &Arch) -> usize {
+    if cfg.bilinear {
+        super::bilinear::bilinear_len(arch)
+    } else {
+        0
+    }
 }
 
 fn check_config(cfg: &TrainConfig) -> Result<()> {
@@ -169,7 +247,11 @@ fn run_loop<T: Real>(
     let par = Par::rayon(cfg.threads);
     let mut params: Vec<T> = match resume {
         Some(ck) => to_t(&ck.params),
-        None => to_t(&init_params(arch, &mut Rng::new(cfg.seed))?),
+        None => {
+            let mut p = init_params(arch, &mut Rng::new(cfg.seed))?;
+            p.resize(p.len() + n_bilinear(cfg, arch), 0.0);
+            to_t(&p)
+        }
     };
     let mut grad = vec![T::default(); params.len()];
     let mut tracker = RunTracker::new(&params);
@@ -191,8 +273,8 @@ fn run_loop<T: Real>(
         None => Adam::<T>::new(params.len()),
     };
     let (b, steps, nx, nu) = (cfg.batch, train.steps, arch.nx, arch.nu);
-    let mut ws = LossWs::<T>::new(arch, b, steps, par);
-    let mut eval = PredEval::<T>::new(arch, 2048, par);
+    let mut ws = LossWs::<T>::with_dynamics(arch, b, steps, par, cfg.bilinear);
+    let mut eval = PredEval::<T>::with_dynamics(arch, 2048, par, cfg.bilinear);
     let mut rng = match resume {
         Some(ck) => Rng::from_state(ck.rng, ck.rng_spare),
         None => Rng::derive(cfg.seed, 1),

@@ -7,6 +7,7 @@
   the bridge will use it;
 - ``Adapter``: the native base class under ``SimulatorAdapter``;
 - ``KoopmanModel``: a trained neural Koopman model (``encode``, ``predict``, ``A``, ``B``, ``P``);
+- ``BilinearModel``: a trained bilinear Koopman model (``predict``, ``A``, ``B``, ``N``);
 - ``Mpc``: in-process receding-horizon MPC solves on a model;
 - ``Client``: the querying side (simulators, MPC solves and configuration, training jobs, the
   model store, raw queries), all through the Rust ``bridge`` crate;
@@ -21,6 +22,7 @@ Errors: every one is a ``KoopbridgeError``; ``BridgeTimeout`` is also a built-in
 from ._native import (
     PROTOCOL_VERSION,
     Adapter,
+    BilinearModel,
     BridgeTimeout,
     Client,
     GoneError,
@@ -39,6 +41,7 @@ from .simulator import SimInfo, Simulator
 __all__ = [
     "PROTOCOL_VERSION",
     "Adapter",
+    "BilinearModel",
     "BridgeTimeout",
     "Client",
     "GoneError",
