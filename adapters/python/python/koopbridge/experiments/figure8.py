@@ -16,7 +16,6 @@ import json
 import os
 import re
 import shutil
-import socket
 import subprocess
 import sys
 import tempfile
@@ -28,6 +27,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .. import BridgeTimeout, Client
+from ..testing import _free_endpoint
 from .dataset_npz import write_atomic
 from .figure8_ref import SKIP, Figure8, joint_p_command, references, tracking_error
 
@@ -36,12 +36,6 @@ __all__ = ["Run", "main", "parser", "run_controller", "summarise"]
 SIM_ID = "arm0"
 MPC_ID = "fig8"
 NAME = re.compile(r"^[a-z0-9_-]+$")
-
-
-def _free_endpoint() -> str:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
 
 def koopbridge_cli() -> str:
