@@ -104,9 +104,10 @@ def _stats_us(v: list[float]) -> dict[str, float] | None:
     return dict(median_us=round(float(np.median(a)), 1), p99_us=round(float(np.percentile(a, 99)), 1), max_us=round(float(a.max()), 1))
 
 
-def summarise(run: Run, task: Figure8) -> dict[str, Any]:
-    """The report entry of one run: tracking error, steps, timings, saturation."""
-    sat = float(np.mean(np.abs(run.u) >= 0.3 - 1e-9)) if len(run.u) else 0.0
+def summarise(run: Run, task: Figure8, u_limit: float = 0.3) -> dict[str, Any]:
+    """The report entry of one run: tracking error, steps, timings, saturation (commands at
+    ±``u_limit``)."""
+    sat = float(np.mean(np.abs(run.u) >= u_limit - 1e-9)) if len(run.u) else 0.0
     return dict(
         error=tracking_error(run.ee, task.targets),
         steps=len(run.u),
@@ -131,6 +132,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--q-weights", help="diagonal of Q, comma separated (default: identity, SPEC)")
     p.add_argument("--baselines", default="zero,p", help="baselines to run besides the MPC: zero, p, or none (default: %(default)s)")
     p.add_argument("--p-gain", type=float, default=5.0, help="gain of the joint-space P baseline, 1/s (default: %(default)s)")
+    p.add_argument("--u-limit", type=float, default=0.3, help="command clip of the adapter, the MPC bounds and the P baseline, rad/s "
+                   "(default: %(default)s, SPEC; larger values show what the clip costs)")
     p.add_argument("--no-plot", action="store_true", help="skip figure8.png")
     p.add_argument("--session", help="koopbridge session id (default: a fresh one)")
     return p
@@ -165,7 +168,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     session = a.session or "f8" + uuid.uuid4().hex[:10]
     ep = _free_endpoint()
     state = Path(tempfile.mkdtemp(prefix="figure8-state-"))
-    adapter_cmd = [sys.executable, "-m", "koopbridge.adapters.mujoco", "--session", session, "--id", SIM_ID, "--connect", ep]
+    adapter_cmd = [sys.executable, "-m", "koopbridge.adapters.mujoco", "--session", session, "--id", SIM_ID, "--connect", ep,
+                   "--u-limit", repr(a.u_limit)]
     serve_cmd = [koopbridge_cli(), "serve", "mpc", "models", "--session", session, "--id", MPC_ID, "--store", str(model_dir.parent),
                  "--state-dir", str(state), "--connect", ep]
     logs = {k: open(out / f"{k}.log", "wb") for k in ("adapter", "services")}
@@ -174,7 +178,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with Client(session=session, listen=[ep]) as c:
             c.connect_sim(SIM_ID, timeout=60)
-            mpc_cfg: dict[str, Any] = dict(horizon=a.horizon, u_min=[-0.3] * 7, u_max=[0.3] * 7)
+            mpc_cfg: dict[str, Any] = dict(horizon=a.horizon, u_min=[-a.u_limit] * 7, u_max=[a.u_limit] * 7)
             if a.q_weights:
                 mpc_cfg["q"] = [float(v) for v in a.q_weights.split(",")]
             deadline = time.monotonic() + 60
@@ -187,7 +191,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         raise
             runs = [run_controller(c, task, "mpc", model=name, horizon=a.horizon, noise=a.noise, seed=a.seed)]
             for b in baselines:
-                runs.append(run_controller(c, task, b, p_gain=a.p_gain))
+                runs.append(run_controller(c, task, b, p_gain=a.p_gain, u_limit=a.u_limit))
     finally:
         for p in procs:
             p.terminate()
@@ -201,10 +205,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         shutil.rmtree(state, ignore_errors=True)
     report = dict(
         task=dict(steps=a.steps, skip=SKIP, noise=a.noise, seed=a.seed, horizon=a.horizon, q=mpc_cfg.get("q", "identity"),
-                  u_limit=0.3, ik_max_error_m=task.ik_error, ik_s=round(ik_s, 3),
+                  u_limit=a.u_limit, ik_max_error_m=task.ik_error, ik_s=round(ik_s, 3),
                   max_ref_joint_speed=[round(float(v), 4) for v in np.abs(np.diff(task.q, axis=0)).max(axis=0) / 0.02]),
         model=dict(dir=str(model_dir), name=name, configure=conf),
-        controllers={r.name: summarise(r, task) for r in runs},
+        controllers={r.name: summarise(r, task, a.u_limit) for r in runs},
     )
     write_atomic(str(out / "report.json"), lambda f: f.write(json.dumps(report, indent=2).encode()))  # type: ignore[attr-defined]
     arrays = dict(targets=task.targets, **{f"x_{r.name}": r.x for r in runs}, **{f"u_{r.name}": r.u for r in runs})
