@@ -4,10 +4,11 @@
 
 mod common;
 
+use koopman::fsutil::write_atomic;
 use koopman::model::arch::Arch;
 use koopman::model::bilinear::BilinearModel;
 use koopman::model::koopman::KoopmanModel;
-use koopman::model::store::{to_safetensors, write_atomic, Tensor};
+use koopman::model::store::{to_safetensors, Tensor};
 use koopman::mpc::OneStepModel;
 use koopman::rng::Rng;
 use koopman::train::{bilinear_prediction_error, train_bilinear, TrainConfig};

@@ -122,7 +122,7 @@ impl PlannerService {
         let zopts = ZenohOptions {
             connect: connect.unwrap_or_default(),
             listen: listen.unwrap_or_default(),
-            mode,
+            mode: Some(mode),
             zenoh_config,
         };
         if self.serving.swap(true, Ordering::SeqCst) {
