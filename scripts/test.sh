@@ -12,6 +12,12 @@ if [ -x scripts/setup-python.sh ]; then
   echo "== python environment"
   scripts/setup-python.sh
 fi
+if [ -x .venv/bin/ruff ]; then
+  echo "== ruff (adapters/python, config in adapters/python/pyproject.toml)"
+  .venv/bin/ruff check adapters/python
+  echo "== stubtest (_native.pyi against the built module)"
+  .venv/bin/python -m mypy.stubtest koopbridge._native
+fi
 echo "== cargo test"
 cargo test --release --workspace
 if [ -d .venv ] && [ -d adapters/python/tests ]; then
