@@ -24,3 +24,7 @@ if [ -d .venv ] && [ -d adapters/python/tests ]; then
   echo "== pytest"
   .venv/bin/python -m pytest -q adapters
 fi
+if [ -d .venv ] && [ -x scripts/fuzz-services.sh ]; then
+  echo "== fuzz-services (20,000 mutated payloads to a live session)"
+  scripts/fuzz-services.sh 20000
+fi
