@@ -12,9 +12,19 @@ if [ -x scripts/setup-python.sh ]; then
   echo "== python environment"
   scripts/setup-python.sh
 fi
+if [ -x .venv/bin/ruff ]; then
+  echo "== ruff (adapters/python, config in adapters/python/pyproject.toml)"
+  .venv/bin/ruff check adapters/python
+  echo "== stubtest (_native.pyi against the built module)"
+  .venv/bin/python -m mypy.stubtest koopbridge._native
+fi
 echo "== cargo test"
 cargo test --release --workspace
 if [ -d .venv ] && [ -d adapters/python/tests ]; then
   echo "== pytest"
   .venv/bin/python -m pytest -q adapters
+fi
+if [ -d .venv ] && [ -x scripts/fuzz-services.sh ]; then
+  echo "== fuzz-services (20,000 mutated payloads to a live session)"
+  scripts/fuzz-services.sh 20000
 fi
