@@ -63,6 +63,8 @@ fn a_scenario_runs_against_participants_started_separately() {
             &store,
             "--state-dir",
             &state,
+            "--data-root",
+            &path(""),
             "--connect",
             &ep,
             "--stdin-lifeline",

@@ -12,7 +12,7 @@ use super::validate::{controlled_sim, mpc_config, validate_scenario};
 use super::{closed_loop, Cluster, ControlReport, ControlTask, Event, RunOptions, SERVICES_ID};
 use crate::client::SimClient;
 use crate::collect::{collect, CollectJob, Split};
-use crate::error::{Error, Result};
+use crate::error::{Error, ErrorCode, Result};
 use crate::keyexpr::{fresh_session_id, Role};
 use crate::messages::SimInfo;
 use crate::scenario::Scenario;
@@ -293,6 +293,18 @@ fn train_one(
     let (client, live) = (&cluster.client, &cluster.live);
     let rec = submit_and_wait_watching(client, live, SERVICES_ID, &spec, &sims, &mut |p| {
         on(Event::Train(p))
+    })
+    .map_err(|e| match e {
+        // A trainer started separately (--attach-existing) reads only its own data root.
+        Error::Remote { who, mut reply } if reply.code == ErrorCode::Forbidden => {
+            reply.message.push_str(&format!(
+                "; a trainer started separately needs a --data-root that holds this run's \
+                 data folder {}",
+                opts.out_dir.join("data").display()
+            ));
+            Error::Remote { who, reply }
+        }
+        e => e,
     })?;
     let report = TrainReport {
         sim: sim.to_string(),
