@@ -45,20 +45,7 @@ fn lockstep_through_a_router() {
     let live = Liveliness::new(&client).unwrap();
     // The router is up (we reached it): now the simulator, also a client.
     let _sim = spawn_client_sim(&dir, "viarouter", &session, &ep);
-    live.wait_for(
-        &[(bridge::keyexpr::Role::Sim, "viarouter".into())],
-        common::READY,
-    )
-    .unwrap();
-    let mut sim = SimClient::connect(&client, "viarouter", common::READY).unwrap();
-    sim.reset(&ResetRequest {
-        seed: Some(9),
-        x0: None,
-    })
-    .unwrap();
-    for k in 0..10 {
-        assert_eq!(sim.step(&[1.0], Some(&live)).unwrap().k, k + 1);
-    }
+    step_through(&client, &live, "viarouter", 9, 1.0, 10);
 }
 
 /// `koopbridge router` is a plain router: a simulator and this test, both Zenoh clients of it,
@@ -79,17 +66,7 @@ fn the_router_command_carries_a_lockstep_run() {
     let client = Client::new(connect_client(&ep), Keys::new(&session).unwrap());
     let live = Liveliness::new(&client).unwrap();
     let _sim = spawn_client_sim(&dir, "r2", &session, &ep);
-    live.wait_for(&[(bridge::keyexpr::Role::Sim, "r2".into())], common::READY)
-        .unwrap();
-    let mut sim = SimClient::connect(&client, "r2", common::READY).unwrap();
-    sim.reset(&ResetRequest {
-        seed: Some(3),
-        x0: None,
-    })
-    .unwrap();
-    for k in 0..5 {
-        assert_eq!(sim.step(&[0.5], Some(&live)).unwrap().k, k + 1);
-    }
+    step_through(&client, &live, "r2", 3, 0.5, 5);
     // It says where it listens (once its session is open, which may be after it routes).
     let deadline = std::time::Instant::now() + Duration::from_secs(30);
     let log = loop {
@@ -184,4 +161,20 @@ fn spawn_client_sim(dir: &Path, id: &str, session: &str, ep: &str) -> ChildProc 
         &dir.join("sim.log"),
     )
     .unwrap()
+}
+
+/// Waits for simulator `id`, resets it with `seed` and steps it `n` times with input `u`,
+/// checking each reply's step counter.
+fn step_through(client: &Client, live: &Liveliness, id: &str, seed: u64, u: f64, n: u64) {
+    live.wait_for(&[(bridge::keyexpr::Role::Sim, id.into())], common::READY)
+        .unwrap();
+    let mut sim = SimClient::connect(client, id, common::READY).unwrap();
+    sim.reset(&ResetRequest {
+        seed: Some(seed),
+        x0: None,
+    })
+    .unwrap();
+    for k in 0..n {
+        assert_eq!(sim.step(&[u], Some(live)).unwrap().k, k + 1);
+    }
 }
