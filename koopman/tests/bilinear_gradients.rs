@@ -8,7 +8,7 @@
 
 mod common;
 
-use common::grad::{assert_groups_match_fd, fill, random_windows, ref_cov, Windows};
+use common::grad::{assert_groups_match_fd, fill, random_windows, ref_cov, rel_diff, Windows};
 use faer::{Mat, Par};
 use koopman::model::arch::Arch;
 use koopman::model::bilinear::BilinearModel;
@@ -229,9 +229,7 @@ fn bilinear_model_at_initialisation_is_the_linear_model() {
         (ll.ctrl - lb.ctrl).abs() <= 1e-12 * ll.ctrl,
         "{ll:?} vs {lb:?}"
     );
-    let num: f64 = gl.iter().zip(&gb).map(|(a, b)| (a - b).powi(2)).sum();
-    let den: f64 = gl.iter().map(|a| a * a).sum();
-    assert!((num / den).sqrt() < 1e-10, "shared gradient differs");
+    assert!(rel_diff(&gl, &gb) < 1e-10, "shared gradient differs");
     // The N gradient is not zero at N = 0: training moves away from the linear model.
     assert!(gb[pl.len()..].iter().any(|g| *g != 0.0));
 }
@@ -266,17 +264,8 @@ fn bilinear_f32_gradient_agrees_with_f64_and_row_parts_agree() {
     let mut g32 = vec![0.0f32; p.len()];
     let l32 = w32.loss_and_grad(&p32, &mut g32, &opts).unwrap();
     assert!((l32.total - l64.total).abs() < 1e-4 * l64.total);
-    let num: f64 = g64
-        .iter()
-        .zip(&g32)
-        .map(|(a, b)| (a - *b as f64).powi(2))
-        .sum();
-    let den: f64 = g64.iter().map(|a| a * a).sum();
-    assert!(
-        (num / den).sqrt() < 1e-3,
-        "f32 vs f64 {}",
-        (num / den).sqrt()
-    );
+    let rel = rel_diff(&g64, &g32);
+    assert!(rel < 1e-3, "f32 vs f64 {rel}");
 }
 
 #[test]

@@ -6,7 +6,7 @@
 
 mod common;
 
-use common::grad::{assert_groups_match_fd, fill, random_windows, ref_cov, Windows};
+use common::grad::{assert_groups_match_fd, fill, random_windows, ref_cov, rel_diff, Windows};
 use faer::{Mat, Par};
 use koopman::model::arch::Arch;
 use koopman::model::init::init_params;
@@ -223,17 +223,8 @@ fn f32_gradient_agrees_with_f64() {
     let mut g32 = vec![0.0f32; p.len()];
     let l32 = w32.loss_and_grad(&p32, &mut g32, &opts).unwrap();
     assert!((l32.total - l64.total).abs() < 1e-4 * l64.total);
-    let num: f64 = g64
-        .iter()
-        .zip(&g32)
-        .map(|(a, b)| (a - *b as f64).powi(2))
-        .sum();
-    let den: f64 = g64.iter().map(|a| a * a).sum();
-    assert!(
-        (num / den).sqrt() < 1e-4,
-        "f32 vs f64 gradient relative error {}",
-        (num / den).sqrt()
-    );
+    let rel = rel_diff(&g64, &g32);
+    assert!(rel < 1e-4, "f32 vs f64 gradient relative error {rel}");
 }
 
 #[test]

@@ -114,3 +114,14 @@ pub fn assert_groups_match_fd(
         );
     }
 }
+
+/// Relative 2-norm difference ‖a − b‖ / ‖a‖ of gradient `b` (f32 or f64) from gradient `a`.
+pub fn rel_diff<T: Copy + Into<f64>>(a: &[f64], b: &[T]) -> f64 {
+    let num: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| (x - (*y).into()).powi(2))
+        .sum();
+    let den: f64 = a.iter().map(|x| x * x).sum();
+    (num / den).sqrt()
+}
