@@ -199,20 +199,18 @@ fn train_koopman(args: &TrainArgs, splits: &Splits, bilinear: bool) -> anyhow::R
         bilinear,
         ..config(args)
     };
-    let bar = progress_bar(cfg.iterations);
-    let mut curve = LearningCurve::default();
-    let mut observer = observer(&bar, Instant::now(), &mut curve);
     let (train, val, test) = (&splits.train, &splits.val, Some(&splits.test));
     type Save = Box<dyn FnOnce(&Path) -> koopman::Result<()>>;
-    let (save, metrics): (Save, TrainMetrics) = if bilinear {
-        let o = koopman::train::train_bilinear(&cfg, train, val, test, &mut observer)?;
-        (Box::new(move |dir| o.model.save(dir)), o.metrics)
-    } else {
-        let o = koopman::train::train(&cfg, train, val, test, &mut observer)?;
-        (Box::new(move |dir| o.model.save(dir)), o.metrics)
-    };
-    drop(observer);
-    bar.finish_and_clear();
+    let ((save, metrics), curve) = with_progress(cfg.iterations, |observer| {
+        let trained: (Save, TrainMetrics) = if bilinear {
+            let o = koopman::train::train_bilinear(&cfg, train, val, test, observer)?;
+            (Box::new(move |dir| o.model.save(dir)), o.metrics)
+        } else {
+            let o = koopman::train::train(&cfg, train, val, test, observer)?;
+            (Box::new(move |dir| o.model.save(dir)), o.metrics)
+        };
+        Ok(trained)
+    })?;
     save(&args.out).with_context(|| format!("saving the model to {}", args.out.display()))?;
     write_metrics(args, &metrics, &curve)?;
     report(args, &metrics, &metrics, &curve, &splits.test)
@@ -222,18 +220,15 @@ fn train_koopman(args: &TrainArgs, splits: &Splits, bilinear: bool) -> anyhow::R
 /// the Koopman model of the same --n-mult/--hidden, trained on the same prediction loss.
 fn train_nndm(args: &TrainArgs, splits: &Splits) -> anyhow::Result<()> {
     let cfg = config(args);
-    let bar = progress_bar(cfg.iterations);
-    let mut curve = LearningCurve::default();
-    let mut observer = observer(&bar, Instant::now(), &mut curve);
-    let outcome = koopman::train::nndm::train_nndm(
-        &cfg,
-        &splits.train,
-        &splits.val,
-        Some(&splits.test),
-        &mut observer,
-    )?;
-    drop(observer);
-    bar.finish_and_clear();
+    let (outcome, curve) = with_progress(cfg.iterations, |observer| {
+        koopman::train::nndm::train_nndm(
+            &cfg,
+            &splits.train,
+            &splits.val,
+            Some(&splits.test),
+            observer,
+        )
+    })?;
     outcome
         .model
         .save(&args.out)
@@ -250,6 +245,21 @@ fn train_nndm(args: &TrainArgs, splits: &Splits) -> anyhow::Result<()> {
         &curve,
         &splits.test,
     )
+}
+
+/// Runs `fit` (a gradient-trained model's loop) behind the progress bar with [`observer`];
+/// returns its outcome and the learning curve, the bar cleared.
+fn with_progress<O>(
+    iterations: usize,
+    fit: impl FnOnce(&mut dyn FnMut(&Progress) -> ControlFlow<()>) -> koopman::Result<O>,
+) -> anyhow::Result<(O, LearningCurve)> {
+    let bar = progress_bar(iterations);
+    let mut curve = LearningCurve::default();
+    let mut observer = observer(&bar, Instant::now(), &mut curve);
+    let outcome = fit(&mut observer)?;
+    drop(observer);
+    bar.finish_and_clear();
+    Ok((outcome, curve))
 }
 
 /// EDMD with control (SPEC's baseline): a least-squares fit on the first m windows.
