@@ -7,27 +7,15 @@ use std::time::{Duration, Instant};
 
 use bridge::codec::{CommandMsg, StateMsg};
 use bridge::keyexpr::SimLeaf;
+use bridge::orchestrator::Cluster;
+use bridge::zenoh::pubsub::{Publisher, Subscriber};
 use bridge::zenoh::Wait;
+use std::sync::mpsc::Receiver;
 
 #[test]
 fn state_stream_is_ordered_without_gaps_and_commands_are_applied() {
     let (c, opts, session) = common::cluster("freerun", &[], &[]);
-    let (tx, rx) = std::sync::mpsc::channel::<Vec<u8>>();
-    let _sub = c
-        .client
-        .session
-        .declare_subscriber(c.client.keys.sim("fr", SimLeaf::State).unwrap())
-        .callback(move |s| {
-            let _ = tx.send(s.payload().to_bytes().into_owned());
-        })
-        .wait()
-        .unwrap();
-    let publisher = c
-        .client
-        .session
-        .declare_publisher(c.client.keys.sim("fr", SimLeaf::Command).unwrap())
-        .wait()
-        .unwrap();
+    let (_sub, rx, publisher) = state_feed_and_commands(&c, "fr");
     let steps = 1500u64;
     let child = common::spawn_free_run_pendulum(&c, &opts, &session, "fr", 500, steps, &[]);
     let mut states: Vec<StateMsg> = Vec::new();
@@ -100,22 +88,7 @@ fn state_stream_is_ordered_without_gaps_and_commands_are_applied() {
 #[test]
 fn commands_outside_the_bounds_are_clipped_and_counted() {
     let (c, opts, session) = common::cluster("freerun-clip", &[], &[]);
-    let (tx, rx) = std::sync::mpsc::channel::<Vec<u8>>();
-    let _sub = c
-        .client
-        .session
-        .declare_subscriber(c.client.keys.sim("clip", SimLeaf::State).unwrap())
-        .callback(move |s| {
-            let _ = tx.send(s.payload().to_bytes().into_owned());
-        })
-        .wait()
-        .unwrap();
-    let publisher = c
-        .client
-        .session
-        .declare_publisher(c.client.keys.sim("clip", SimLeaf::Command).unwrap())
-        .wait()
-        .unwrap();
+    let (_sub, rx, publisher) = state_feed_and_commands(&c, "clip");
     let steps = 2000u64;
     let child = common::spawn_free_run_pendulum(&c, &opts, &session, "clip", 200, steps, &[]);
     let (mut sent, mut driven) = (0u64, 0u64);
@@ -167,4 +140,29 @@ fn commands_outside_the_bounds_are_clipped_and_counted() {
         "clipped {clipped}, driven {driven}, sent {sent}"
     );
     drop(child);
+}
+
+/// Subscribes to simulator `id`'s state stream (the receiver gets each encoded message) and
+/// declares the publisher of its commands.
+fn state_feed_and_commands(
+    c: &Cluster,
+    id: &str,
+) -> (Subscriber<()>, Receiver<Vec<u8>>, Publisher<'static>) {
+    let (tx, rx) = std::sync::mpsc::channel::<Vec<u8>>();
+    let sub = c
+        .client
+        .session
+        .declare_subscriber(c.client.keys.sim(id, SimLeaf::State).unwrap())
+        .callback(move |s| {
+            let _ = tx.send(s.payload().to_bytes().into_owned());
+        })
+        .wait()
+        .unwrap();
+    let publisher = c
+        .client
+        .session
+        .declare_publisher(c.client.keys.sim(id, SimLeaf::Command).unwrap())
+        .wait()
+        .unwrap();
+    (sub, rx, publisher)
 }

@@ -4,6 +4,7 @@
 
 mod common;
 
+use std::path::Path;
 use std::time::Duration;
 
 use bridge::client::{Client, Liveliness, SimClient};
@@ -40,62 +41,11 @@ fn lockstep_through_a_router() {
         &dir.join("router.log"),
     )
     .unwrap();
-    // Connecting as a client retries until the router listens.
-    let z = ZenohOptions {
-        connect: vec![ep.clone()],
-        mode: Some(Mode::Client),
-        ..Default::default()
-    };
-    let mut session_handle = None;
-    for _ in 0..100 {
-        match open_session(&z) {
-            Ok(s) => {
-                session_handle = Some(s);
-                break;
-            }
-            Err(_) => std::thread::sleep(Duration::from_millis(200)),
-        }
-    }
-    let client = Client::new(
-        session_handle.expect("could not reach the router"),
-        Keys::new(&session).unwrap(),
-    );
+    let client = Client::new(connect_client(&ep), Keys::new(&session).unwrap());
     let live = Liveliness::new(&client).unwrap();
     // The router is up (we reached it): now the simulator, also a client.
-    let _sim = ChildProc::spawn(
-        "sim",
-        &common::exe(),
-        &s(&[
-            "sim",
-            "--env",
-            "damped-pendulum",
-            "--id",
-            "viarouter",
-            "--session",
-            &session,
-            "--mode",
-            "client",
-            "--connect",
-            &ep,
-            "--stdin-lifeline",
-        ]),
-        &dir.join("sim.log"),
-    )
-    .unwrap();
-    live.wait_for(
-        &[(bridge::keyexpr::Role::Sim, "viarouter".into())],
-        common::READY,
-    )
-    .unwrap();
-    let mut sim = SimClient::connect(&client, "viarouter", common::READY).unwrap();
-    sim.reset(&ResetRequest {
-        seed: Some(9),
-        x0: None,
-    })
-    .unwrap();
-    for k in 0..10 {
-        assert_eq!(sim.step(&[1.0], Some(&live)).unwrap().k, k + 1);
-    }
+    let _sim = spawn_client_sim(&dir, "viarouter", &session, &ep);
+    step_through(&client, &live, "viarouter", 9, 1.0, 10);
 }
 
 /// `koopbridge router` is a plain router: a simulator and this test, both Zenoh clients of it,
@@ -113,51 +63,10 @@ fn the_router_command_carries_a_lockstep_run() {
         &dir.join("router.log"),
     )
     .unwrap();
-    let z = ZenohOptions {
-        connect: vec![ep.clone()],
-        mode: Some(Mode::Client),
-        ..Default::default()
-    };
-    let handle = (0..100)
-        .find_map(|_| {
-            open_session(&z)
-                .map_err(|_| std::thread::sleep(Duration::from_millis(200)))
-                .ok()
-        })
-        .expect("could not reach the router");
-    let client = Client::new(handle, Keys::new(&session).unwrap());
+    let client = Client::new(connect_client(&ep), Keys::new(&session).unwrap());
     let live = Liveliness::new(&client).unwrap();
-    let _sim = ChildProc::spawn(
-        "sim",
-        &common::exe(),
-        &s(&[
-            "sim",
-            "--env",
-            "damped-pendulum",
-            "--id",
-            "r2",
-            "--session",
-            &session,
-            "--mode",
-            "client",
-            "--connect",
-            &ep,
-            "--stdin-lifeline",
-        ]),
-        &dir.join("sim.log"),
-    )
-    .unwrap();
-    live.wait_for(&[(bridge::keyexpr::Role::Sim, "r2".into())], common::READY)
-        .unwrap();
-    let mut sim = SimClient::connect(&client, "r2", common::READY).unwrap();
-    sim.reset(&ResetRequest {
-        seed: Some(3),
-        x0: None,
-    })
-    .unwrap();
-    for k in 0..5 {
-        assert_eq!(sim.step(&[0.5], Some(&live)).unwrap().k, k + 1);
-    }
+    let _sim = spawn_client_sim(&dir, "r2", &session, &ep);
+    step_through(&client, &live, "r2", 3, 0.5, 5);
     // It says where it listens (once its session is open, which may be after it routes).
     let deadline = std::time::Instant::now() + Duration::from_secs(30);
     let log = loop {
@@ -210,4 +119,62 @@ fn a_config_files_mode_is_not_overwritten_by_an_absent_flag() {
         std::thread::sleep(Duration::from_millis(50));
     };
     assert!(msg.contains("cannot open session"), "{msg}");
+}
+
+/// Opens a Zenoh client session to the router at `ep`, retrying (up to 20 s) until it listens.
+fn connect_client(ep: &str) -> bridge::zenoh::Session {
+    let z = ZenohOptions {
+        connect: vec![ep.to_string()],
+        mode: Some(Mode::Client),
+        ..Default::default()
+    };
+    (0..100)
+        .find_map(|_| {
+            open_session(&z)
+                .map_err(|_| std::thread::sleep(Duration::from_millis(200)))
+                .ok()
+        })
+        .expect("could not reach the router")
+}
+
+/// Starts a damped-pendulum simulator `id` of `session` as a Zenoh client of the router at `ep`
+/// (log in `dir/sim.log`).
+fn spawn_client_sim(dir: &Path, id: &str, session: &str, ep: &str) -> ChildProc {
+    let args = [
+        "sim",
+        "--env",
+        "damped-pendulum",
+        "--id",
+        id,
+        "--session",
+        session,
+        "--mode",
+        "client",
+        "--connect",
+        ep,
+        "--stdin-lifeline",
+    ];
+    ChildProc::spawn(
+        "sim",
+        &common::exe(),
+        &args.map(String::from),
+        &dir.join("sim.log"),
+    )
+    .unwrap()
+}
+
+/// Waits for simulator `id`, resets it with `seed` and steps it `n` times with input `u`,
+/// checking each reply's step counter.
+fn step_through(client: &Client, live: &Liveliness, id: &str, seed: u64, u: f64, n: u64) {
+    live.wait_for(&[(bridge::keyexpr::Role::Sim, id.into())], common::READY)
+        .unwrap();
+    let mut sim = SimClient::connect(client, id, common::READY).unwrap();
+    sim.reset(&ResetRequest {
+        seed: Some(seed),
+        x0: None,
+    })
+    .unwrap();
+    for k in 0..n {
+        assert_eq!(sim.step(&[u], Some(live)).unwrap().k, k + 1);
+    }
 }

@@ -80,21 +80,14 @@ impl Client {
         let q = self.start(key, payload, timeout, who)?;
         let mut first_err = None;
         while let Ok(Some(reply)) = q.rx.recv_deadline(q.deadline + Duration::from_millis(500)) {
-            match reply.result() {
-                Ok(sample) => return Ok(sample.payload().to_bytes().into_owned()),
+            match q.decode(&reply) {
+                Ok(payload) => return Ok(payload),
                 Err(e) => {
-                    first_err.get_or_insert(Error::Remote {
-                        who: who.to_string(),
-                        reply: ErrorReply::from_json(&e.payload().to_bytes()),
-                    });
+                    first_err.get_or_insert(e);
                 }
             }
         }
-        Err(first_err.unwrap_or_else(|| Error::Timeout {
-            who: who.to_string(),
-            what: format!("{} (no reply)", q.what),
-            after_ms: q.started.elapsed().as_millis() as u64,
-        }))
+        Err(first_err.unwrap_or_else(|| q.timeout(format!("{} (no reply)", q.what))))
     }
 
     /// Sends a query and waits for its reply.
@@ -118,15 +111,7 @@ impl PendingQuery {
             let slice_end =
                 (now + Duration::from_millis(25)).min(self.deadline + Duration::from_millis(500));
             match self.rx.recv_deadline(slice_end) {
-                Ok(Some(reply)) => {
-                    return match reply.result() {
-                        Ok(sample) => Ok(sample.payload().to_bytes().into_owned()),
-                        Err(e) => Err(Error::Remote {
-                            who: self.who.clone(),
-                            reply: ErrorReply::from_json(&e.payload().to_bytes()),
-                        }),
-                    }
-                }
+                Ok(Some(reply)) => return self.decode(&reply),
                 Ok(None) => {}
                 Err(_) => {
                     // Channel closed: the query finished without any reply. If the participant
@@ -141,11 +126,7 @@ impl PendingQuery {
                             std::thread::sleep(Duration::from_millis(10));
                         }
                     }
-                    return Err(Error::Timeout {
-                        who: self.who.clone(),
-                        what: format!("{} (no reply)", self.what),
-                        after_ms: self.started.elapsed().as_millis() as u64,
-                    });
+                    return Err(self.timeout(format!("{} (no reply)", self.what)));
                 }
             }
             if let Some((l, role, id)) = watch {
@@ -154,12 +135,28 @@ impl PendingQuery {
                 }
             }
             if Instant::now() > self.deadline + Duration::from_millis(500) {
-                return Err(Error::Timeout {
-                    who: self.who.clone(),
-                    what: self.what.clone(),
-                    after_ms: self.started.elapsed().as_millis() as u64,
-                });
+                return Err(self.timeout(self.what.clone()));
             }
+        }
+    }
+
+    /// The reply's payload, or the typed error it carries.
+    fn decode(&self, reply: &Reply) -> Result<Vec<u8>> {
+        match reply.result() {
+            Ok(sample) => Ok(sample.payload().to_bytes().into_owned()),
+            Err(e) => Err(Error::Remote {
+                who: self.who.clone(),
+                reply: ErrorReply::from_json(&e.payload().to_bytes()),
+            }),
+        }
+    }
+
+    /// A timeout of this query waiting for `what`, timed from its start.
+    fn timeout(&self, what: String) -> Error {
+        Error::Timeout {
+            who: self.who.clone(),
+            what,
+            after_ms: self.started.elapsed().as_millis() as u64,
         }
     }
 }

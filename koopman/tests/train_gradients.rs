@@ -4,35 +4,14 @@
 // The reference implementation indexes like the formulas on purpose.
 #![allow(clippy::needless_range_loop, clippy::redundant_closure)]
 
+mod common;
+
+use common::grad::{assert_groups_match_fd, fill, random_windows, ref_cov, rel_diff, Windows};
 use faer::{Mat, Par};
 use koopman::model::arch::Arch;
 use koopman::model::init::init_params;
 use koopman::rng::Rng;
 use koopman::train::loss::{LossOptions, LossWs};
-
-/// A batch of windows: x[i][t] (nx values), u[i][t] (nu values).
-struct Windows {
-    x: Vec<Vec<Vec<f64>>>,
-    u: Vec<Vec<Vec<f64>>>,
-}
-
-fn random_windows(b: usize, steps: usize, nx: usize, nu: usize, rng: &mut Rng) -> Windows {
-    let x = (0..b)
-        .map(|_| {
-            (0..=steps)
-                .map(|_| (0..nx).map(|_| rng.uniform(-2.0, 2.0)).collect())
-                .collect()
-        })
-        .collect();
-    let u = (0..b)
-        .map(|_| {
-            (0..steps)
-                .map(|_| (0..nu).map(|_| rng.uniform(-1.5, 1.5)).collect())
-                .collect()
-        })
-        .collect();
-    Windows { x, u }
-}
 
 /// Reference encoder: z = [x, ψ(x)] with plain loops.
 fn ref_lift(arch: &Arch, p: &[f64], x: &[f64]) -> Vec<f64> {
@@ -132,51 +111,10 @@ fn ref_loss(arch: &Arch, p: &[f64], w: &Windows, opts: &LossOptions) -> f64 {
         }
         total += ctrl / wsum;
     }
-    let d = arch.n_enc();
-    if opts.cov && d > 1 {
-        let psi: Vec<&[f64]> = (0..b).map(|i| &z[i][0][nx..]).collect();
-        let mean: Vec<f64> = (0..d)
-            .map(|j| psi.iter().map(|v| v[j]).sum::<f64>() / b as f64)
-            .collect();
-        let mut off = 0.0;
-        for j in 0..d {
-            for k in 0..d {
-                if j != k {
-                    let c: f64 = psi
-                        .iter()
-                        .map(|v| (v[j] - mean[j]) * (v[k] - mean[k]))
-                        .sum::<f64>()
-                        / (b - 1) as f64;
-                    off += c * c;
-                }
-            }
-        }
-        total += off / (d * (d - 1)) as f64;
+    if opts.cov {
+        total += ref_cov(&z, nx, arch.n_enc());
     }
     total
-}
-
-/// Fills the fast workspace with the windows (time-major, column-major).
-fn fill<T: koopman::model::scalar::Real>(ws: &mut LossWs<T>, w: &Windows, nx: usize, nu: usize) {
-    let b = w.x.len();
-    let steps = w.u[0].len();
-    let n = (steps + 1) * b;
-    let xs = ws.states_mut();
-    for i in 0..b {
-        for t in 0..=steps {
-            for j in 0..nx {
-                xs[j * n + t * b + i] = T::from_f64(w.x[i][t][j]);
-            }
-        }
-    }
-    let us = ws.inputs_mut();
-    for i in 0..b {
-        for t in 0..steps {
-            for j in 0..nu {
-                us[j * steps * b + t * b + i] = T::from_f64(w.u[i][t][j]);
-            }
-        }
-    }
 }
 
 /// Named parameter groups: (name, start, end).
@@ -236,31 +174,13 @@ fn check_case(nu: usize, ctrl: bool, cov: bool, seed: u64) {
     } else {
         assert!(parts.cov > 0.0);
     }
-    let h = 1e-6;
-    for (name, s, e) in groups(&arch) {
-        let mut num = 0.0;
-        let mut den = 0.0;
-        for k in s..e {
-            let mut pp = p.clone();
-            pp[k] += h;
-            let lp = ref_loss(&arch, &pp, &w, &opts);
-            pp[k] -= 2.0 * h;
-            let lm = ref_loss(&arch, &pp, &w, &opts);
-            let fd = (lp - lm) / (2.0 * h);
-            num += (grad[k] - fd).powi(2);
-            den += fd * fd;
-        }
-        let rel = num.sqrt() / den.sqrt().max(1e-300);
-        assert!(
-            rel <= 1e-6,
-            "nu={nu} ctrl={ctrl} cov={cov}: group {name} relative error {rel:e} (‖fd‖ = {:e})",
-            den.sqrt()
-        );
-        assert!(
-            den > 0.0,
-            "group {name} has a zero gradient: the test would not see an error"
-        );
-    }
+    assert_groups_match_fd(
+        &groups(&arch),
+        &p,
+        &grad,
+        |pp| ref_loss(&arch, pp, &w, &opts),
+        &format!("nu={nu} ctrl={ctrl} cov={cov}"),
+    );
 }
 
 #[test]
@@ -303,17 +223,8 @@ fn f32_gradient_agrees_with_f64() {
     let mut g32 = vec![0.0f32; p.len()];
     let l32 = w32.loss_and_grad(&p32, &mut g32, &opts).unwrap();
     assert!((l32.total - l64.total).abs() < 1e-4 * l64.total);
-    let num: f64 = g64
-        .iter()
-        .zip(&g32)
-        .map(|(a, b)| (a - *b as f64).powi(2))
-        .sum();
-    let den: f64 = g64.iter().map(|a| a * a).sum();
-    assert!(
-        (num / den).sqrt() < 1e-4,
-        "f32 vs f64 gradient relative error {}",
-        (num / den).sqrt()
-    );
+    let rel = rel_diff(&g64, &g32);
+    assert!(rel < 1e-4, "f32 vs f64 gradient relative error {rel}");
 }
 
 #[test]

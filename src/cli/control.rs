@@ -141,30 +141,20 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
     };
     let model_is_nndm = model_kind.as_deref() == Some("nndm");
     let model_is_bilinear = model_kind.as_deref() == Some("bilinear");
-    let bilinear_dir = match (model_is_bilinear, &args.bilinear) {
-        (true, Some(_)) => bail!("--model is already a bilinear model: leave out --bilinear"),
-        (true, None) => args.model.clone(),
-        (false, dir) => dir.clone(),
-    };
-    let bilinear = match &bilinear_dir {
-        Some(dir) => Some(
-            BilinearModel::load(dir)
-                .with_context(|| format!("loading the bilinear model in {}", dir.display()))?,
-        ),
-        None => None,
-    };
-    let nndm_dir = match (model_is_nndm, &args.nndm) {
-        (true, Some(_)) => bail!("--model is already an NNDM: leave out --nndm"),
-        (true, None) => args.model.clone(),
-        (false, dir) => dir.clone(),
-    };
-    let nndm = match &nndm_dir {
-        Some(dir) => Some(
-            NndmModel::load(dir)
-                .with_context(|| format!("loading the NNDM in {}", dir.display()))?,
-        ),
-        None => None,
-    };
+    let bilinear = extra_model(
+        model_is_bilinear,
+        &args.model,
+        &args.bilinear,
+        ("a", "bilinear model", "--bilinear"),
+        BilinearModel::load,
+    )?;
+    let nndm = extra_model(
+        model_is_nndm,
+        &args.model,
+        &args.nndm,
+        ("an", "NNDM", "--nndm"),
+        NndmModel::load,
+    )?;
     let lifted_given = !model_is_nndm
         && !model_is_bilinear
         && (args.model.is_some() || args.fit.is_some() || args.train.is_some());
@@ -555,4 +545,23 @@ fn write_json_atomic<T: serde::Serialize>(path: &Path, value: &T) -> anyhow::Res
         path,
         &serde_json::to_vec_pretty(value)?,
     )?)
+}
+
+/// Loads the optional extra model of one kind: `--model` itself when `model_is_kind` (then its
+/// own flag must be absent), else the folder given with that flag. `(article, name, flag)` name
+/// the kind in errors.
+fn extra_model<M>(
+    model_is_kind: bool,
+    model: &Option<PathBuf>,
+    given: &Option<PathBuf>,
+    (article, name, flag): (&str, &str, &str),
+    load: impl FnOnce(&Path) -> koopman::Result<M>,
+) -> anyhow::Result<Option<M>> {
+    let dir = match (model_is_kind, given) {
+        (true, Some(_)) => bail!("--model is already {article} {name}: leave out {flag}"),
+        (true, None) => model.clone(),
+        (false, dir) => dir.clone(),
+    };
+    dir.map(|dir| load(&dir).with_context(|| format!("loading the {name} in {}", dir.display())))
+        .transpose()
 }

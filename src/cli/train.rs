@@ -5,7 +5,7 @@ use super::learning_curve::{CurvePoint, LearningCurve};
 use anyhow::Context;
 use koopman::data::{Dataset, Splits};
 use koopman::fsutil::write_atomic;
-use koopman::train::{train, Precision, Progress, TrainConfig, TrainMetrics};
+use koopman::train::{Precision, Progress, TrainConfig, TrainMetrics};
 use serde::Serialize;
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
@@ -118,8 +118,8 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let splits = Splits::load(&args.data)
         .with_context(|| format!("loading the dataset folder {}", args.data.display()))?;
     match args.model {
-        ModelKind::Koopman => train_koopman(&args, &splits),
-        ModelKind::Bilinear => train_bilinear(&args, &splits),
+        ModelKind::Koopman => train_koopman(&args, &splits, false),
+        ModelKind::Bilinear => train_koopman(&args, &splits, true),
         ModelKind::Edmd => train_edmd(&args, &splits),
         ModelKind::Nndm => train_nndm(&args, &splits),
     }
@@ -192,82 +192,43 @@ fn observer<'b>(
     }
 }
 
-fn train_koopman(args: &TrainArgs, splits: &Splits) -> anyhow::Result<()> {
-    let cfg = config(args);
-    let bar = progress_bar(cfg.iterations);
-    let mut curve = LearningCurve::default();
-    let mut observer = observer(&bar, Instant::now(), &mut curve);
-    let outcome = train(
-        &cfg,
-        &splits.train,
-        &splits.val,
-        Some(&splits.test),
-        &mut observer,
-    )?;
-    drop(observer);
-    bar.finish_and_clear();
-    outcome
-        .model
-        .save(&args.out)
-        .with_context(|| format!("saving the model to {}", args.out.display()))?;
-    write_metrics(args, &outcome.metrics, &curve)?;
-    report(
-        args,
-        &outcome.metrics,
-        &outcome.metrics,
-        &curve,
-        &splits.test,
-    )
-}
-
-/// The bilinear Koopman model: SPEC's recipe with `z⁺ = A z + B u + Σ u_i N_i z`.
-fn train_bilinear(args: &TrainArgs, splits: &Splits) -> anyhow::Result<()> {
+/// The Koopman model of SPEC, or with `bilinear` its bilinear variant
+/// `z⁺ = A z + B u + Σ u_i N_i z` (same recipe, N_i initialised to zero).
+fn train_koopman(args: &TrainArgs, splits: &Splits, bilinear: bool) -> anyhow::Result<()> {
     let cfg = TrainConfig {
-        bilinear: true,
+        bilinear,
         ..config(args)
     };
-    let bar = progress_bar(cfg.iterations);
-    let mut curve = LearningCurve::default();
-    let mut observer = observer(&bar, Instant::now(), &mut curve);
-    let outcome = koopman::train::train_bilinear(
-        &cfg,
-        &splits.train,
-        &splits.val,
-        Some(&splits.test),
-        &mut observer,
-    )?;
-    drop(observer);
-    bar.finish_and_clear();
-    outcome
-        .model
-        .save(&args.out)
-        .with_context(|| format!("saving the model to {}", args.out.display()))?;
-    write_metrics(args, &outcome.metrics, &curve)?;
-    report(
-        args,
-        &outcome.metrics,
-        &outcome.metrics,
-        &curve,
-        &splits.test,
-    )
+    let (train, val, test) = (&splits.train, &splits.val, Some(&splits.test));
+    type Save = Box<dyn FnOnce(&Path) -> koopman::Result<()>>;
+    let ((save, metrics), curve) = with_progress(cfg.iterations, |observer| {
+        let trained: (Save, TrainMetrics) = if bilinear {
+            let o = koopman::train::train_bilinear(&cfg, train, val, test, observer)?;
+            (Box::new(move |dir| o.model.save(dir)), o.metrics)
+        } else {
+            let o = koopman::train::train(&cfg, train, val, test, observer)?;
+            (Box::new(move |dir| o.model.save(dir)), o.metrics)
+        };
+        Ok(trained)
+    })?;
+    save(&args.out).with_context(|| format!("saving the model to {}", args.out.display()))?;
+    write_metrics(args, &metrics, &curve)?;
+    report(args, &metrics, &metrics, &curve, &splits.test)
 }
 
 /// The NNDM baseline (SPEC's ablation): an MLP x⁺ = x + g([x, u]) with the parameter count of
 /// the Koopman model of the same --n-mult/--hidden, trained on the same prediction loss.
 fn train_nndm(args: &TrainArgs, splits: &Splits) -> anyhow::Result<()> {
     let cfg = config(args);
-    let bar = progress_bar(cfg.iterations);
-    let mut curve = LearningCurve::default();
-    let mut observer = observer(&bar, Instant::now(), &mut curve);
-    let outcome = koopman::train::nndm::train_nndm(
-        &cfg,
-        &splits.train,
-        &splits.val,
-        Some(&splits.test),
-        &mut observer,
-    )?;
-    drop(observer);
-    bar.finish_and_clear();
+    let (outcome, curve) = with_progress(cfg.iterations, |observer| {
+        koopman::train::nndm::train_nndm(
+            &cfg,
+            &splits.train,
+            &splits.val,
+            Some(&splits.test),
+            observer,
+        )
+    })?;
     outcome
         .model
         .save(&args.out)
@@ -284,6 +245,21 @@ fn train_nndm(args: &TrainArgs, splits: &Splits) -> anyhow::Result<()> {
         &curve,
         &splits.test,
     )
+}
+
+/// Runs `fit` (a gradient-trained model's loop) behind the progress bar with [`observer`];
+/// returns its outcome and the learning curve, the bar cleared.
+fn with_progress<O>(
+    iterations: usize,
+    fit: impl FnOnce(&mut dyn FnMut(&Progress) -> ControlFlow<()>) -> koopman::Result<O>,
+) -> anyhow::Result<(O, LearningCurve)> {
+    let bar = progress_bar(iterations);
+    let mut curve = LearningCurve::default();
+    let mut observer = observer(&bar, Instant::now(), &mut curve);
+    let outcome = fit(&mut observer)?;
+    drop(observer);
+    bar.finish_and_clear();
+    Ok((outcome, curve))
 }
 
 /// EDMD with control (SPEC's baseline): a least-squares fit on the first m windows.

@@ -18,7 +18,7 @@ use super::boxqp::BoxQp;
 use super::condensed::gemv_acc;
 use super::config::MpcConfig;
 use super::constraints::input_box;
-use super::controller::FallbackReason;
+use super::controller::{expand_reference, FallbackReason};
 use super::policy::{Action, Policy};
 use super::qp::{QpSolver, QpStatus};
 use crate::error::{ensure_finite, Error, Result};
@@ -333,21 +333,7 @@ impl<'m> BilinearMpc<'m> {
     }
 
     fn set_reference(&mut self, reference: &[f64]) -> Result<()> {
-        let (nx, hz) = (self.nx, self.hz);
-        if reference.len() == nx {
-            for t in 0..hz {
-                self.r[t * nx..(t + 1) * nx].copy_from_slice(reference);
-            }
-        } else if reference.len() == hz * nx {
-            self.r.copy_from_slice(reference);
-        } else {
-            return Err(Error::InvalidArgument(format!(
-                "reference has {} values; expected nx = {nx} (held) or H·nx = {} (stacked)",
-                reference.len(),
-                hz * nx
-            )));
-        }
-        ensure_finite("reference", &self.r)
+        expand_reference(&mut self.r, reference, self.nx, self.hz)
     }
 
     /// Rolls the bilinear model out along `u` (z̄ and A_τ into the workspace) and returns the

@@ -243,20 +243,7 @@ impl<'m> MpcController<'m> {
     /// Expands a reference of nx values (held over the horizon) or H·nx values (stacked).
     fn set_reference(&mut self, reference: &[f64]) -> Result<()> {
         let (nx, hz) = (self.nx(), self.horizon());
-        if reference.len() == nx {
-            for t in 0..hz {
-                self.r[t * nx..(t + 1) * nx].copy_from_slice(reference);
-            }
-        } else if reference.len() == hz * nx {
-            self.r.copy_from_slice(reference);
-        } else {
-            return Err(Error::InvalidArgument(format!(
-                "reference has {} values; expected nx = {nx} (held) or H·nx = {} (stacked)",
-                reference.len(),
-                hz * nx
-            )));
-        }
-        ensure_finite("reference", &self.r)
+        expand_reference(&mut self.r, reference, nx, hz)
     }
 
     /// Plans from state `x` (nx values) towards `reference` (nx values held over the horizon,
@@ -357,4 +344,28 @@ impl<'m> MpcController<'m> {
         }
         u
     }
+}
+
+/// Writes into `r` (H·nx values) a reference of nx values held over the horizon `hz`, or of
+/// H·nx stacked values; any other length is `InvalidArgument`, a non-finite one `NonFinite`.
+pub(crate) fn expand_reference(
+    r: &mut [f64],
+    reference: &[f64],
+    nx: usize,
+    hz: usize,
+) -> Result<()> {
+    if reference.len() == nx {
+        for t in 0..hz {
+            r[t * nx..(t + 1) * nx].copy_from_slice(reference);
+        }
+    } else if reference.len() == hz * nx {
+        r.copy_from_slice(reference);
+    } else {
+        return Err(Error::InvalidArgument(format!(
+            "reference has {} values; expected nx = {nx} (held) or H·nx = {} (stacked)",
+            reference.len(),
+            hz * nx
+        )));
+    }
+    ensure_finite("reference", r)
 }

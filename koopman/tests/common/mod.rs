@@ -2,6 +2,8 @@
 //! training configuration.
 #![allow(dead_code)] // each test binary uses a subset
 
+pub mod grad;
+
 use koopman::data::{generate, Dataset, Pairing};
 use koopman::train::TrainConfig;
 
