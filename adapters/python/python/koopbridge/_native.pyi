@@ -1,7 +1,7 @@
 """Type stubs of the pyo3 extension module ``koopbridge._native``."""
 
 from os import PathLike
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -172,3 +172,23 @@ class ReferenceSystem:
     def names() -> list[str]: ...
     def info(self) -> dict[str, Any]: ...
     def step(self, x: ArrayLike, u: ArrayLike) -> Vector: ...
+
+class PlannerService:
+    """Serves a Python planner ``plan(start, goal, dt) -> dict`` at koopbridge/{session}/planner/{id}/plan."""
+
+    def __init__(self, plan: Callable[[list[float], list[float], float], dict[str, Any]], nq: int) -> None: ...
+    def serve(
+        self,
+        *,
+        session: str = "default",
+        id: str = "planner0",
+        connect: Sequence[str] | None = None,
+        listen: Sequence[str] | None = None,
+        mode: str = "peer",
+        zenoh_config: str | PathLike[str] | None = None,
+    ) -> dict[str, int]:
+        """Serves until ``stop()`` or Ctrl-C; returns the counters ``plans``, ``errors``, ``busy``."""
+        ...
+    def stop(self) -> None: ...
+    @property
+    def serving(self) -> bool: ...
