@@ -126,6 +126,14 @@ def koopbridge_binary() -> Path | None:
     return None
 
 
+def koopbridge_binary_or_skip() -> Path:
+    """``koopbridge_binary()``, or the calling test is skipped when the CLI is not built."""
+    exe = koopbridge_binary()
+    if exe is None:
+        pytest.skip("the koopbridge CLI is not built (cargo build --release); scripts/test.sh builds it")
+    return exe
+
+
 class Child:
     """A child process with its output in a log file; killed on exit."""
 

@@ -15,9 +15,8 @@ import threading
 import time
 import tomllib
 
-import pytest
 
-from conftest import ROOT, koopbridge_binary
+from conftest import ROOT, koopbridge_binary_or_skip
 
 SCENARIO = ROOT / "scenarios" / "damped-pendulum-fmu.toml"
 
@@ -36,9 +35,7 @@ def test_scenario_file_is_consistent():
 
 
 def test_scenario_runs_end_to_end_with_a_tiny_budget(tmp_path, damped_fmu):
-    exe = koopbridge_binary()
-    if exe is None:
-        pytest.skip("the koopbridge CLI is not built (cargo build --release); scripts/test.sh builds it")
+    exe = koopbridge_binary_or_skip()
     text = SCENARIO.read_text()
     for key, value in (("train_windows", 64), ("val_windows", 16), ("test_windows", 16), ("steps = 200", None)):
         if value is None:
@@ -74,9 +71,7 @@ def _child_with(parent: int, needle: bytes) -> int | None:
 
 
 def test_killed_adapter_ends_the_run_within_a_second_and_a_rerun_needs_no_cleaning(tmp_path, damped_fmu):
-    exe = koopbridge_binary()
-    if exe is None:
-        pytest.skip("the koopbridge CLI is not built (cargo build --release); scripts/test.sh builds it")
+    exe = koopbridge_binary_or_skip()
     text = SCENARIO.read_text()
     for key, value in (("train_windows", 400), ("val_windows", 40), ("test_windows", 40)):
         text = re.sub(rf"^{key} = \d+", f"{key} = {value}", text, count=1, flags=re.M)
