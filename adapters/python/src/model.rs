@@ -1,5 +1,5 @@
-//! `koopbridge.KoopmanModel`: a trained neural Koopman model from disk, with `encode`, `predict`
-//! and the matrices A, B, P as numpy arrays.
+//! `koopbridge.KoopmanModel` and `koopbridge.BilinearModel`: trained models from disk, with `predict`
+//! (and `encode`) and their matrices as numpy arrays.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -13,6 +13,66 @@ use pyo3::prelude::*;
 use crate::convert::{array2, check_finite, faer_rows, mat, rows_f64, to_py_json, vec_n};
 use crate::errors::koopman_err;
 
+/// The `#[pymethods]` of a model class `$class` wrapping `Arc<$inner>`: what every model has
+/// (``load``, ``save``, ``nx``, ``nu``, ``latent_dim``, ``metadata``, ``__repr__``) and the
+/// class's own methods `$own`, in the one block pyo3 allows per class.
+macro_rules! model_methods {
+    ($class:ident, $inner:ty, { $($own:tt)* }) => {
+        #[pymethods]
+        impl $class {
+            /// Loads the model saved in directory ``path``.
+            #[staticmethod]
+            fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+                let inner = py.detach(|| <$inner>::load(&path)).map_err(koopman_err)?;
+                Ok($class {
+                    inner: Arc::new(inner),
+                })
+            }
+
+            /// Saves the model into directory ``path`` (``model.safetensors`` + ``config.json``).
+            fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+                py.detach(|| self.inner.save(&path)).map_err(koopman_err)
+            }
+
+            /// State dimension nx.
+            #[getter]
+            fn nx(&self) -> usize {
+                self.inner.nx()
+            }
+
+            /// Input dimension nu.
+            #[getter]
+            fn nu(&self) -> usize {
+                self.inner.nu()
+            }
+
+            /// Latent dimension N = nx + n_enc.
+            #[getter]
+            fn latent_dim(&self) -> usize {
+                self.inner.latent_dim()
+            }
+
+            /// The metadata saved with the model (training configuration, metrics, data), as a dict.
+            #[getter]
+            fn metadata(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
+                to_py_json(py, &self.inner.metadata)
+            }
+
+            fn __repr__(&self) -> String {
+                format!(
+                    "{}(nx={}, nu={}, latent_dim={})",
+                    stringify!($class),
+                    self.inner.nx(),
+                    self.inner.nu(),
+                    self.inner.latent_dim()
+                )
+            }
+
+            $($own)*
+        }
+    };
+}
+
 /// A neural Koopman model ``z = [x, ψ(x)]``, ``z⁺ = A z + B u``, ``x = P z`` (f64 weights).
 ///
 /// Load a saved model with ``KoopmanModel.load(dir)`` (the directory holding
@@ -22,17 +82,7 @@ pub struct KoopmanModel {
     pub(crate) inner: Arc<Inner>,
 }
 
-#[pymethods]
-impl KoopmanModel {
-    /// Loads the model saved in directory ``path``.
-    #[staticmethod]
-    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
-        let inner = py.detach(|| Inner::load(&path)).map_err(koopman_err)?;
-        Ok(KoopmanModel {
-            inner: Arc::new(inner),
-        })
-    }
-
+model_methods!(KoopmanModel, Inner, {
     /// A freshly initialised (untrained) model with SPEC's initialisation, for experiments and
     /// tests: ``nx`` states, ``nu`` inputs, encoder ``hidden`` widths and ``n_mult``.
     #[staticmethod]
@@ -43,29 +93,6 @@ impl KoopmanModel {
         Ok(KoopmanModel {
             inner: Arc::new(inner),
         })
-    }
-
-    /// Saves the model into directory ``path`` (``model.safetensors`` + ``config.json``).
-    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
-        py.detach(|| self.inner.save(&path)).map_err(koopman_err)
-    }
-
-    /// State dimension nx.
-    #[getter]
-    fn nx(&self) -> usize {
-        self.inner.nx()
-    }
-
-    /// Input dimension nu.
-    #[getter]
-    fn nu(&self) -> usize {
-        self.inner.nu()
-    }
-
-    /// Latent dimension N = nx + n_enc.
-    #[getter]
-    fn latent_dim(&self) -> usize {
-        self.inner.latent_dim()
     }
 
     /// The latent transition matrix A, shape (N, N).
@@ -88,12 +115,6 @@ impl KoopmanModel {
             .map(|k| if k / n == k % n { 1.0 } else { 0.0 })
             .collect();
         array2(py, nx, n, &v)
-    }
-
-    /// The metadata saved with the model (training configuration, metrics, data), as a dict.
-    #[getter]
-    fn metadata(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
-        to_py_json(py, &self.inner.metadata)
     }
 
     /// Lifts states: ``x`` of shape (nx,) gives z of shape (N,); (n, nx) gives (n, N).
@@ -153,16 +174,7 @@ impl KoopmanModel {
         });
         array2(py, t, nx, &out)
     }
-
-    fn __repr__(&self) -> String {
-        format!(
-            "KoopmanModel(nx={}, nu={}, latent_dim={})",
-            self.inner.nx(),
-            self.inner.nu(),
-            self.inner.latent_dim()
-        )
-    }
-}
+});
 
 /// The checked arguments of ``predict``: ``x0`` as `nx` finite values, ``u_seq`` as `T` rows of
 /// `nu` finite inputs; returns (x0, T, row-major inputs).
@@ -214,19 +226,7 @@ pub struct BilinearModel {
     inner: Arc<koopman::model::bilinear::BilinearModel>,
 }
 
-#[pymethods]
-impl BilinearModel {
-    /// Loads the model saved in directory ``path``.
-    #[staticmethod]
-    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
-        let inner = py
-            .detach(|| koopman::model::bilinear::BilinearModel::load(&path))
-            .map_err(koopman_err)?;
-        Ok(BilinearModel {
-            inner: Arc::new(inner),
-        })
-    }
-
+model_methods!(BilinearModel, koopman::model::bilinear::BilinearModel, {
     /// A freshly initialised model: SPEC's initialisation (the encoder, A and B of
     /// ``KoopmanModel.init`` with the same arguments) and every N_i = 0.
     #[staticmethod]
@@ -238,29 +238,6 @@ impl BilinearModel {
         Ok(BilinearModel {
             inner: Arc::new(inner),
         })
-    }
-
-    /// Saves the model into directory ``path`` (``model.safetensors`` + ``config.json``).
-    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
-        py.detach(|| self.inner.save(&path)).map_err(koopman_err)
-    }
-
-    /// State dimension nx.
-    #[getter]
-    fn nx(&self) -> usize {
-        self.inner.nx()
-    }
-
-    /// Input dimension nu.
-    #[getter]
-    fn nu(&self) -> usize {
-        self.inner.nu()
-    }
-
-    /// Latent dimension N = nx + n_enc.
-    #[getter]
-    fn latent_dim(&self) -> usize {
-        self.inner.latent_dim()
     }
 
     /// The latent transition matrix A, shape (N, N).
@@ -283,12 +260,6 @@ impl BilinearModel {
             .collect()
     }
 
-    /// The metadata saved with the model (training configuration, metrics, data), as a dict.
-    #[getter]
-    fn metadata(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
-        to_py_json(py, &self.inner.metadata)
-    }
-
     /// Forecasts from ``x0`` (nx,) under ``u_seq`` (T, nu): encodes once, rolls out the bilinear
     /// latent dynamics and returns the predicted states x_1..x_T, shape (T, nx).
     fn predict<'py>(
@@ -307,13 +278,4 @@ impl BilinearModel {
         });
         array2(py, t, nx, &out)
     }
-
-    fn __repr__(&self) -> String {
-        format!(
-            "BilinearModel(nx={}, nu={}, latent_dim={})",
-            self.inner.nx(),
-            self.inner.nu(),
-            self.inner.latent_dim()
-        )
-    }
-}
+});
