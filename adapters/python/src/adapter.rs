@@ -12,7 +12,7 @@ use std::time::Duration;
 use bridge::adapter::{
     AdapterOptions, FreeRunOptions, ResetRequest, SimBackend, SimError, SimInfo,
 };
-use bridge::session::{open_session, Mode, ZenohOptions};
+use bridge::session::open_session;
 use bridge::zenoh::Wait;
 use pyo3::exceptions::{PyNotImplementedError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
@@ -20,6 +20,7 @@ use pyo3::types::{PyDict, PyTuple};
 
 use crate::convert::{array1, from_py_json, to_py_json, vec_f64};
 use crate::errors::{bridge_err, InvalidInput, Unsupported};
+use crate::zenoh_args::zenoh_options;
 
 /// Base class of simulators written in Python. Subclass it and implement:
 ///
@@ -121,22 +122,7 @@ impl Adapter {
     ) -> PyResult<Py<PyAny>> {
         let py = slf.py();
         let info = sim_info(&slf.call_method0("info")?)?;
-        let mode = match mode {
-            "peer" => Mode::Peer,
-            "client" => Mode::Client,
-            "router" => Mode::Router,
-            other => {
-                return Err(PyValueError::new_err(format!(
-                    "mode '{other}': expected peer, client or router"
-                )))
-            }
-        };
-        let zopts = ZenohOptions {
-            connect: connect.unwrap_or_default(),
-            listen: listen.unwrap_or_default(),
-            mode: Some(mode),
-            zenoh_config,
-        };
+        let zopts = zenoh_options(connect, listen, mode, zenoh_config)?;
         let mut opts = AdapterOptions::new(session, id).map_err(bridge_err)?;
         if free_run {
             let x0 = match x0 {

@@ -10,7 +10,7 @@ use bridge::client::{Client as Inner, Liveliness, SimClient};
 use bridge::codec::{SolveReply, SolveRequest, SolveStatus, StepReply, StepRequest};
 use bridge::keyexpr::{Keys, SimLeaf};
 use bridge::messages::ResetRequest;
-use bridge::session::{open_session, Mode, ZenohOptions};
+use bridge::session::open_session;
 use bridge::zenoh::Wait;
 use numpy::PyArray1;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
@@ -20,6 +20,7 @@ use pyo3::types::{PyBytes, PyDict};
 use crate::control;
 use crate::convert::{array1, array2, from_py_json, to_py_json, vec_f64};
 use crate::errors::{bridge_err, KoopbridgeError};
+use crate::zenoh_args::zenoh_options;
 
 /// A client of one koopbridge session over Zenoh.
 ///
@@ -45,23 +46,8 @@ impl Client {
         mode: &str,
         zenoh_config: Option<std::path::PathBuf>,
     ) -> PyResult<Self> {
-        let mode = match mode {
-            "peer" => Mode::Peer,
-            "client" => Mode::Client,
-            "router" => Mode::Router,
-            other => {
-                return Err(PyValueError::new_err(format!(
-                    "mode '{other}': expected peer, client or router"
-                )))
-            }
-        };
+        let opts = zenoh_options(connect, listen, mode, zenoh_config)?;
         let keys = Keys::new(session).map_err(bridge_err)?;
-        let opts = ZenohOptions {
-            connect: connect.unwrap_or_default(),
-            listen: listen.unwrap_or_default(),
-            mode: Some(mode),
-            zenoh_config,
-        };
         let s = py.detach(|| open_session(&opts)).map_err(bridge_err)?;
         let inner = Inner::new(s, keys);
         let live = py.detach(|| Liveliness::new(&inner)).map_err(bridge_err)?;

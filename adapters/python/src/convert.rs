@@ -33,12 +33,19 @@ pub fn vec_n(obj: &Bound<'_, PyAny>, n: usize, what: &str) -> PyResult<Vec<f64>>
             v.len()
         )));
     }
-    if !v.iter().all(|x| x.is_finite()) {
-        return Err(PyValueError::new_err(format!(
-            "{what}: values must be finite"
-        )));
-    }
+    check_finite(&v, what)?;
     Ok(v)
+}
+
+/// Ok when every value of `v` is finite, else a `ValueError` naming `what`.
+pub fn check_finite(v: &[f64], what: &str) -> PyResult<()> {
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(())
+    } else {
+        Err(PyValueError::new_err(format!(
+            "{what}: values must be finite"
+        )))
+    }
 }
 
 /// A 2-D array of floats as (rows, cols, row-major values); a 1-D array is one row.

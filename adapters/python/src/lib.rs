@@ -8,7 +8,8 @@
 //!   [`control`] for the JSON control plane through the `bridge` types;
 //! - [`systems`]: `ReferenceSystem`, the built-in Rust reference dynamics;
 //! - [`planner`]: `PlannerService`, a Python planner served at `…/planner/{id}/plan`;
-//! - [`errors`]: the exception types; [`convert`]: numpy conversions.
+//! - [`errors`]: the exception types; [`convert`]: numpy conversions; [`zenoh_args`]: the
+//!   Zenoh arguments as `ZenohOptions`.
 
 use pyo3::prelude::*;
 
@@ -21,6 +22,7 @@ mod model;
 mod mpc;
 mod planner;
 mod systems;
+mod zenoh_args;
 
 /// The extension module.
 #[pymodule]

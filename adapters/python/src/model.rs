@@ -1,5 +1,5 @@
-//! `koopbridge.KoopmanModel`: a trained neural Koopman model from disk, with `encode`, `predict`
-//! and the matrices A, B, P as numpy arrays.
+//! `koopbridge.KoopmanModel` and `koopbridge.BilinearModel`: trained models from disk, with `predict`
+//! (and `encode`) and their matrices as numpy arrays.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -10,8 +10,68 @@ use numpy::PyArray2;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-use crate::convert::{array2, faer_rows, mat, rows_f64};
+use crate::convert::{array2, check_finite, faer_rows, mat, rows_f64, to_py_json, vec_n};
 use crate::errors::koopman_err;
+
+/// The `#[pymethods]` of a model class `$class` wrapping `Arc<$inner>`: what every model has
+/// (``load``, ``save``, ``nx``, ``nu``, ``latent_dim``, ``metadata``, ``__repr__``) and the
+/// class's own methods `$own`, in the one block pyo3 allows per class.
+macro_rules! model_methods {
+    ($class:ident, $inner:ty, { $($own:tt)* }) => {
+        #[pymethods]
+        impl $class {
+            /// Loads the model saved in directory ``path``.
+            #[staticmethod]
+            fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+                let inner = py.detach(|| <$inner>::load(&path)).map_err(koopman_err)?;
+                Ok($class {
+                    inner: Arc::new(inner),
+                })
+            }
+
+            /// Saves the model into directory ``path`` (``model.safetensors`` + ``config.json``).
+            fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+                py.detach(|| self.inner.save(&path)).map_err(koopman_err)
+            }
+
+            /// State dimension nx.
+            #[getter]
+            fn nx(&self) -> usize {
+                self.inner.nx()
+            }
+
+            /// Input dimension nu.
+            #[getter]
+            fn nu(&self) -> usize {
+                self.inner.nu()
+            }
+
+            /// Latent dimension N = nx + n_enc.
+            #[getter]
+            fn latent_dim(&self) -> usize {
+                self.inner.latent_dim()
+            }
+
+            /// The metadata saved with the model (training configuration, metrics, data), as a dict.
+            #[getter]
+            fn metadata(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
+                to_py_json(py, &self.inner.metadata)
+            }
+
+            fn __repr__(&self) -> String {
+                format!(
+                    "{}(nx={}, nu={}, latent_dim={})",
+                    stringify!($class),
+                    self.inner.nx(),
+                    self.inner.nu(),
+                    self.inner.latent_dim()
+                )
+            }
+
+            $($own)*
+        }
+    };
+}
 
 /// A neural Koopman model ``z = [x, ψ(x)]``, ``z⁺ = A z + B u``, ``x = P z`` (f64 weights).
 ///
@@ -22,17 +82,7 @@ pub struct KoopmanModel {
     pub(crate) inner: Arc<Inner>,
 }
 
-#[pymethods]
-impl KoopmanModel {
-    /// Loads the model saved in directory ``path``.
-    #[staticmethod]
-    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
-        let inner = py.detach(|| Inner::load(&path)).map_err(koopman_err)?;
-        Ok(KoopmanModel {
-            inner: Arc::new(inner),
-        })
-    }
-
+model_methods!(KoopmanModel, Inner, {
     /// A freshly initialised (untrained) model with SPEC's initialisation, for experiments and
     /// tests: ``nx`` states, ``nu`` inputs, encoder ``hidden`` widths and ``n_mult``.
     #[staticmethod]
@@ -43,29 +93,6 @@ impl KoopmanModel {
         Ok(KoopmanModel {
             inner: Arc::new(inner),
         })
-    }
-
-    /// Saves the model into directory ``path`` (``model.safetensors`` + ``config.json``).
-    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
-        py.detach(|| self.inner.save(&path)).map_err(koopman_err)
-    }
-
-    /// State dimension nx.
-    #[getter]
-    fn nx(&self) -> usize {
-        self.inner.nx()
-    }
-
-    /// Input dimension nu.
-    #[getter]
-    fn nu(&self) -> usize {
-        self.inner.nu()
-    }
-
-    /// Latent dimension N = nx + n_enc.
-    #[getter]
-    fn latent_dim(&self) -> usize {
-        self.inner.latent_dim()
     }
 
     /// The latent transition matrix A, shape (N, N).
@@ -88,13 +115,6 @@ impl KoopmanModel {
             .map(|k| if k / n == k % n { 1.0 } else { 0.0 })
             .collect();
         array2(py, nx, n, &v)
-    }
-
-    /// The metadata saved with the model (training configuration, metrics, data), as a dict.
-    #[getter]
-    fn metadata(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
-        let s = self.inner.metadata.to_string();
-        Ok(py.import("json")?.call_method1("loads", (s,))?.unbind())
     }
 
     /// Lifts states: ``x`` of shape (nx,) gives z of shape (N,); (n, nx) gives (n, N).
@@ -134,59 +154,67 @@ impl KoopmanModel {
         x0: &Bound<'py, PyAny>,
         u_seq: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let (nx, nu, n) = (self.inner.nx(), self.inner.nu(), self.inner.latent_dim());
-        let x0 = crate::convert::vec_n(x0, nx, "x0")?;
-        let (t, cols, u) = rows_f64(u_seq, "u_seq")?;
-        if cols != nu {
-            return Err(PyValueError::new_err(format!(
-                "u_seq: inputs have {cols} values, the model has nu = {nu}"
-            )));
-        }
-        check_finite(&u, "u_seq")?;
+        let (nx, nu) = (self.inner.nx(), self.inner.nu());
+        let (x0, t, u) = predict_inputs(x0, u_seq, nx, nu)?;
         let inner = self.inner.clone();
         let out = py.detach(move || {
-            let a = inner.a_ref();
-            let b = inner.b_ref();
-            let mut z = inner.lift(&x0);
-            let mut next = vec![0.0; n];
-            let mut out = Vec::with_capacity(t * nx);
-            for s in 0..t {
-                for i in 0..n {
+            let (a, b) = (inner.a_ref(), inner.b_ref());
+            rollout(inner.lift(&x0), t, nx, nu, &u, |z, ut, next| {
+                for (i, next_i) in next.iter_mut().enumerate() {
                     let mut acc = 0.0;
-                    for j in 0..n {
-                        acc += a[(i, j)] * z[j];
+                    for (j, zj) in z.iter().enumerate() {
+                        acc += a[(i, j)] * zj;
                     }
-                    for j in 0..nu {
-                        acc += b[(i, j)] * u[s * nu + j];
+                    for (j, uj) in ut.iter().enumerate() {
+                        acc += b[(i, j)] * uj;
                     }
-                    next[i] = acc;
+                    *next_i = acc;
                 }
-                std::mem::swap(&mut z, &mut next);
-                out.extend_from_slice(&z[..nx]);
-            }
-            out
+            })
         });
         array2(py, t, nx, &out)
     }
+});
 
-    fn __repr__(&self) -> String {
-        format!(
-            "KoopmanModel(nx={}, nu={}, latent_dim={})",
-            self.inner.nx(),
-            self.inner.nu(),
-            self.inner.latent_dim()
-        )
+/// The checked arguments of ``predict``: ``x0`` as `nx` finite values, ``u_seq`` as `T` rows of
+/// `nu` finite inputs; returns (x0, T, row-major inputs).
+fn predict_inputs(
+    x0: &Bound<'_, PyAny>,
+    u_seq: &Bound<'_, PyAny>,
+    nx: usize,
+    nu: usize,
+) -> PyResult<(Vec<f64>, usize, Vec<f64>)> {
+    let x0 = vec_n(x0, nx, "x0")?;
+    let (t, cols, u) = rows_f64(u_seq, "u_seq")?;
+    if cols != nu {
+        return Err(PyValueError::new_err(format!(
+            "u_seq: inputs have {cols} values, the model has nu = {nu}"
+        )));
     }
+    check_finite(&u, "u_seq")?;
+    Ok((x0, t, u))
 }
 
-fn check_finite(v: &[f64], what: &str) -> PyResult<()> {
-    if v.iter().all(|x| x.is_finite()) {
-        Ok(())
-    } else {
-        Err(PyValueError::new_err(format!(
-            "{what}: values must be finite"
-        )))
+/// Rolls the latent state `z0` forward with `step(z, u_t, z⁺)` for the `t` rows of `nu` inputs
+/// in the row-major `u` and returns the states x_1..x_T: the first `nx` latent coordinates after
+/// each step, row-major.
+fn rollout(
+    z0: Vec<f64>,
+    t: usize,
+    nx: usize,
+    nu: usize,
+    u: &[f64],
+    step: impl Fn(&[f64], &[f64], &mut [f64]),
+) -> Vec<f64> {
+    let mut z = z0;
+    let mut next = vec![0.0; z.len()];
+    let mut out = Vec::with_capacity(t * nx);
+    for s in 0..t {
+        step(&z, &u[s * nu..(s + 1) * nu], &mut next);
+        std::mem::swap(&mut z, &mut next);
+        out.extend_from_slice(&z[..nx]);
     }
+    out
 }
 
 /// A bilinear Koopman model ``z = [x, ψ(x)]``, ``z⁺ = A z + B u + Σ_i u_i N_i z`` (f64 weights).
@@ -198,19 +226,7 @@ pub struct BilinearModel {
     inner: Arc<koopman::model::bilinear::BilinearModel>,
 }
 
-#[pymethods]
-impl BilinearModel {
-    /// Loads the model saved in directory ``path``.
-    #[staticmethod]
-    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
-        let inner = py
-            .detach(|| koopman::model::bilinear::BilinearModel::load(&path))
-            .map_err(koopman_err)?;
-        Ok(BilinearModel {
-            inner: Arc::new(inner),
-        })
-    }
-
+model_methods!(BilinearModel, koopman::model::bilinear::BilinearModel, {
     /// A freshly initialised model: SPEC's initialisation (the encoder, A and B of
     /// ``KoopmanModel.init`` with the same arguments) and every N_i = 0.
     #[staticmethod]
@@ -222,29 +238,6 @@ impl BilinearModel {
         Ok(BilinearModel {
             inner: Arc::new(inner),
         })
-    }
-
-    /// Saves the model into directory ``path`` (``model.safetensors`` + ``config.json``).
-    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
-        py.detach(|| self.inner.save(&path)).map_err(koopman_err)
-    }
-
-    /// State dimension nx.
-    #[getter]
-    fn nx(&self) -> usize {
-        self.inner.nx()
-    }
-
-    /// Input dimension nu.
-    #[getter]
-    fn nu(&self) -> usize {
-        self.inner.nu()
-    }
-
-    /// Latent dimension N = nx + n_enc.
-    #[getter]
-    fn latent_dim(&self) -> usize {
-        self.inner.latent_dim()
     }
 
     /// The latent transition matrix A, shape (N, N).
@@ -267,13 +260,6 @@ impl BilinearModel {
             .collect()
     }
 
-    /// The metadata saved with the model (training configuration, metrics, data), as a dict.
-    #[getter]
-    fn metadata(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
-        let s = self.inner.metadata.to_string();
-        Ok(py.import("json")?.call_method1("loads", (s,))?.unbind())
-    }
-
     /// Forecasts from ``x0`` (nx,) under ``u_seq`` (T, nu): encodes once, rolls out the bilinear
     /// latent dynamics and returns the predicted states x_1..x_T, shape (T, nx).
     fn predict<'py>(
@@ -282,37 +268,14 @@ impl BilinearModel {
         x0: &Bound<'py, PyAny>,
         u_seq: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let (nx, nu, n) = (self.inner.nx(), self.inner.nu(), self.inner.latent_dim());
-        let x0 = crate::convert::vec_n(x0, nx, "x0")?;
-        check_finite(&x0, "x0")?;
-        let (t, cols, u) = rows_f64(u_seq, "u_seq")?;
-        if cols != nu {
-            return Err(PyValueError::new_err(format!(
-                "u_seq: inputs have {cols} values, the model has nu = {nu}"
-            )));
-        }
-        check_finite(&u, "u_seq")?;
+        let (nx, nu) = (self.inner.nx(), self.inner.nu());
+        let (x0, t, u) = predict_inputs(x0, u_seq, nx, nu)?;
         let inner = self.inner.clone();
         let out = py.detach(move || {
-            let mut z = inner.lift(&x0);
-            let mut next = vec![0.0; n];
-            let mut out = Vec::with_capacity(t * nx);
-            for s in 0..t {
-                inner.step(&z, &u[s * nu..(s + 1) * nu], &mut next);
-                std::mem::swap(&mut z, &mut next);
-                out.extend_from_slice(&z[..nx]);
-            }
-            out
+            rollout(inner.lift(&x0), t, nx, nu, &u, |z, ut, next| {
+                inner.step(z, ut, next)
+            })
         });
         array2(py, t, nx, &out)
     }
-
-    fn __repr__(&self) -> String {
-        format!(
-            "BilinearModel(nx={}, nu={}, latent_dim={})",
-            self.inner.nx(),
-            self.inner.nu(),
-            self.inner.latent_dim()
-        )
-    }
-}
+});

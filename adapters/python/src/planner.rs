@@ -12,7 +12,7 @@ use std::time::Duration;
 
 use bridge::keyexpr::{Keys, Role};
 use bridge::services::{payload, respond, DEFAULT_MAX_PAYLOAD};
-use bridge::session::{open_session, Mode, ZenohOptions};
+use bridge::session::{open_session, ZenohOptions};
 use bridge::zenoh::query::Query;
 use bridge::zenoh::Wait;
 use bridge::{Error, ErrorCode, ErrorReply};
@@ -22,6 +22,7 @@ use pyo3::types::PyDict;
 use serde_json::Value;
 
 use crate::errors::{bridge_err, InvalidInput, Unsupported};
+use crate::zenoh_args::zenoh_options;
 
 /// A failed plan request: the reply's code (an `ErrorCode` or a planner code such as
 /// `infeasible`) and message.
@@ -106,25 +107,10 @@ impl PlannerService {
         mode: &str,
         zenoh_config: Option<std::path::PathBuf>,
     ) -> PyResult<Py<PyAny>> {
-        let mode = match mode {
-            "peer" => Mode::Peer,
-            "client" => Mode::Client,
-            "router" => Mode::Router,
-            other => {
-                return Err(PyValueError::new_err(format!(
-                    "mode '{other}': expected peer, client or router"
-                )))
-            }
-        };
+        let zopts = zenoh_options(connect, listen, mode, zenoh_config)?;
         let keys = Keys::new(session).map_err(bridge_err)?;
         let key = keys.planner_plan(id).map_err(bridge_err)?;
         let alive = keys.alive(Role::Planner, id).map_err(bridge_err)?;
-        let zopts = ZenohOptions {
-            connect: connect.unwrap_or_default(),
-            listen: listen.unwrap_or_default(),
-            mode: Some(mode),
-            zenoh_config,
-        };
         if self.serving.swap(true, Ordering::SeqCst) {
             return Err(PyRuntimeError::new_err("this planner is already serving"));
         }

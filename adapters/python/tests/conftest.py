@@ -1,5 +1,6 @@
 """Shared fixtures: the project's FMUs (built by adapters/fmu/build.sh if missing), fresh
-koopbridge session ids, and adapters served in a background thread or a child process."""
+koopbridge session ids, adapters served in a background thread or a child process, the CLI
+binary, and the reset rule of the test simulators."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import threading
 import uuid
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -124,6 +126,24 @@ def koopbridge_binary() -> Path | None:
         if c and os.path.isfile(c) and os.access(c, os.X_OK):
             return Path(c)
     return None
+
+
+def reset_state(seed: int | None, x0, n: int = 2) -> np.ndarray:
+    """The reset rule of the test simulators: ``x0`` if given, else a state drawn uniformly in
+    [-1, 1]^n with ``seed``, else zeros."""
+    if x0 is not None:
+        return np.array(x0, dtype=float)
+    if seed is not None:
+        return np.random.default_rng(seed).uniform(-1, 1, n)
+    return np.zeros(n)
+
+
+def koopbridge_binary_or_skip() -> Path:
+    """``koopbridge_binary()``, or the calling test is skipped when the CLI is not built."""
+    exe = koopbridge_binary()
+    if exe is None:
+        pytest.skip("the koopbridge CLI is not built (cargo build --release); scripts/test.sh builds it")
+    return exe
 
 
 class Child:

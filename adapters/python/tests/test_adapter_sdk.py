@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import koopbridge
-from conftest import free_endpoint
+from conftest import free_endpoint, reset_state
 
 
 class Linear(koopbridge.Adapter):
@@ -24,12 +24,7 @@ class Linear(koopbridge.Adapter):
         return dict(env="linear", dt=0.1, state_names=["a", "b"], input_names=["p", "q"], u_min=[-1, -1], u_max=[1, 1], version="1")
 
     def reset(self, seed=None, x0=None):
-        if x0 is not None:
-            self.x = np.array(x0, dtype=float)
-        elif seed is not None:
-            self.x = np.random.default_rng(seed).uniform(-1, 1, 2)
-        else:
-            self.x = np.zeros(2)
+        self.x = reset_state(seed, x0)
         return self.x
 
     def step(self, u):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import koopbridge
-from conftest import Child, free_endpoint, koopbridge_binary
+from conftest import Child, free_endpoint, koopbridge_binary_or_skip
 
 
 def archive(files: list[dict], body: bytes, name: str = "evil") -> bytes:
@@ -60,9 +60,7 @@ def test_fetch_model_refuses_bad_archives_and_writes_nothing(tmp_path, session_i
 
 
 def test_fetch_configure_and_solve_through_the_services(tmp_path, session_id):
-    exe = koopbridge_binary()
-    if exe is None:
-        pytest.skip("the koopbridge CLI is not built (cargo build --release); scripts/test.sh builds it")
+    exe = koopbridge_binary_or_skip()
     store = tmp_path / "store"
     model = koopbridge.KoopmanModel.init(nx=2, nu=1, hidden=[32, 32], n_mult=4, seed=9)
     model.save(str(store / "pend"))

@@ -8,9 +8,8 @@ import subprocess
 import zipfile
 
 import numpy as np
-import pytest
 
-from conftest import koopbridge_binary
+from conftest import koopbridge_binary_or_skip
 from koopbridge.adapters.mujoco_sim import FrankaSimulator
 from koopbridge.collect import UniformPolicy
 from koopbridge.experiments import franka_data
@@ -73,9 +72,7 @@ def test_bad_sizes_exit_2(tmp_path):
 
 
 def test_koopbridge_eval_reads_the_splits(tmp_path):
-    exe = koopbridge_binary()
-    if exe is None:
-        pytest.skip("the koopbridge CLI is not built (cargo build --release)")
+    exe = koopbridge_binary_or_skip()
     out = tmp_path / "d"
     assert franka_data.main(["--out", str(out), "--windows", "90"]) == 0
     model = tmp_path / "edmd"

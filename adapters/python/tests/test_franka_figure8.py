@@ -11,7 +11,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from conftest import koopbridge_binary
+from conftest import koopbridge_binary_or_skip
 from koopbridge.adapters.mujoco_ik import figure8
 from koopbridge.adapters.mujoco_sim import FrankaSimulator
 from koopbridge.experiments import figure8 as fig8
@@ -39,9 +39,7 @@ def test_references_start_offset_and_error_metric():
 
 
 def test_figure8_through_the_bridge_beats_zero_input(tmp_path):
-    exe = koopbridge_binary()
-    if exe is None:
-        pytest.skip("the koopbridge CLI is not built (cargo build --release)")
+    exe = koopbridge_binary_or_skip()
     data = tmp_path / "data"
     assert franka_data.main(["--out", str(data), "--windows", "900"]) == 0
     model = tmp_path / "store" / "franka-edmd"

@@ -9,11 +9,10 @@ import struct
 import time
 
 import numpy as np
-import pytest
 import zenoh
 
 import koopbridge
-from conftest import Child, fmu_adapter_cmd, free_endpoint, koopbridge_binary
+from conftest import Child, fmu_adapter_cmd, free_endpoint, koopbridge_binary_or_skip
 
 # ---- PROTOCOL.md §4, written from the document ----
 
@@ -129,9 +128,7 @@ def test_plain_zenoh_client_steps_the_fmu_adapter(tmp_path, damped_fmu, session_
 
 
 def test_plain_zenoh_client_gets_an_mpc_solve(tmp_path, session_id):
-    exe = koopbridge_binary()
-    if exe is None:
-        pytest.skip("the koopbridge CLI is not built (cargo build --release); scripts/test.sh builds it")
+    exe = koopbridge_binary_or_skip()
     store = tmp_path / "store"
     model = koopbridge.KoopmanModel.init(nx=2, nu=1, hidden=[16, 16], n_mult=4, seed=5)
     model.save(str(store / "pend"))

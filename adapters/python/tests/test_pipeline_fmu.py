@@ -7,10 +7,9 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import pytest
 
 import koopbridge
-from conftest import Child, fmu_adapter_cmd, free_endpoint, koopbridge_binary
+from conftest import Child, fmu_adapter_cmd, free_endpoint, koopbridge_binary_or_skip
 
 
 def collect(c: koopbridge.Client, sim: str, windows: int, steps: int, seed: int):
@@ -28,9 +27,7 @@ def collect(c: koopbridge.Client, sim: str, windows: int, steps: int, seed: int)
 
 
 def test_collect_train_fetch_and_regulate_through_the_services(tmp_path, damped_fmu, session_id):
-    exe = koopbridge_binary()
-    if exe is None:
-        pytest.skip("the koopbridge CLI is not built (cargo build --release); scripts/test.sh builds it")
+    exe = koopbridge_binary_or_skip()
     ep = free_endpoint()
     store = tmp_path / "store"
     serve = [str(exe), "serve", "trainer", "mpc", "models", "--session", session_id, "--id", "s0", "--store", str(store),

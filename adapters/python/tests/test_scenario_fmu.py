@@ -9,17 +9,32 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
+import tempfile
 import threading
 import time
 import tomllib
+from pathlib import Path
 
 import pytest
 
-from conftest import ROOT, koopbridge_binary
+from conftest import ROOT, koopbridge_binary_or_skip
 
 SCENARIO = ROOT / "scenarios" / "damped-pendulum-fmu.toml"
+
+
+@pytest.fixture
+def repo_tmp():
+    """A temporary folder inside the repository (under target/, which git ignores): a scenario
+    file written there has the repository as its base, so its relative FMU path and ``{python}``
+    (the repository's venv) resolve as for the real scenario file."""
+    base = ROOT / "target"
+    base.mkdir(exist_ok=True)
+    d = Path(tempfile.mkdtemp(prefix="pytest-scenario-", dir=base))
+    yield d
+    shutil.rmtree(d, ignore_errors=True)
 
 
 def test_scenario_file_is_consistent():
@@ -35,10 +50,8 @@ def test_scenario_file_is_consistent():
     assert len(x0) == len(lo) == len(hi) and all(a <= v <= b for a, v, b in zip(lo, x0, hi))
 
 
-def test_scenario_runs_end_to_end_with_a_tiny_budget(tmp_path, damped_fmu):
-    exe = koopbridge_binary()
-    if exe is None:
-        pytest.skip("the koopbridge CLI is not built (cargo build --release); scripts/test.sh builds it")
+def test_scenario_runs_end_to_end_with_a_tiny_budget(tmp_path, repo_tmp, damped_fmu):
+    exe = koopbridge_binary_or_skip()
     text = SCENARIO.read_text()
     for key, value in (("train_windows", 64), ("val_windows", 16), ("test_windows", 16), ("steps = 200", None)):
         if value is None:
@@ -46,7 +59,7 @@ def test_scenario_runs_end_to_end_with_a_tiny_budget(tmp_path, damped_fmu):
         else:
             text = re.sub(rf"^{key} = \d+", f"{key} = {value}", text, count=1, flags=re.M)
     text = text.replace("iterations = 3000, validate_every = 500", "iterations = 40, validate_every = 20")
-    sc_file = tmp_path / "tiny.toml"
+    sc_file = repo_tmp / "tiny.toml"
     sc_file.write_text(text)
     out = tmp_path / "out"
     r = subprocess.run([str(exe), "run", str(sc_file), "--out", str(out)], cwd=ROOT, capture_output=True, text=True, timeout=600)
@@ -73,16 +86,14 @@ def _child_with(parent: int, needle: bytes) -> int | None:
     return None
 
 
-def test_killed_adapter_ends_the_run_within_a_second_and_a_rerun_needs_no_cleaning(tmp_path, damped_fmu):
-    exe = koopbridge_binary()
-    if exe is None:
-        pytest.skip("the koopbridge CLI is not built (cargo build --release); scripts/test.sh builds it")
+def test_killed_adapter_ends_the_run_within_a_second_and_a_rerun_needs_no_cleaning(tmp_path, repo_tmp, damped_fmu):
+    exe = koopbridge_binary_or_skip()
     text = SCENARIO.read_text()
     for key, value in (("train_windows", 400), ("val_windows", 40), ("test_windows", 40)):
         text = re.sub(rf"^{key} = \d+", f"{key} = {value}", text, count=1, flags=re.M)
     text = text.replace("steps = 200", "steps = 20")
     text = re.sub(r"iterations = \d+, validate_every = \d+", "iterations = 40, validate_every = 20", text, count=1)
-    sc_file = tmp_path / "kill.toml"
+    sc_file = repo_tmp / "kill.toml"
     sc_file.write_text(text)
     out = tmp_path / "out"
     cmd = [str(exe), "run", str(sc_file), "--out", str(out)]

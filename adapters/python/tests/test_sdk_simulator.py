@@ -14,6 +14,7 @@ import koopbridge
 from koopbridge import InvalidInput, SimInfo, SimulatorAdapter, Unsupported
 from koopbridge.adapters.fmu_sim import FmuSimulator
 from koopbridge.testing import check_adapter
+from conftest import reset_state
 
 
 class Decay:
@@ -27,12 +28,7 @@ class Decay:
         return SimInfo(env="decay", dt=0.1, state_names=["p", "v"], input_names=["f"], u_min=[-1.0], u_max=[1.0], extra={"units": ["m", "m/s"]})
 
     def reset(self, seed=None, x0=None):
-        if x0 is not None:
-            self.x = np.array(x0, dtype=float)
-        elif seed is not None:
-            self.x = np.random.default_rng(seed).uniform(-1, 1, 2)
-        else:
-            self.x = np.zeros(2)
+        self.x = reset_state(seed, x0)
         return self.x.copy()
 
     def step(self, u):

@@ -2,6 +2,7 @@
 
 from collections.abc import Sequence
 from os import PathLike
+from collections.abc import Callable
 from types import TracebackType
 from typing import Any, Self, TypeAlias, final
 
@@ -197,3 +198,24 @@ class ReferenceSystem:
     def names() -> list[str]: ...
     def info(self) -> dict[str, Any]: ...
     def step(self, x: _ArrayLike, u: _ArrayLike) -> _Vector: ...
+
+@final
+class PlannerService:
+    """Serves a Python planner ``plan(start, goal, dt) -> dict`` at koopbridge/{session}/planner/{id}/plan."""
+
+    def __init__(self, plan: Callable[[list[float], list[float], float], dict[str, Any]], nq: int) -> None: ...
+    def serve(
+        self,
+        *,
+        session: str = "default",
+        id: str = "planner0",
+        connect: Sequence[str] | None = None,
+        listen: Sequence[str] | None = None,
+        mode: str = "peer",
+        zenoh_config: str | PathLike[str] | None = None,
+    ) -> dict[str, int]:
+        """Serves until ``stop()`` or Ctrl-C; returns the counters ``plans``, ``errors``, ``busy``."""
+        ...
+    def stop(self) -> None: ...
+    @property
+    def serving(self) -> bool: ...

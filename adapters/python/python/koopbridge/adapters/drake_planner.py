@@ -13,11 +13,10 @@ from __future__ import annotations
 
 import argparse
 import sys
-import threading
 from typing import Any, Sequence
 
 from .._native import KoopbridgeError, PlannerService
-from ..serve_args import _lifeline
+from ..serve_args import add_lifeline_argument, add_zenoh_arguments, start_lifeline, zenoh_kwargs
 from .drake_plan import Gen3Planner
 
 __all__ = ["handler", "main", "parser"]
@@ -50,14 +49,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--min-distance", type=float, default=0.01, help="clearance of the collision pass [m] (default: %(default)s)")
     p.add_argument("--solvers", default="snopt,ipopt", help="solvers in the order tried (default: %(default)s)")
     p.add_argument("--table-z", type=float, default=0.0, help="height of the table top [m] (default: %(default)s)")
-    g = p.add_argument_group("serving (koopbridge protocol over Zenoh)")
-    g.add_argument("--session", default="default", help="koopbridge session id (default: %(default)s)")
-    g.add_argument("--id", default="planner0", help="planner id: key koopbridge/{session}/planner/{id}/plan (default: %(default)s)")
-    g.add_argument("--connect", action="append", default=[], metavar="ENDPOINT", help="Zenoh endpoint to connect to (repeatable)")
-    g.add_argument("--listen", action="append", default=[], metavar="ENDPOINT", help="Zenoh endpoint to listen on (repeatable)")
-    g.add_argument("--mode", choices=["peer", "client", "router"], default="peer", help="Zenoh mode (default: %(default)s)")
-    g.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 configuration file")
-    g.add_argument("--stdin-lifeline", action="store_true", help="stop serving when standard input closes (used by `koopbridge run`)")
+    g = add_zenoh_arguments(p, id_default="planner0", id_help="planner id: key koopbridge/{session}/planner/{id}/plan")
+    add_lifeline_argument(g)
     return p
 
 
@@ -70,11 +63,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KoopbridgeError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    if args.stdin_lifeline:
-        threading.Thread(target=_lifeline, args=(service,), daemon=True).start()
+    start_lifeline(service, args)
     print(f"koopbridge drake planner: Kinova Gen3 as planner '{args.id}' in session '{args.session}' (solvers {[s for s, _ in planner.solvers]})", file=sys.stderr, flush=True)
     try:
-        stats = service.serve(session=args.session, id=args.id, connect=args.connect, listen=args.listen, mode=args.mode, zenoh_config=args.zenoh_config)
+        stats = service.serve(**zenoh_kwargs(args))
     except KeyboardInterrupt:
         return 130
     except KoopbridgeError as e:
