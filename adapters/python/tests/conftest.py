@@ -10,6 +10,7 @@ import sys
 import threading
 import uuid
 from pathlib import Path
+from typing import Self
 
 import numpy as np
 import pytest
@@ -60,7 +61,7 @@ class Served:
         except BaseException as e:  # reported by the test
             self.error = e
 
-    def __enter__(self) -> "Served":
+    def __enter__(self) -> Self:
         self.thread.start()
         return self
 
@@ -158,7 +159,7 @@ class Child:
         self.f.flush()
         return self.log.read_text(errors="replace")
 
-    def __enter__(self) -> "Child":
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -41,7 +41,7 @@ def test_forward_kinematics_matches_mujoco(mj):
         d.qpos[:] = q
         mujoco.mj_kinematics(m, d)
         plant.SetPositions(ctx, q)
-        for name, body in zip(LINK_NAMES, bodies):
+        for name, body in zip(LINK_NAMES, bodies, strict=False):
             X = plant.EvalBodyPoseInWorld(ctx, body)
             i = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)
             worst = max(worst, float(np.max(np.abs(X.translation() - d.xpos[i]))))

@@ -11,9 +11,9 @@ import threading
 import time
 
 import numpy as np
+from test_interop_plain_zenoh import get_one, open_plain
 
 from conftest import Child, free_endpoint
-from test_interop_plain_zenoh import get_one, open_plain
 
 
 def _plan(s, key, body: bytes, timeout: float = 30.0):

@@ -8,12 +8,11 @@ import numpy as np
 import pytest
 
 import koopbridge
+from conftest import free_endpoint
 from koopbridge import InvalidInput
 from koopbridge.adapters.drake_model import VELOCITY_LIMITS, robosuite_mjcf
 from koopbridge.adapters.drake_sim import DrakeGen3Sim
 from koopbridge.serving import SimulatorAdapter
-from koopbridge.testing import check_adapter
-from conftest import free_endpoint
 
 
 @pytest.fixture(scope="module")
@@ -127,12 +126,3 @@ def test_command_line_describe_and_bad_dt():
     out = subprocess.run([sys.executable, "-m", "koopbridge.adapters.drake_sim", "--dt", "0.0015"], capture_output=True, text=True)
     assert out.returncode == 2 and "whole number of plant steps" in out.stderr
 
-
-def test_check_adapter_passes_on_the_drake_simulator():
-    """The SDK's adapter check (in-process and over a real Zenoh session) on the Gen3."""
-    sim = DrakeGen3Sim()
-    try:
-        info = check_adapter(sim, steps=5)
-        assert info.nx == 14 and info.nu == 7 and info.kind == "drake"
-    finally:
-        sim.close()

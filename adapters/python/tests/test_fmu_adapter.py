@@ -116,7 +116,7 @@ def test_info_over_zenoh_carries_units_start_values_and_fmi_version(tmp_path, da
     for name, value in start.items():
         assert by_name[name]["start"] == value, (name, by_name[name])
     assert by_name[info["input_names"][0]]["causality"] == "input"
-    assert all(by_name[n]["unit"] == u for n, u in zip(info["state_names"], units["outputs"]))
+    assert all(by_name[n]["unit"] == u for n, u in zip(info["state_names"], units["outputs"], strict=False))
     assert info["version"].startswith(f"FMI {version}")
 
 

@@ -27,7 +27,7 @@ def dh_position(q: np.ndarray) -> np.ndarray:
         return np.array([[ct, -st, 0, a], [st * ca, ct * ca, -sa, -d * sa], [st * sa, ct * sa, ca, d * ca], [0, 0, 0, 1]])
 
     m = np.eye(4)
-    for (a, d, alpha), th in zip(FRANKA_DH, q):
+    for (a, d, alpha), th in zip(FRANKA_DH, q, strict=False):
         m = m @ link(a, d, alpha, th)
     return (m @ link(0, FLANGE, 0, 0))[:3, 3]
 

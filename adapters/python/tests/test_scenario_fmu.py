@@ -47,7 +47,7 @@ def test_scenario_file_is_consistent():
     # The control task starts inside the region the data is collected from (the model is local).
     flag = {a.split("=")[0]: [float(v) for v in a.split("=")[1].split(",")] for a in cmd if a.startswith("--x0-")}
     lo, hi, x0 = flag["--x0-low"], flag["--x0-high"], sc["control"]["x0"]
-    assert len(x0) == len(lo) == len(hi) and all(a <= v <= b for a, v, b in zip(lo, x0, hi))
+    assert len(x0) == len(lo) == len(hi) and all(a <= v <= b for a, v, b in zip(lo, x0, hi, strict=False))
 
 
 def test_scenario_runs_end_to_end_with_a_tiny_budget(tmp_path, repo_tmp, damped_fmu):
@@ -99,10 +99,10 @@ def test_killed_adapter_ends_the_run_within_a_second_and_a_rerun_needs_no_cleani
     cmd = [str(exe), "run", str(sc_file), "--out", str(out)]
     run = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(l.decode(errors="replace") for l in run.stderr), daemon=True)
+    reader = threading.Thread(target=lambda: lines.extend(b.decode(errors="replace") for b in run.stderr), daemon=True)
     reader.start()
     deadline = time.monotonic() + 120
-    while not any("collecting" in l for l in lines):
+    while not any("collecting" in line for line in lines):
         assert run.poll() is None, "".join(lines)
         assert time.monotonic() < deadline, "collection never started"
         time.sleep(0.01)

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 import koopbridge
+from conftest import reset_state
 from koopbridge import InvalidInput, SimInfo, SimulatorAdapter, Unsupported
 from koopbridge.adapters.fmu_sim import FmuSimulator
 from koopbridge.testing import check_adapter
-from conftest import reset_state
 
 
 class Decay:

@@ -1,8 +1,7 @@
 """Type stubs of the pyo3 extension module ``koopbridge._native``."""
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from os import PathLike
-from collections.abc import Callable
 from types import TracebackType
 from typing import Any, Self, TypeAlias, final
 

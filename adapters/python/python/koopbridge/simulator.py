@@ -76,7 +76,7 @@ class SimInfo(Mapping[str, Any]):
             raise ValueError("SimInfo: the state has no components (state_names is empty)")
         if len(self.u_min) != self.nu or len(self.u_max) != self.nu:
             raise ValueError(f"SimInfo: {self.nu} input names but {len(self.u_min)} u_min and {len(self.u_max)} u_max values")
-        for i, (lo, hi) in enumerate(zip(self.u_min, self.u_max)):
+        for i, (lo, hi) in enumerate(zip(self.u_min, self.u_max, strict=False)):
             if math.isnan(lo) or math.isnan(hi) or lo > hi:
                 raise ValueError(f"SimInfo: input {self.input_names[i]!r} has bounds [{lo}, {hi}]")
         for i in self.angle_indices:

@@ -20,7 +20,8 @@ import sys
 import tempfile
 import time
 import zipfile
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 

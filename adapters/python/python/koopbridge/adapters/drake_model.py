@@ -240,9 +240,9 @@ def build_gen3(time_step: float = 0.0, collision: bool = True, table_z: float | 
     if len(models) != 1:
         raise ModelError(f"{path}: expected one model instance, Drake made {len(models)}")
     model = models[0]
-    for name, v in zip(JOINT_NAMES, VELOCITY_LIMITS):
+    for name, v in zip(JOINT_NAMES, VELOCITY_LIMITS, strict=False):
         plant.GetJointByName(name, model).set_velocity_limits([-v], [v])
-    for i, name in enumerate(JOINT_NAMES):
+    for i in range(len(JOINT_NAMES)):
         act = plant.GetJointActuatorByName(f"torq_j{i + 1}", model)
         act.set_effort_limit(float(EFFORT_LIMITS[i]))
     table = None

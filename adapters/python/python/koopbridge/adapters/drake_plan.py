@@ -11,8 +11,9 @@ Each pass is solved with SNOPT, IPOPT when SNOPT fails or is missing. No network
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -81,7 +82,7 @@ class Plan:
         return t, q, qd
 
 
-def random_goals(seed: int, n: int, planner: "Gen3Planner | None" = None, margin: float = 0.0) -> np.ndarray:
+def random_goals(seed: int, n: int, planner: Gen3Planner | None = None, margin: float = 0.0) -> np.ndarray:
     """``n`` joint-space goals ``[n, 7]`` drawn uniformly within the joint limits (continuous
     joints: ±π), reproducible by ``seed``. With a ``planner``, draws that are closer than
     ``margin`` [m] to a collision (self or table) are redrawn (rejection sampling)."""

@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 from .._native import KoopbridgeError, PlannerService
 from ..serve_args import add_lifeline_argument, add_zenoh_arguments, start_lifeline, zenoh_kwargs

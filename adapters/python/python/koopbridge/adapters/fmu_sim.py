@@ -7,8 +7,9 @@ from __future__ import annotations
 
 import os
 import shutil
+from collections.abc import Sequence
 from ctypes import byref, c_double, c_uint32
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -219,7 +220,7 @@ class FmuSimulator:
                 self.fmu = FMU3Slave(**kw)
                 self.fmu.instantiate(logMessage=self._logger)
             else:
-                from fmpy.fmi2 import fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, defaultCallbacks
+                from fmpy.fmi2 import defaultCallbacks, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
                 from fmpy.logging import addLoggerProxy
 
                 self.fmu = FMU2Slave(**kw)

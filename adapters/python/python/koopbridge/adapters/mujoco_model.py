@@ -131,7 +131,7 @@ def build_panda(path: str | None = None, options: PandaOptions | None = None) ->
     if opts.force_limit is not None:
         if len(opts.force_limit) != 7:
             raise ModelError(f"force_limit has {len(opts.force_limit)} values, the arm has 7 joints")
-        limits = {n: (-abs(f), abs(f)) for n, f in zip(JOINTS, opts.force_limit)}
+        limits = {n: (-abs(f), abs(f)) for n, f in zip(JOINTS, opts.force_limit, strict=False)}
     no_limit = [n for n in JOINTS if n not in limits]
     if no_limit:
         raise ModelError(f"MuJoCo model '{path}': no force limit for {', '.join(no_limit)} (no limited actuator on it; pass force limits)")

@@ -4,7 +4,7 @@ the (y, z) deviation over time, one line per controller (matplotlib, Agg; import
 from __future__ import annotations
 
 import io
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -14,7 +14,7 @@ from .figure8_ref import SKIP, Figure8, tracking_error
 __all__ = ["plot"]
 
 
-def plot(path: str, task: Figure8, runs: Sequence["object"]) -> None:
+def plot(path: str, task: Figure8, runs: Sequence[object]) -> None:
     """Writes the PNG to ``path`` atomically. ``runs`` are ``figure8.Run`` objects."""
     import matplotlib
 

@@ -18,8 +18,8 @@ import multiprocessing
 import os
 import sys
 import time
+from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
-from typing import Sequence
 
 import numpy as np
 
@@ -121,7 +121,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         # spawn: the workers share nothing with this process (no Zenoh or MuJoCo state forked).
         with ProcessPoolExecutor(a.procs, mp_context=multiprocessing.get_context("spawn")) as pool:
             futures = [pool.submit(collect_block, a.state, a.seed, s, n, a.steps, path) for s, n, path in todo]
-            for f, (s, n, _) in zip(futures, todo):
+            for f, (_, n, _) in zip(futures, todo, strict=True):
                 report(n, f.result()[1])
     wall = time.perf_counter() - t0
     blocks = [_load_block(path, a.seed, s, n, a.steps) for s, n, path in spec]
@@ -164,12 +164,12 @@ def _write_partial(a: argparse.Namespace, spec: list[tuple[int, int, str]], n_tr
     """``--from-blocks``: the splits from the blocks present (all validation and test blocks,
     the prefix of the train blocks)."""
     blocks = [_load_block(path, a.seed, s, n, a.steps) for s, n, path in spec]
-    held = [b for (s, _, _), b in zip(spec, blocks) if s >= n_train]
+    held = [b for (s, _, _), b in zip(spec, blocks, strict=False) if s >= n_train]
     if any(b is None for b in held):
         print("franka_data: --from-blocks needs every validation and test block", file=sys.stderr)
         return 1
     train = []
-    for (s, _, _), b in zip(spec, blocks):
+    for (s, _, _), b in zip(spec, blocks, strict=False):
         if s >= n_train or b is None:
             break
         train.append(b)
