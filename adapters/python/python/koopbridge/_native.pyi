@@ -12,9 +12,11 @@ from typing_extensions import disjoint_base
 __all__ = [
     "Adapter",
     "KoopmanModel",
+    "BilinearModel",
     "Mpc",
     "Client",
     "ReferenceSystem",
+    "PlannerService",
     "KoopbridgeError",
     "RemoteError",
     "BridgeTimeout",
@@ -202,7 +204,7 @@ class ReferenceSystem:
 class PlannerService:
     """Serves a Python planner ``plan(start, goal, dt) -> dict`` at koopbridge/{session}/planner/{id}/plan."""
 
-    def __init__(self, plan: Callable[[list[float], list[float], float], dict[str, Any]], nq: int) -> None: ...
+    def __new__(cls, plan: Callable[[list[float], list[float], float], dict[str, Any]], nq: int) -> Self: ...
     def serve(
         self,
         *,
