@@ -131,7 +131,7 @@ fn tls_endpoint() -> String {
 fn client_opts(endpoint: &str, cfg: Option<&Path>) -> ZenohOptions {
     ZenohOptions {
         connect: vec![endpoint.to_string()],
-        mode: Mode::Client,
+        mode: Some(Mode::Client),
         zenoh_config: cfg.map(Path::to_path_buf),
         ..Default::default()
     }
