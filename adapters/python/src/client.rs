@@ -324,6 +324,83 @@ impl Client {
         Ok(p.to_string_lossy().into_owned())
     }
 
+    /// Binds MPC service ``mpc_id`` (configured with ``model``, see ``configure_mpc``) to the
+    /// free-running simulator ``sim``: from now on it answers each published state with a
+    /// command towards ``reference`` (``nx`` values, or a stacked horizon), within the
+    /// simulator's own input bounds. Typed errors: ``not_found`` (no such simulator),
+    /// ``busy`` (a lockstep simulator, or already attached), ``dimension`` (wrong reference).
+    #[pyo3(signature = (mpc_id, sim, model, reference, timeout=30.0))]
+    fn attach(
+        &self,
+        py: Python<'_>,
+        mpc_id: &str,
+        sim: &str,
+        model: &str,
+        reference: &Bound<'_, PyAny>,
+        timeout: f64,
+    ) -> PyResult<String> {
+        let req = bridge::services::mpc::AttachRequest {
+            sim: sim.to_string(),
+            model: model.to_string(),
+            reference: vec_f64(reference, "reference")?,
+            detach: false,
+        };
+        let t = secs(timeout)?;
+        py.detach(|| bridge::services::mpc::attach(&self.inner, mpc_id, &req, t))
+            .map_err(bridge_err)
+    }
+
+    /// Stops MPC service ``mpc_id`` controlling ``sim``; returns the attachment's statistics
+    /// (``AttachStats`` in PROTOCOL.md: ``states``, ``commands``, ``gaps``, ``skipped``,
+    /// latencies, ...).
+    #[pyo3(signature = (mpc_id, sim, timeout=30.0))]
+    fn detach(&self, py: Python<'_>, mpc_id: &str, sim: &str, timeout: f64) -> PyResult<Py<PyAny>> {
+        let t = secs(timeout)?;
+        let r = py
+            .detach(|| bridge::services::mpc::detach(&self.inner, mpc_id, sim, t))
+            .map_err(bridge_err)?;
+        to_py_json(py, &r)
+    }
+
+    /// Asks recorder ``recorder_id`` to record the state stream of free-running simulator
+    /// ``sim`` in windows of ``window_steps`` transitions (default 15).
+    #[pyo3(signature = (recorder_id, sim, window_steps=None, timeout=10.0))]
+    fn record_start(
+        &self,
+        py: Python<'_>,
+        recorder_id: &str,
+        sim: &str,
+        window_steps: Option<usize>,
+        timeout: f64,
+    ) -> PyResult<()> {
+        let t = secs(timeout)?;
+        py.detach(|| {
+            bridge::services::recorder::record_start(&self.inner, recorder_id, sim, window_steps, t)
+        })
+        .map_err(bridge_err)
+    }
+
+    /// Stops recording ``sim`` and writes the windows as dataset ``name`` (served at
+    /// ``…/data/{name}``, usable as ``recording:NAME`` in ``submit_job``); returns the summary
+    /// (``name``, ``states``, ``gaps``, ``out_of_order``, ``windows``).
+    #[pyo3(signature = (recorder_id, sim, name, timeout=30.0))]
+    fn record_stop(
+        &self,
+        py: Python<'_>,
+        recorder_id: &str,
+        sim: &str,
+        name: &str,
+        timeout: f64,
+    ) -> PyResult<Py<PyAny>> {
+        let t = secs(timeout)?;
+        let r = py
+            .detach(|| {
+                bridge::services::recorder::record_stop(&self.inner, recorder_id, sim, name, t)
+            })
+            .map_err(bridge_err)?;
+        to_py_json(py, &r)
+    }
+
     /// A raw query of ``koopbridge/{session}/{key}`` (e.g. ``"trainer/t0/jobs"`` or
     /// ``"models/NAME"``) with ``payload``; returns the reply's bytes or raises ``RemoteError``
     /// with the service's typed error. For the JSON control plane described in PROTOCOL.md.

@@ -96,3 +96,51 @@ def test_fetch_configure_and_solve_through_the_services(tmp_path, session_id):
         with pytest.raises(koopbridge.RemoteError) as e:
             c.solve("s0", [1.0], [0.0, 0.0], model="pend")
         assert e.value.code in ("dimension", "bad_request")
+
+
+def test_attach_detach_and_recording_from_the_python_client(tmp_path, session_id):
+    """The Python Client drives the free-run control plane through bridge's own functions:
+    attach (typed refusals), record a stream, detach with the MPC's statistics."""
+    import time
+
+    exe = koopbridge_binary_or_skip()
+    store = tmp_path / "store"
+    koopbridge.KoopmanModel.init(nx=2, nu=1, hidden=[32, 32], n_mult=4, seed=9).save(str(store / "pend"))
+    ep = free_endpoint()
+    serve = [str(exe), "serve", "mpc", "models", "recorder", "--session", session_id, "--id", "s0", "--store",
+             str(store), "--state-dir", str(tmp_path / "state"), "--listen", ep]
+    sim = [str(exe), "sim", "--env", "damped-pendulum", "--id", "fr", "--session", session_id, "--connect", ep,
+           "--free-run", "--rate", "100", "--steps", "200", "--wait-subscriber", "30"]
+    with Child(serve, tmp_path / "serve.log") as services, koopbridge.Client(session=session_id, connect=[ep]) as c:
+        t_end = time.monotonic() + 30
+        while True:
+            try:
+                c.configure_mpc("s0", "pend", horizon=10, u_min=[-8.0], u_max=[8.0])
+                break
+            except koopbridge.BridgeTimeout:
+                assert time.monotonic() < t_end, services.output()
+        with pytest.raises(koopbridge.RemoteError) as e:
+            c.attach("s0", "nosuch", "pend", [0.0, 0.0], timeout=10)
+        assert e.value.code == "not_found"
+        with pytest.raises(koopbridge.RemoteError) as e:
+            c.record_stop("s0", "fr", "never", timeout=10)
+        assert e.value.code == "not_found"
+        with Child(sim, tmp_path / "sim.log") as free:
+            t_end = time.monotonic() + 30
+            while True:
+                try:
+                    assert c.attach("s0", "fr", "pend", [0.0, 0.0], timeout=10) == "fr"
+                    break
+                except koopbridge.RemoteError as err:
+                    assert err.code == "not_found" and time.monotonic() < t_end, free.output()
+                    time.sleep(0.1)
+            with pytest.raises(koopbridge.RemoteError) as e:
+                c.attach("s0", "fr", "pend", [0.0, 0.0], timeout=10)
+            assert e.value.code == "busy"
+            c.record_start("s0", "fr", window_steps=10)
+            free.p.wait(timeout=60)
+        summary = c.record_stop("s0", "fr", "fr-run")
+        stats = c.detach("s0", "fr")
+    assert summary["name"] == "fr-run" and summary["states"] > 0 and summary["windows"] > 0, summary
+    assert stats["states"] > 0 and stats["commands"] > 0 and stats["commands"] <= stats["states"], stats
+    assert (tmp_path / "state" / "data" / "fr-run.npz").is_file()

@@ -102,6 +102,25 @@ pub fn to_json<T: serde::Serialize>(v: &T) -> std::result::Result<Vec<u8>, Error
     serde_json::to_vec(v).map_err(|e| ErrorReply::new(ErrorCode::Internal, e.to_string()))
 }
 
+/// Client side of a JSON control-plane request: sends `req` to `key` and decodes the reply as
+/// `T`; a reply that does not decode is a `bad_request` protocol error naming `who`.
+pub fn query_json<T: serde::de::DeserializeOwned>(
+    client: &crate::client::Client,
+    key: &str,
+    req: &impl serde::Serialize,
+    timeout: Duration,
+    who: &str,
+) -> Result<T> {
+    let body = serde_json::to_vec(req).map_err(|e| Error::Config(e.to_string()))?;
+    let b = client.query(key, body, timeout, who)?;
+    serde_json::from_slice(&b).map_err(|e| {
+        Error::protocol(
+            ErrorCode::BadRequest,
+            format!("{who}: reply is not valid: {e}"),
+        )
+    })
+}
+
 /// Sends the result (payload) or the typed error as the reply to `q`.
 pub fn respond(q: &Query, result: std::result::Result<Vec<u8>, ErrorReply>) {
     let sent = match result {

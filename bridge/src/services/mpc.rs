@@ -13,7 +13,7 @@ use koopman::mpc::{MpcConfig, MpcController, SolveStatus as KStatus};
 use serde::{Deserialize, Serialize};
 use zenoh::Session;
 
-use super::{parse_json, serve_queries, to_json, Inbox};
+use super::{parse_json, query_json, serve_queries, to_json, Inbox};
 use crate::client::Client;
 use crate::codec::{SolveReply, SolveRequest, SolveStatus};
 use crate::error::{Error, ErrorCode, ErrorReply, Result};
@@ -72,15 +72,32 @@ pub fn configure(
     req: &ConfigureRequest,
     timeout: Duration,
 ) -> Result<ConfigureReply> {
-    let who = format!("MPC service '{id}'");
-    let body = serde_json::to_vec(req).map_err(|e| Error::Config(e.to_string()))?;
-    let b = client.query(&client.keys.mpc_configure(id)?, body, timeout, &who)?;
-    serde_json::from_slice(&b).map_err(|e| {
-        Error::protocol(
-            ErrorCode::BadRequest,
-            format!("{who}: configure reply is not valid: {e}"),
-        )
-    })
+    let key = client.keys.mpc_configure(id)?;
+    query_json(client, &key, req, timeout, &format!("MPC service '{id}'"))
+}
+
+/// Sends `req` (attach: `sim`, `model`, `reference`) to the `attach` queryable of MPC service
+/// `id`; returns the simulator id it attached to.
+pub fn attach(client: &Client, id: &str, req: &AttachRequest, timeout: Duration) -> Result<String> {
+    #[derive(Deserialize)]
+    struct AttachReply {
+        attached: String,
+    }
+    let key = client.keys.mpc_attach(id)?;
+    let r: AttachReply = query_json(client, &key, req, timeout, &format!("MPC service '{id}'"))?;
+    Ok(r.attached)
+}
+
+/// Stops MPC service `id` controlling simulator `sim`; returns the attachment's statistics.
+pub fn detach(client: &Client, id: &str, sim: &str, timeout: Duration) -> Result<AttachStats> {
+    let req = AttachRequest {
+        sim: sim.to_string(),
+        model: String::new(),
+        reference: Vec::new(),
+        detach: true,
+    };
+    let key = client.keys.mpc_attach(id)?;
+    query_json(client, &key, &req, timeout, &format!("MPC service '{id}'"))
 }
 
 /// Maps the controller's status to the wire status.

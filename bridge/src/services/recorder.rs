@@ -12,7 +12,7 @@ use koopman::data::{Dataset, DatasetMeta, Pairing};
 use serde::{Deserialize, Serialize};
 use zenoh::{Session, Wait};
 
-use super::{key_tail, parse_json, serve_queries, to_json, Inbox};
+use super::{key_tail, parse_json, query_json, serve_queries, to_json, Inbox};
 use crate::codec::StateMsg;
 use crate::error::{Error, ErrorCode, ErrorReply, Result};
 use crate::keyexpr::{validate_chunk, Keys, Role, SimLeaf};
@@ -47,6 +47,46 @@ pub struct RecordSummary {
     pub out_of_order: u64,
     /// Windows written.
     pub windows: usize,
+}
+
+/// Asks recorder `id` to start recording simulator `sim`'s state stream in windows of
+/// `window_steps` transitions (None: 15).
+pub fn record_start(
+    client: &crate::client::Client,
+    id: &str,
+    sim: &str,
+    window_steps: Option<usize>,
+    timeout: Duration,
+) -> Result<()> {
+    let req = RecordRequest {
+        action: "start".into(),
+        sim: sim.into(),
+        name: String::new(),
+        window_steps,
+    };
+    let key = client.keys.recorder(id)?;
+    let _: serde_json::Value =
+        query_json(client, &key, &req, timeout, &format!("recorder '{id}'"))?;
+    Ok(())
+}
+
+/// Asks recorder `id` to stop recording `sim` and write the windows as dataset `name` (served
+/// at `…/data/{name}`); returns what was recorded.
+pub fn record_stop(
+    client: &crate::client::Client,
+    id: &str,
+    sim: &str,
+    name: &str,
+    timeout: Duration,
+) -> Result<RecordSummary> {
+    let req = RecordRequest {
+        action: "stop".into(),
+        sim: sim.into(),
+        name: name.into(),
+        window_steps: None,
+    };
+    let key = client.keys.recorder(id)?;
+    query_json(client, &key, &req, timeout, &format!("recorder '{id}'"))
 }
 
 /// The received states of one recording.
