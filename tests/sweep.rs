@@ -80,7 +80,7 @@ fn sweep_cmd(
             "--seeds",
             "1,2",
             "--iterations",
-            "1500",
+            "3000",
         ])
         .args(["--set", "hidden=[32,32]", "--set", "validate_every=250"])
         .args([

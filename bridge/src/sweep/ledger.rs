@@ -39,9 +39,9 @@ pub struct Ledger {
     attempts: Vec<u32>,
     max_attempts: u32,
     grace: Duration,
-    /// Jobs left behind on a trainer that vanished and whose points went elsewhere: cancel them
-    /// when the trainer returns, so that no point is trained twice.
-    orphans: BTreeMap<String, BTreeSet<String>>,
+    /// Jobs left behind on a trainer that vanished and whose points went elsewhere (trainer →
+    /// job → point): cancel them when the trainer returns, so that no point is trained twice.
+    orphans: BTreeMap<String, BTreeMap<String, usize>>,
 }
 
 impl Ledger {
@@ -134,7 +134,7 @@ impl Ledger {
                     self.orphans
                         .entry(trainer.clone())
                         .or_default()
-                        .insert(job.clone());
+                        .insert(job.clone(), i);
                     self.attempts[i] = self.attempts[i].saturating_sub(1);
                     *s = PointState::Waiting;
                     moved.push(i);
@@ -144,13 +144,14 @@ impl Ledger {
         moved
     }
 
-    /// Orphaned jobs on trainers that are alive again: the caller cancels them, then calls
-    /// [`Ledger::orphans_cancelled`].
-    pub fn orphans_to_cancel(&self, alive: &BTreeSet<String>) -> Vec<(String, String)> {
+    /// Orphaned jobs on trainers that are alive again, with their points: the caller cancels
+    /// them (at once where the point is no longer waiting; a waiting point may adopt its orphan
+    /// instead), then calls [`Ledger::orphans_cancelled`].
+    pub fn orphans_to_cancel(&self, alive: &BTreeSet<String>) -> Vec<(String, String, usize)> {
         self.orphans
             .iter()
             .filter(|(t, _)| alive.contains(t.as_str()))
-            .flat_map(|(t, jobs)| jobs.iter().map(|j| (t.clone(), j.clone())))
+            .flat_map(|(t, jobs)| jobs.iter().map(|(j, i)| (t.clone(), j.clone(), *i)))
             .collect()
     }
 
@@ -261,7 +262,7 @@ mod tests {
         let back = alive(&["a", "b"]);
         assert_eq!(
             l.orphans_to_cancel(&back),
-            vec![("a".into(), "j1".into()), ("a".into(), "j2".into())]
+            vec![("a".into(), "j1".into(), 0), ("a".into(), "j2".into(), 2)]
         );
         l.orphans_cancelled("a", "j1");
         l.orphans_cancelled("a", "j2");

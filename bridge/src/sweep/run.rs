@@ -280,6 +280,12 @@ pub fn run_sweep(
         for i in ledger.follow_liveliness(&alive, now) {
             on_event(SweepEvent::Moved { point: &points[i] });
         }
+        // Orphans of points already elsewhere are cancelled first, before they can finish.
+        for (t, job, i) in ledger.orphans_to_cancel(&alive) {
+            if *ledger.state(i) != PointState::Waiting && cancel(client, &t, &job).is_ok() {
+                ledger.orphans_cancelled(&t, &job);
+            }
+        }
         // One status round: each trainer's job list gives its load and the fate of our jobs.
         let mut load: BTreeMap<String, usize> = BTreeMap::new();
         for t in &alive {
@@ -359,7 +365,7 @@ pub fn run_sweep(
             }
         }
         // Orphans not adopted above (their points are elsewhere now) are cancelled.
-        for (t, job) in ledger.orphans_to_cancel(&alive) {
+        for (t, job, _) in ledger.orphans_to_cancel(&alive) {
             if cancel(client, &t, &job).is_ok() {
                 ledger.orphans_cancelled(&t, &job);
             }
