@@ -101,10 +101,12 @@ impl Adapter {
     /// Arguments: ``session`` (koopbridge session id, the ``koopbridge/{session}/`` root),
     /// ``id`` (simulator id), Zenoh ``connect``/``listen`` endpoint lists, ``mode`` (``peer``,
     /// ``client`` or ``router``), ``zenoh_config`` (a JSON5 file); ``free_run=True`` with
-    /// ``rate_hz`` (default real time, ``1/dt``), ``steps`` (default unlimited) and the initial
-    /// ``seed``/``x0``.
+    /// ``rate_hz`` (default real time, ``1/dt``), ``steps`` (default unlimited), the initial
+    /// ``seed``/``x0`` and ``wait_subscriber`` (seconds to wait for a subscriber of the state
+    /// stream before the first step, so that nobody misses its start; default: start at once).
     #[pyo3(signature = (*, session="default", id="sim0", connect=None, listen=None, mode="peer",
-                        zenoh_config=None, free_run=false, rate_hz=None, steps=None, seed=None, x0=None))]
+                        zenoh_config=None, free_run=false, rate_hz=None, steps=None, seed=None, x0=None,
+                        wait_subscriber=None))]
     #[allow(clippy::too_many_arguments)]
     fn serve(
         slf: &Bound<'_, Self>,
@@ -119,6 +121,7 @@ impl Adapter {
         steps: Option<u64>,
         seed: Option<u64>,
         x0: Option<Bound<'_, PyAny>>,
+        wait_subscriber: Option<f64>,
     ) -> PyResult<Py<PyAny>> {
         let py = slf.py();
         let info = sim_info(&slf.call_method0("info")?)?;
@@ -134,9 +137,17 @@ impl Adapter {
                 steps,
                 reset: ResetRequest { seed, x0 },
             });
-        } else if rate_hz.is_some() || steps.is_some() {
+            opts.wait_subscriber = match wait_subscriber {
+                Some(w) if !(w.is_finite() && w >= 0.0) => {
+                    return Err(PyValueError::new_err(
+                        "wait_subscriber must be a finite number of seconds >= 0",
+                    ))
+                }
+                w => w.map(std::time::Duration::from_secs_f64),
+            };
+        } else if rate_hz.is_some() || steps.is_some() || wait_subscriber.is_some() {
             return Err(PyValueError::new_err(
-                "rate_hz and steps apply to free_run=True only",
+                "rate_hz, steps and wait_subscriber apply to free_run=True only",
             ));
         }
         let (stop, serving) = {

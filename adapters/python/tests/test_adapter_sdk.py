@@ -110,6 +110,20 @@ def test_free_run_publishes_and_stops_after_steps(session_id):
     np.testing.assert_allclose(sim.x, [0.5**20, 0.5**20])
 
 
+def test_free_run_waits_for_a_state_subscriber_when_asked(session_id):
+    """``wait_subscriber`` reaches bridge's adapter: with nobody subscribed, 20 steps at 200 Hz
+    (0.1 s) start only after the wait; a bad value or use outside free-run is refused."""
+    sim = Linear()
+    t0 = time.perf_counter()
+    stats = sim.serve(session=session_id, id="fw", free_run=True, rate_hz=200.0, steps=20, x0=[1.0, 1.0], wait_subscriber=1.0)
+    assert stats["steps"] == 20
+    assert time.perf_counter() - t0 >= 1.0
+    with pytest.raises(ValueError, match="wait_subscriber"):
+        sim.serve(session=session_id, id="fw", free_run=True, steps=2, wait_subscriber=-1.0)
+    with pytest.raises(ValueError, match="free_run=True only"):
+        sim.serve(session=session_id, id="fw", wait_subscriber=1.0)
+
+
 def test_stop_from_another_thread_returns_promptly(session_id):
     sim = Linear()
     done = threading.Event()

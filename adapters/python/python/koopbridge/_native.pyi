@@ -70,6 +70,7 @@ class Adapter:
         steps: int | None = None,
         seed: int | None = None,
         x0: _ArrayLike | None = None,
+        wait_subscriber: float | None = None,
     ) -> dict[str, Any]: ...
     def stop(self) -> None: ...
     @property

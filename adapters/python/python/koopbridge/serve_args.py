@@ -31,13 +31,14 @@ def add_lifeline_argument(group: argparse._ArgumentGroup) -> None:
 
 
 def add_serve_arguments(parser: argparse.ArgumentParser) -> None:
-    """Adds ``--session --id --connect --listen --mode --zenoh-config --free-run --rate --steps
+    """Adds ``--session --id --connect --listen --mode --zenoh-config --free-run --rate --steps --wait-subscriber
     --seed --stdin-lifeline`` to ``parser``."""
     g = add_zenoh_arguments(parser, id_default="sim0", id_help="simulator id: keys koopbridge/{session}/sim/{id}/...")
     g.add_argument("--free-run", action="store_true", help="free-run mode: step at a fixed rate, publish states, apply the latest command")
     g.add_argument("--rate", type=float, metavar="HZ", help="free-run steps per second (default: real time, 1/dt)")
     g.add_argument("--steps", type=int, metavar="N", help="free-run: stop after N steps (default: run until stopped)")
     g.add_argument("--seed", type=int, help="free-run: seed of the initial state")
+    g.add_argument("--wait-subscriber", type=float, metavar="SECONDS", help="free-run: wait up to SECONDS for a subscriber of the state stream before the first step (default: start at once)")
     add_lifeline_argument(g)
 
 
@@ -64,9 +65,9 @@ def serve_from_args(adapter: Adapter, args: argparse.Namespace) -> dict[str, Any
     """Serves ``adapter`` as the parsed options say; returns its counters."""
     kw = zenoh_kwargs(args)
     if args.free_run:
-        kw.update(free_run=True, rate_hz=args.rate, steps=args.steps, seed=args.seed)
-    elif args.rate is not None or args.steps is not None:
-        raise SystemExit("error: --rate and --steps need --free-run")
+        kw.update(free_run=True, rate_hz=args.rate, steps=args.steps, seed=args.seed, wait_subscriber=args.wait_subscriber)
+    elif args.rate is not None or args.steps is not None or args.wait_subscriber is not None:
+        raise SystemExit("error: --rate, --steps and --wait-subscriber need --free-run")
     start_lifeline(adapter, args)
     return adapter.serve(**kw)
 
