@@ -154,7 +154,38 @@ enum Op {
 }
 
 /// A recording in progress: what was received, the subscriber, transitions per window.
-type Active = (Arc<Mutex<Recording>>, zenoh::pubsub::Subscriber<()>, usize);
+/// A recording in progress: its states, the subscription, the window length, and the
+/// simulator's `info` (read at `start`, while the simulator is surely there).
+type Active = (
+    Arc<Mutex<Recording>>,
+    zenoh::pubsub::Subscriber<()>,
+    usize,
+    Option<InfoReply>,
+);
+
+/// The `info` of simulator `sim`; one that does not answer is `not_found` (its dimensions,
+/// which a recording needs, are unknown).
+fn sim_info(
+    client: &crate::client::Client,
+    keys: &Keys,
+    sim: &str,
+) -> std::result::Result<InfoReply, ErrorReply> {
+    let key = keys.sim(sim, SimLeaf::Info).map_err(|e| e.to_reply())?;
+    let who = format!("simulator '{sim}'");
+    let b = client
+        .query(&key, Vec::new(), Duration::from_secs(10), &who)
+        .map_err(|e| match e {
+            Error::Remote { reply, .. } => reply,
+            _ => ErrorReply::new(
+                ErrorCode::NotFound,
+                format!(
+                    "{who} does not answer info: its dimensions are unknown \
+                     (start recording while it runs)"
+                ),
+            ),
+        })?;
+    parse_json("info", &b)
+}
 
 /// Serves the recorder `id` (recordings written to `data_dir/{name}.npz`) until `stop` is set.
 pub fn serve(
@@ -199,6 +230,10 @@ pub fn serve(
                                 format!("already recording '{}'", req.sim),
                             ));
                         }
+                        // The simulator's dimensions are read now if it answers: a
+                        // free-running simulator may have finished (and gone) by the time the
+                        // recording stops. One that is not there yet is asked again at `stop`.
+                        let info = sim_info(&client, keys, &req.sim).ok();
                         let rec = Arc::new(Mutex::new(Recording::default()));
                         let r2 = rec.clone();
                         let sub = session
@@ -215,31 +250,24 @@ pub fn serve(
                             })
                             .wait()
                             .map_err(|e| Error::zenoh(e).to_reply())?;
-                        active.insert(req.sim.clone(), (rec, sub, req.window_steps.unwrap_or(15)));
+                        active.insert(
+                            req.sim.clone(),
+                            (rec, sub, req.window_steps.unwrap_or(15), info),
+                        );
                         to_json(&serde_json::json!({"recording": req.sim}))
                     }
                     "stop" => {
                         validate_chunk("dataset name", &req.name).map_err(|e| e.to_reply())?;
-                        let (rec, sub, steps) = active.remove(&req.sim).ok_or_else(|| {
+                        let (rec, sub, steps, info) = active.remove(&req.sim).ok_or_else(|| {
                             ErrorReply::new(
                                 ErrorCode::NotFound,
                                 format!("not recording '{}'", req.sim),
                             )
                         })?;
                         drop(sub);
-                        let info: InfoReply = {
-                            let key = keys
-                                .sim(&req.sim, SimLeaf::Info)
-                                .map_err(|e| e.to_reply())?;
-                            let b = client
-                                .query(
-                                    &key,
-                                    Vec::new(),
-                                    Duration::from_secs(10),
-                                    &format!("simulator '{}'", req.sim),
-                                )
-                                .map_err(|e| e.to_reply())?;
-                            parse_json("info", &b)?
+                        let info = match info {
+                            Some(i) => i,
+                            None => sim_info(&client, keys, &req.sim)?,
                         };
                         let rec = super::lock(&rec);
                         let (nx, nu) = (info.sim.nx(), info.sim.nu());
