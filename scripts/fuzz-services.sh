@@ -14,4 +14,6 @@ if [ ! -x "$exe" ]; then
   echo "fuzz-services: $exe not built (cargo build --release)" >&2
   exit 2
 fi
+# The harness starts its processes in a scratch folder: give it the binary's absolute path.
+exe=$(realpath "$exe")
 exec .venv/bin/python scripts/fuzz_services.py --exe "$exe" --queries "$n" --seed "$seed"
