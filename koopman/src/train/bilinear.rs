@@ -192,7 +192,7 @@ impl<'a, T: Real> Dynamics<'a, T> {
                     m[i * nu + j] = (0..nn).map(|c| bs[i * nn + c] * bs[j * nn + c]).sum();
                 }
             }
-            let minv = super::loss::spd_inverse(&m, nu).ok_or_else(|| {
+            let minv = super::pinv::spd_inverse(&m, nu).ok_or_else(|| {
                 Error::Numerical(
                     "B(z)ᵀB(z) is not positive definite at a training sample: pinv(B(z)) is undefined"
                         .into(),

@@ -7,6 +7,7 @@ pub mod checkpoint;
 pub mod eval;
 pub mod loss;
 pub mod nndm;
+pub mod pinv;
 mod run;
 mod tracker;
 
