@@ -6,11 +6,11 @@
 //! Python exception becomes a typed error reply carrying its message and serving goes on.
 
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{mpsc, Arc};
+use std::sync::{mpsc, Arc, Mutex};
 use std::time::Duration;
 
 use bridge::adapter::{
-    AdapterOptions, FreeRunOptions, ResetRequest, SimBackend, SimError, SimInfo,
+    AdapterOptions, AdapterStats, FreeRunOptions, ResetRequest, SimBackend, SimError, SimInfo,
 };
 use bridge::session::open_session;
 use bridge::zenoh::Wait;
@@ -58,6 +58,8 @@ use crate::zenoh_args::zenoh_options;
 pub struct Adapter {
     stop: Arc<AtomicBool>,
     serving: Arc<AtomicBool>,
+    /// The counters of the last `serve()` that returned them, also one ended by Ctrl-C.
+    last_stats: Arc<Mutex<Option<AdapterStats>>>,
 }
 
 #[pymethods]
@@ -69,6 +71,7 @@ impl Adapter {
         Adapter {
             stop: Arc::new(AtomicBool::new(false)),
             serving: Arc::new(AtomicBool::new(false)),
+            last_stats: Arc::new(Mutex::new(None)),
         }
     }
 
@@ -150,9 +153,14 @@ impl Adapter {
                 "rate_hz, steps and wait_subscriber apply to free_run=True only",
             ));
         }
-        let (stop, serving) = {
+        let (stop, serving, last_stats) = {
             let me = slf.borrow();
-            (me.stop.clone(), me.serving.clone())
+            (me.stop.clone(), me.serving.clone(), me.last_stats.clone())
+        };
+        let keep_stats = |stats: &AdapterStats| {
+            if let Ok(mut slot) = last_stats.lock() {
+                *slot = Some(stats.clone());
+            }
         };
         if serving.swap(true, Ordering::SeqCst) {
             return Err(PyRuntimeError::new_err("this adapter is already serving"));
@@ -204,12 +212,20 @@ impl Adapter {
         };
         let outcome = loop {
             match py.detach(|| recv(Some(Duration::from_millis(100)))) {
-                Ok(r) => break r.map_err(bridge_err),
+                Ok(r) => {
+                    if let Ok(stats) = &r {
+                        keep_stats(stats);
+                    }
+                    break r.map_err(bridge_err);
+                }
                 Err(mpsc::RecvTimeoutError::Timeout) => {
                     if let Err(e) = py.check_signals() {
+                        // Ctrl-C (or another signal handler's exception): stop the worker and
+                        // keep its counters for `last_stats` before re-raising.
                         stop.store(true, Ordering::SeqCst);
-                        let r = py.detach(|| recv(None));
-                        drop(r);
+                        if let Ok(Ok(stats)) = py.detach(|| recv(None)) {
+                            keep_stats(&stats);
+                        }
                         break Err(e);
                     }
                 }
@@ -234,6 +250,17 @@ impl Adapter {
     #[getter]
     fn serving(&self) -> bool {
         self.serving.load(Ordering::SeqCst)
+    }
+
+    /// The counters (as ``serve()`` returns them) of the last ``serve()`` that ran, also one
+    /// ended by Ctrl-C, whose ``KeyboardInterrupt`` carries no return value; ``None`` before.
+    #[getter]
+    fn last_stats(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
+        let stats = self.last_stats.lock().ok().and_then(|s| s.clone());
+        match stats {
+            Some(s) => to_py_json(py, &s),
+            None => Ok(py.None()),
+        }
     }
 }
 

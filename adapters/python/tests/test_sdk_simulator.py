@@ -231,3 +231,44 @@ def test_check_adapter_handles_a_simulator_without_inputs():
             return self.x.copy()
 
     assert check_adapter(Autonomous()).nu == 0
+
+
+_INTERRUPTIBLE = """
+import argparse, numpy as np, koopbridge
+class Hold:
+    def info(self):
+        return koopbridge.SimInfo(env="hold", dt=0.01, state_names=["x"], input_names=["u"], u_min=[-1.0], u_max=[1.0])
+    def reset(self, seed=None, x0=None):
+        self.x = np.zeros(1)
+        return self.x
+    def step(self, u):
+        return self.x
+raise SystemExit(koopbridge.run_main(lambda a: Hold(), argparse.ArgumentParser(prog="hold"),
+                                     ["--free-run", "--rate", "200", "--session", SESSION]))
+"""
+
+
+def test_run_main_prints_the_counters_after_ctrl_c(session_id):
+    """Ctrl-C (SIGINT) ends an unlimited free run with exit code 130 and still prints the
+    adapter's counters: the worker thread's stats are kept on the adapter (``last_stats``)."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    code = _INTERRUPTIBLE.replace("SESSION", repr(session_id))
+    p = subprocess.Popen([sys.executable, "-c", code], stderr=subprocess.PIPE, text=True)
+    try:
+        assert p.stderr is not None
+        first = p.stderr.readline()
+        assert "as sim 'sim0'" in first, first
+        time.sleep(1.0)  # about 200 ticks at 200 Hz
+        p.send_signal(signal.SIGINT)
+        err = p.stderr.read()
+        assert p.wait(timeout=20) == 130, err
+    finally:
+        p.kill()
+    assert "interrupted after" in err, err
+    steps = int(err.split("interrupted after ")[1].split(" ")[0])
+    assert steps > 20, err
+    assert '"published": ' in err and f'"steps": {steps}' in err, err

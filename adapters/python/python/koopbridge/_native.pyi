@@ -75,6 +75,10 @@ class Adapter:
     def stop(self) -> None: ...
     @property
     def serving(self) -> bool: ...
+    @property
+    def last_stats(self) -> dict[str, Any] | None:
+        """The counters of the last ``serve()``, also one ended by Ctrl-C; ``None`` before."""
+        ...
 
 @final
 class KoopmanModel:

@@ -80,7 +80,8 @@ def run_main(
     options (``koopbridge.serve_args``), parses ``argv``, builds the simulator with
     ``factory(args)`` (a ``KoopbridgeError`` there is printed, exit code 2), then either prints
     its info as JSON (``--describe``) or serves it until stopped (Ctrl-C, SIGTERM, the
-    ``--stdin-lifeline`` closing, or the free-run step limit) and prints the adapter's counters.
+    ``--stdin-lifeline`` closing, or the free-run step limit) and prints the adapter's counters
+    (after Ctrl-C too: ``Adapter.last_stats``).
     Exit codes: 0 done, 1 serving failed, 2 bad set-up, 130 interrupted.
     """
     parser.add_argument("--describe", action="store_true", help="print the info this adapter reports (JSON) and exit")
@@ -105,7 +106,8 @@ def run_main(
         print(f"{tag}: stopped after {stats.get('steps', 0)} steps; counters {json.dumps(stats)}", file=sys.stderr)
         return 0
     except KeyboardInterrupt:
-        print(f"{tag}: interrupted", file=sys.stderr)
+        stats = adapter.last_stats or {}
+        print(f"{tag}: interrupted after {stats.get('steps', 0)} steps; counters {json.dumps(stats)}", file=sys.stderr)
         return 130
     except KoopbridgeError as e:
         print(f"error: {e}", file=sys.stderr)
