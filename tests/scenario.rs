@@ -39,7 +39,45 @@ fn run_once(dir: &std::path::Path) -> serde_json::Value {
         "koopbridge run failed:\n{}",
         String::from_utf8_lossy(&o.stderr)
     );
+    assert_quiet_logs(
+        &String::from_utf8_lossy(&o.stdout),
+        &String::from_utf8_lossy(&o.stderr),
+        &out,
+    );
     serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap()
+}
+
+/// A successful run prints no colour codes and no Zenoh `ERROR` lines (closing-order
+/// artefacts), neither on its own stderr nor in its children's log files, and says "never"
+/// rather than `None` for a goal it did not reach.
+fn assert_quiet_logs(stdout: &str, stderr: &str, out: &std::path::Path) {
+    let mut texts = vec![
+        ("koopbridge run's stdout".to_string(), stdout.to_string()),
+        ("koopbridge run's stderr".to_string(), stderr.to_string()),
+    ];
+    for e in std::fs::read_dir(out.join("logs")).expect("the run keeps logs/") {
+        let p = e.unwrap().path();
+        texts.push((
+            p.display().to_string(),
+            std::fs::read_to_string(&p).unwrap(),
+        ));
+    }
+    assert!(texts.len() > 1, "no child logs in {}", out.display());
+    for (name, text) in &texts {
+        assert!(
+            !text.contains('\u{1b}'),
+            "ANSI escape codes in {name}:\n{text}"
+        );
+        assert!(
+            !text.lines().any(|l| l.contains(" ERROR ")),
+            "ERROR lines in {name} of a successful run:\n{text}"
+        );
+    }
+    let line = stdout
+        .lines()
+        .find(|l| l.contains("time to goal"))
+        .unwrap_or_else(|| panic!("no control summary in:\n{stdout}"));
+    assert!(!line.contains("None"), "{line}");
 }
 
 #[test]
