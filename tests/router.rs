@@ -4,14 +4,13 @@
 
 mod common;
 
-use std::path::Path;
 use std::time::Duration;
 
 use bridge::client::{Client, Liveliness, SimClient};
 use bridge::keyexpr::{fresh_session_id, Keys};
 use bridge::messages::ResetRequest;
 use bridge::procs::ChildProc;
-use bridge::session::{free_loopback_endpoint, open_session, Mode, ZenohOptions};
+use bridge::session::free_loopback_endpoint;
 
 #[test]
 fn lockstep_through_a_router() {
@@ -41,10 +40,10 @@ fn lockstep_through_a_router() {
         &dir.join("router.log"),
     )
     .unwrap();
-    let client = Client::new(connect_client(&ep), Keys::new(&session).unwrap());
+    let client = Client::new(common::connect_client(&ep), Keys::new(&session).unwrap());
     let live = Liveliness::new(&client).unwrap();
     // The router is up (we reached it): now the simulator, also a client.
-    let _sim = spawn_client_sim(&dir, "viarouter", &session, &ep);
+    let _sim = common::spawn_client_sim(&dir, "viarouter", &session, &ep);
     step_through(&client, &live, "viarouter", 9, 1.0, 10);
 }
 
@@ -63,9 +62,9 @@ fn the_router_command_carries_a_lockstep_run() {
         &dir.join("router.log"),
     )
     .unwrap();
-    let client = Client::new(connect_client(&ep), Keys::new(&session).unwrap());
+    let client = Client::new(common::connect_client(&ep), Keys::new(&session).unwrap());
     let live = Liveliness::new(&client).unwrap();
-    let _sim = spawn_client_sim(&dir, "r2", &session, &ep);
+    let _sim = common::spawn_client_sim(&dir, "r2", &session, &ep);
     step_through(&client, &live, "r2", 3, 0.5, 5);
     // It says where it listens (once its session is open, which may be after it routes).
     let deadline = std::time::Instant::now() + Duration::from_secs(30);
@@ -119,48 +118,6 @@ fn a_config_files_mode_is_not_overwritten_by_an_absent_flag() {
         std::thread::sleep(Duration::from_millis(50));
     };
     assert!(msg.contains("cannot open session"), "{msg}");
-}
-
-/// Opens a Zenoh client session to the router at `ep`, retrying (up to 20 s) until it listens.
-fn connect_client(ep: &str) -> bridge::zenoh::Session {
-    let z = ZenohOptions {
-        connect: vec![ep.to_string()],
-        mode: Some(Mode::Client),
-        ..Default::default()
-    };
-    (0..100)
-        .find_map(|_| {
-            open_session(&z)
-                .map_err(|_| std::thread::sleep(Duration::from_millis(200)))
-                .ok()
-        })
-        .expect("could not reach the router")
-}
-
-/// Starts a damped-pendulum simulator `id` of `session` as a Zenoh client of the router at `ep`
-/// (log in `dir/sim.log`).
-fn spawn_client_sim(dir: &Path, id: &str, session: &str, ep: &str) -> ChildProc {
-    let args = [
-        "sim",
-        "--env",
-        "damped-pendulum",
-        "--id",
-        id,
-        "--session",
-        session,
-        "--mode",
-        "client",
-        "--connect",
-        ep,
-        "--stdin-lifeline",
-    ];
-    ChildProc::spawn(
-        "sim",
-        &common::exe(),
-        &args.map(String::from),
-        &dir.join("sim.log"),
-    )
-    .unwrap()
 }
 
 /// Waits for simulator `id`, resets it with `seed` and steps it `n` times with input `u`,

@@ -132,23 +132,10 @@ steps = 10
 
 /// The child process of `parent` whose command line has the argument `arg`.
 fn child_with_arg(parent: u32, arg: &str) -> Option<u32> {
-    for e in std::fs::read_dir("/proc").ok()?.flatten() {
-        let Ok(pid) = e.file_name().to_string_lossy().parse::<u32>() else {
-            continue;
-        };
-        let stat = std::fs::read_to_string(e.path().join("stat")).unwrap_or_default();
-        // pid (comm) state ppid …; comm may hold spaces, so split after the last ')'.
-        let ppid = stat
-            .rsplit(')')
-            .next()
-            .and_then(|r| r.split_whitespace().nth(1))
-            .and_then(|p| p.parse::<u32>().ok());
-        let cmd = std::fs::read(e.path().join("cmdline")).unwrap_or_default();
-        if ppid == Some(parent) && cmd.split(|&b| b == 0).any(|a| a == arg.as_bytes()) {
-            return Some(pid);
-        }
-    }
-    None
+    common::children_of(parent).into_iter().find(|pid| {
+        let cmd = std::fs::read(format!("/proc/{pid}/cmdline")).unwrap_or_default();
+        cmd.split(|&b| b == 0).any(|a| a == arg.as_bytes())
+    })
 }
 
 #[test]

@@ -140,10 +140,15 @@ impl PendingQuery {
         }
     }
 
-    /// The reply's payload, or the typed error it carries.
+    /// The reply's payload, or the typed error it carries. Zenoh's own error reply `Timeout`
+    /// (sent by this session, or by a router on the way, when no answer came in time) is
+    /// [`Error::Timeout`], not an error of the participant: the caller may retry it.
     fn decode(&self, reply: &Reply) -> Result<Vec<u8>> {
         match reply.result() {
             Ok(sample) => Ok(sample.payload().to_bytes().into_owned()),
+            Err(e) if e.payload().to_bytes().as_ref() == b"Timeout" => {
+                Err(self.timeout(format!("{} (no reply in time)", self.what)))
+            }
             Err(e) => Err(Error::Remote {
                 who: self.who.clone(),
                 reply: ErrorReply::from_json(&e.payload().to_bytes()),

@@ -10,6 +10,8 @@ use bridge::orchestrator::{Cluster, RunOptions};
 use bridge::procs::ChildProc;
 use bridge::session::ZenohOptions;
 
+pub mod netns;
+
 /// Generous timeout for a loaded 2-core machine.
 pub const READY: Duration = Duration::from_secs(90);
 
@@ -147,4 +149,116 @@ pub fn pendulum_data(
 /// A training config (JSON object) from a `json!` literal.
 pub fn config(v: serde_json::Value) -> serde_json::Map<String, serde_json::Value> {
     v.as_object().expect("a JSON object").clone()
+}
+
+/// Kills process `pid` with SIGKILL (no chance to clean up: the fault a crash or an OOM kill is).
+pub fn sigkill(pid: u32) {
+    let ok = std::process::Command::new("kill")
+        .args(["-9", &pid.to_string()])
+        .status()
+        .unwrap()
+        .success();
+    assert!(ok, "kill -9 {pid} failed");
+}
+
+/// Opens a Zenoh client session to the router at `ep`, retrying (up to 20 s) until it listens.
+pub fn connect_client(ep: &str) -> bridge::zenoh::Session {
+    let z = ZenohOptions {
+        connect: vec![ep.to_string()],
+        mode: Some(bridge::session::Mode::Client),
+        ..Default::default()
+    };
+    (0..100)
+        .find_map(|_| {
+            bridge::session::open_session(&z)
+                .map_err(|_| std::thread::sleep(Duration::from_millis(200)))
+                .ok()
+        })
+        .expect("could not reach the router")
+}
+
+/// Starts a damped-pendulum simulator `id` of `session` as a Zenoh client of the router at `ep`
+/// (log in `dir/{id}.log`).
+pub fn spawn_client_sim(dir: &std::path::Path, id: &str, session: &str, ep: &str) -> ChildProc {
+    let args = [
+        "sim",
+        "--env",
+        "damped-pendulum",
+        "--id",
+        id,
+        "--session",
+        session,
+        "--mode",
+        "client",
+        "--connect",
+        ep,
+        "--stdin-lifeline",
+    ];
+    ChildProc::spawn(
+        "sim",
+        &exe(),
+        &args.map(String::from),
+        &dir.join(format!("{id}.log")),
+    )
+    .unwrap()
+}
+
+/// Starts this test executable again as a helper process that runs only its ignored test
+/// `test` (which does nothing unless `env` is set), with standard input as its lifeline.
+pub fn spawn_helper(
+    name: &str,
+    test: &str,
+    env: &[(&str, &str)],
+    log: &std::path::Path,
+) -> ChildProc {
+    let args = [
+        "--exact",
+        test,
+        "--ignored",
+        "--nocapture",
+        "--test-threads",
+        "1",
+    ]
+    .map(String::from);
+    ChildProc::spawn_env(name, &std::env::current_exe().unwrap(), &args, env, log).unwrap()
+}
+
+/// A flag set when standard input reaches its end (the lifeline of a helper process).
+pub fn stdin_closed() -> std::sync::Arc<std::sync::atomic::AtomicBool> {
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let s = stop.clone();
+    std::thread::spawn(move || {
+        let _ = std::io::copy(&mut std::io::stdin(), &mut std::io::sink());
+        s.store(true, std::sync::atomic::Ordering::Relaxed);
+    });
+    stop
+}
+
+/// The process ids whose parent is `parent` (from `/proc`).
+pub fn children_of(parent: u32) -> Vec<u32> {
+    let mut found = Vec::new();
+    for e in std::fs::read_dir("/proc").into_iter().flatten().flatten() {
+        let Ok(pid) = e.file_name().to_string_lossy().parse::<u32>() else {
+            continue;
+        };
+        let stat = std::fs::read_to_string(e.path().join("stat")).unwrap_or_default();
+        // pid (comm) state ppid …; comm may hold spaces, so split after the last ')'.
+        let ppid = stat
+            .rsplit(')')
+            .next()
+            .and_then(|r| r.split_whitespace().nth(1))
+            .and_then(|p| p.parse::<u32>().ok());
+        if ppid == Some(parent) {
+            found.push(pid);
+        }
+    }
+    found
+}
+
+/// Whether process `pid` still runs (a zombie does not).
+pub fn running(pid: u32) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/stat"))
+        .ok()
+        .and_then(|s| s.rsplit(')').next().map(|r| r.trim_start().to_string()))
+        .is_some_and(|r| !r.starts_with('Z'))
 }

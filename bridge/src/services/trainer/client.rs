@@ -74,7 +74,10 @@ pub fn submit_and_wait_watching(
         }
         if last_poll.elapsed() > Duration::from_millis(500) {
             last_poll = std::time::Instant::now();
-            let b = client.query(&status_key, Vec::new(), Duration::from_secs(10), &who)?;
+            // Watched: a trainer that died just before the poll is `Gone`, not a timeout.
+            let b = client
+                .start(&status_key, Vec::new(), Duration::from_secs(10), &who)?
+                .wait(Some((live, Role::Trainer, id)))?;
             let r: JobRecord = serde_json::from_slice(&b)
                 .map_err(|e| Error::protocol(ErrorCode::BadRequest, format!("{who}: {e}")))?;
             match r.state {
