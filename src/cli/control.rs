@@ -343,7 +343,7 @@ fn load_model(
                 42,
                 koopman::data::Pairing::Aligned,
             )?;
-            Ok(Box::new(koopman::mpc::fit::fit_random_features(
+            Ok(Box::new(koopman::model::matrix::fit_random_features(
                 &data, features, 1e-8, 1,
             )?))
         }

@@ -2,7 +2,8 @@
 //! before the expensive phases: `[train].config`, `[control].mpc`, and the lengths of
 //! `control.x0`/`control.reference`, so that a typo fails in seconds, not after collection.
 
-use koopman::mpc::{MatrixModel, MpcConfig, MpcController};
+use koopman::model::matrix::MatrixModel;
+use koopman::mpc::{MpcConfig, MpcController};
 use koopman::train::TrainConfig;
 
 use crate::error::{Error, Result};

@@ -27,9 +27,7 @@ pub mod condensed;
 pub mod config;
 pub mod constraints;
 pub mod controller;
-pub mod fit;
 pub mod lqr;
-pub mod matrix_model;
 pub mod metrics;
 pub mod policy;
 pub mod qp;
@@ -40,7 +38,6 @@ pub use closed_loop::{run_closed_loop, ClosedLoopMetrics, Task, TaskKind, Trajec
 pub use config::{MpcConfig, SolverKind};
 pub use controller::{FallbackReason, MpcController, MpcSolution, SolveStatus};
 pub use lqr::Lqr;
-pub use matrix_model::{Activation, MatrixModel};
 pub use policy::{Action, ConstantPolicy, LqrPolicy, Policy, ShootingPolicy};
 pub use qp::{QpOutcome, QpSolver, QpStatus};
 pub use shooting::{OneStepModel, RandomShooting, SystemAsModel};
