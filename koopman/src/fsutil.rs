@@ -8,6 +8,9 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
+mod temp_dir;
+pub use temp_dir::TempDir;
+
 /// Writes `bytes` to `path` atomically (unique temporary file + fsync + rename + fsync of the
 /// folder), creating the parent folder if needed.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
@@ -36,18 +39,13 @@ pub fn write_atomic_with(
 }
 
 /// Writes a whole folder atomically: `fill` writes the files into a fresh temporary folder
-/// beside `dest`; then every file and the folder are flushed, whatever was at `dest` is
-/// removed, and the folder is renamed to `dest`. On failure nothing is left but the old `dest`.
+/// beside `dest` (a [`TempDir`]); then every file and the folder are flushed and the folder
+/// replaces `dest` ([`commit_dir`]). On failure, or a panic in `fill`, nothing is left but the
+/// old `dest`.
 pub fn write_dir_atomic(dest: &Path, fill: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
-    let tmp = temp_path(dest)?;
-    let result = std::fs::create_dir(&tmp)
-        .map_err(|e| Error::io(&tmp, e))
-        .and_then(|()| fill(&tmp))
-        .and_then(|()| commit_dir(&tmp, dest));
-    if result.is_err() {
-        let _ = std::fs::remove_dir_all(&tmp);
-    }
-    result
+    let tmp = TempDir::beside(dest)?;
+    fill(tmp.path())?;
+    tmp.commit().map(drop)
 }
 
 /// A name beside `path` unique to this call (process id, thread and a counter), hidden
@@ -244,6 +242,42 @@ mod tests {
         write_dir_atomic(&dest, |d| write_atomic(&d.join("c"), b"3")).unwrap();
         assert_eq!(names(&dest), ["c"]);
         assert_eq!(names(&dir), ["model"]);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_panic_while_filling_a_folder_leaves_no_temporary_folder() {
+        let dir = scratch("panic");
+        let dest = dir.join("model");
+        write_dir_atomic(&dest, |d| write_atomic(&d.join("a"), b"1")).unwrap();
+        let unwound = std::panic::catch_unwind(|| {
+            let _ = write_dir_atomic(&dest, |d| {
+                write_atomic(&d.join("b"), b"2")?;
+                panic!("a bug in the code filling the folder");
+            });
+        });
+        assert!(unwound.is_err());
+        assert_eq!(names(&dir), ["model"]);
+        assert_eq!(names(&dest), ["a"]);
+        assert_eq!(std::fs::read(dest.join("a")).unwrap(), b"1");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_temporary_folder_is_removed_unless_committed() {
+        let dir = scratch("tempdir");
+        let dest = dir.join("model");
+        {
+            let t = TempDir::beside(&dest).unwrap();
+            write_atomic(&t.path().join("a"), b"1").unwrap();
+            assert_eq!(names(&dir).len(), 1);
+        }
+        assert!(names(&dir).is_empty(), "{:?}", names(&dir));
+        let t = TempDir::beside(&dest).unwrap();
+        write_atomic(&t.path().join("b"), b"2").unwrap();
+        assert_eq!(t.commit().unwrap(), dest);
+        assert_eq!(names(&dir), ["model"]);
+        assert_eq!(names(&dest), ["b"]);
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

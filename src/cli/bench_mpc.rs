@@ -4,8 +4,9 @@
 use std::time::Instant;
 
 use anyhow::Context;
+use koopman::model::matrix::MatrixModel;
 use koopman::model::LiftedModel;
-use koopman::mpc::{MatrixModel, MpcConfig, MpcController, SolveStatus, SolverKind};
+use koopman::mpc::{MpcConfig, MpcController, SolveStatus, SolverKind};
 use serde::Serialize;
 
 /// Arguments of `koopbridge bench mpc`.

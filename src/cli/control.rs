@@ -7,38 +7,82 @@ use anyhow::{bail, Context};
 use koopman::model::bilinear::BilinearModel;
 use koopman::model::nndm::NndmModel;
 use koopman::model::LiftedModel;
+use koopman::mpc::controllers::{self, ControllerKind, ControllerSettings, ModelNeed, Models};
 use koopman::mpc::metrics::GoalSpec;
-use koopman::mpc::{
-    run_closed_loop, BilinearMpc, ClosedLoopMetrics, ConstantPolicy, Lqr, LqrPolicy, MpcConfig,
-    MpcController, OneStepModel, Policy, RandomShooting, ScpOptions, ShootingPolicy, SolverKind,
-    SystemAsModel, Task, TaskKind, Trajectory,
-};
+use koopman::mpc::{run_closed_loop, ClosedLoopMetrics, OneStepModel, Task, TaskKind, Trajectory};
 use koopman::systems::System;
+use koopman::train::stand_in::{self, StandIn, StandInModel};
 
 use super::control_diagnostics::{diagnose, linearised_at};
 use super::control_plot::plot_trajectory;
 
-/// Controller choices of `--solver`.
-#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+/// `--solver`: one controller of the library's factory, or every one the given models allow.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ControllerChoice {
-    /// Koopman MPC, dedicated box-QP solver (input bounds).
-    Dedicated,
-    /// Koopman MPC solved by Clarabel (also rate and state bounds).
-    Clarabel,
-    /// Unconstrained closed-form MPC, clamped (the reference code's baseline).
-    ClosedForm,
-    /// LQR on the lifted model with feed-forward, clamped.
-    Lqr,
-    /// Random-shooting MPC (1000 samples) on the NNDM (--model of kind nndm, or --nndm).
-    Shooting,
-    /// Random-shooting MPC (1000 samples) on the true system as its own one-step model (oracle).
-    ShootingOracle,
-    /// Sequential convex MPC on a bilinear model (--model of kind bilinear, or --bilinear DIR).
-    Bilinear,
-    /// u = 0 throughout: the free response every controller must beat.
-    ZeroInput,
-    /// Every controller above that the given models allow, one after the other, as one table.
+    /// One controller.
+    One(ControllerKind),
+    /// Every controller the given models allow, one after the other, as one table.
     All,
+}
+
+/// The `--solver` values: every controller in report order, then `all`.
+const CHOICES: [ControllerChoice; ControllerKind::ALL.len() + 1] = {
+    let mut v = [ControllerChoice::All; ControllerKind::ALL.len() + 1];
+    let mut i = 0;
+    while i < ControllerKind::ALL.len() {
+        v[i] = ControllerChoice::One(ControllerKind::ALL[i]);
+        i += 1;
+    }
+    v
+};
+
+impl clap::ValueEnum for ControllerChoice {
+    fn value_variants<'a>() -> &'a [Self] {
+        &CHOICES
+    }
+
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        let (name, help) = match *self {
+            ControllerChoice::One(kind) => (kind.name(), solver_help(kind)),
+            ControllerChoice::All => (
+                "all",
+                "Every controller above that the given models allow, one after the other, as one table",
+            ),
+        };
+        Some(clap::builder::PossibleValue::new(name).help(help))
+    }
+}
+
+impl ControllerChoice {
+    /// The library's controller of this choice; `None` for `all`.
+    fn kind(self) -> Option<ControllerKind> {
+        match self {
+            ControllerChoice::One(kind) => Some(kind),
+            ControllerChoice::All => None,
+        }
+    }
+}
+
+/// What `--solver KIND` runs, for `--help`.
+fn solver_help(kind: ControllerKind) -> &'static str {
+    match kind {
+        ControllerKind::Dedicated => "Koopman MPC, dedicated box-QP solver (input bounds)",
+        ControllerKind::Clarabel => "Koopman MPC solved by Clarabel (also rate and state bounds)",
+        ControllerKind::ClosedForm => {
+            "Unconstrained closed-form MPC, clamped (the reference code's baseline)"
+        }
+        ControllerKind::Lqr => "LQR on the lifted model with feed-forward, clamped",
+        ControllerKind::Shooting => {
+            "Random-shooting MPC (1000 samples) on the NNDM (--model of kind nndm, or --nndm)"
+        }
+        ControllerKind::ShootingOracle => {
+            "Random-shooting MPC (1000 samples) on the true system as its own one-step model (oracle)"
+        }
+        ControllerKind::Bilinear => {
+            "Sequential convex MPC on a bilinear model (--model of kind bilinear, or --bilinear DIR)"
+        }
+        ControllerKind::ZeroInput => "u = 0 throughout: the free response every controller must beat",
+    }
 }
 
 /// Arguments of `koopbridge control`.
@@ -83,7 +127,7 @@ pub struct ControlArgs {
     #[arg(long, value_enum, default_value_t = TaskArg::Regulate)]
     pub task: TaskArg,
     /// Controller.
-    #[arg(long, value_enum, default_value_t = ControllerChoice::Dedicated)]
+    #[arg(long, value_enum, default_value_t = ControllerChoice::One(ControllerKind::Dedicated))]
     pub solver: ControllerChoice,
     /// MPC horizon H (SPEC: 15).
     #[arg(long, default_value_t = 15)]
@@ -158,48 +202,22 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
     let lifted_given = !model_is_nndm
         && !model_is_bilinear
         && (args.model.is_some() || args.fit.is_some() || args.train.is_some());
-    let choices = match args.solver {
-        ControllerChoice::All => {
-            let mut c = Vec::new();
-            if lifted_given {
-                c.extend([
-                    ControllerChoice::Dedicated,
-                    ControllerChoice::Clarabel,
-                    ControllerChoice::ClosedForm,
-                    ControllerChoice::Lqr,
-                ]);
+    let at_hand: Vec<ModelNeed> = [
+        lifted_given.then_some(ModelNeed::Lifted),
+        nndm.is_some().then_some(ModelNeed::Nndm),
+        bilinear.is_some().then_some(ModelNeed::Bilinear),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    let choices = match args.solver.kind() {
+        None => ControllerKind::available(&at_hand),
+        Some(kind) => match kind.needs() {
+            Some(need) if !at_hand.contains(&need) => {
+                bail!("{}", missing_model(kind, model_is_nndm))
             }
-            if bilinear.is_some() {
-                c.insert(0, ControllerChoice::Bilinear);
-            }
-            c.push(ControllerChoice::ShootingOracle);
-            if nndm.is_some() {
-                c.push(ControllerChoice::Shooting);
-            }
-            c.push(ControllerChoice::ZeroInput);
-            c
-        }
-        ControllerChoice::Shooting if nndm.is_none() => bail!(
-            "--solver shooting plans on an NNDM: give --model DIR of kind nndm or --nndm DIR \
-             (random shooting on the true system is --solver shooting-oracle)"
-        ),
-        ControllerChoice::Bilinear if bilinear.is_none() => bail!(
-            "--solver bilinear needs a bilinear model: --model DIR of kind bilinear or --bilinear DIR"
-        ),
-        ControllerChoice::ShootingOracle
-        | ControllerChoice::Shooting
-        | ControllerChoice::Bilinear
-        | ControllerChoice::ZeroInput => vec![args.solver],
-        c if !lifted_given => bail!(
-            "--solver {} needs a lifted model: --model DIR of kind koopman or edmd, --fit or --train{}",
-            controller_stem(c),
-            if model_is_nndm {
-                " (the given model is an NNDM: use --solver shooting)"
-            } else {
-                ""
-            }
-        ),
-        c => vec![c],
+            _ => vec![kind],
+        },
     };
     let model = if lifted_given {
         Some(load_model(&args, system.as_ref(), &out)?)
@@ -267,31 +285,31 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
         print_header();
     }
     let several = choices.len() > 1;
+    let models = Models {
+        system: system.as_ref(),
+        lifted: model.as_deref(),
+        nndm: nndm.as_ref().map(|m| m as &dyn OneStepModel),
+        bilinear: bilinear.as_ref(),
+    };
+    let settings = ControllerSettings {
+        horizon: args.horizon,
+        r: args.r,
+        u_min: lo.clone(),
+        u_max: hi.clone(),
+    };
     for choice in choices {
-        let run = run_one(
-            &args,
-            choice,
-            system.as_ref(),
-            Models {
-                lifted: model.as_deref(),
-                nndm: nndm.as_ref().map(|m| m as &dyn OneStepModel),
-                bilinear: bilinear.as_ref(),
-            },
-            &task,
-            &lo,
-            &hi,
-        );
+        let run = run_one(choice, models, &settings, &task);
         let (metrics, traj) = match run {
             Ok(r) => r,
             // In a comparison one controller that cannot be built (e.g. LQR on a model with
             // unstabilisable modes) is a row of the report, not the end of it.
             Err(e) if several => {
-                eprintln!("{}: failed: {e:#}", controller_stem(choice));
+                eprintln!("{}: failed: {e:#}", choice.name());
                 continue;
             }
             Err(e) => return Err(e),
         };
-        let stem = controller_stem(choice);
+        let stem = choice.name();
         write_json_atomic(&out.join(format!("metrics-{stem}.json")), &metrics)?;
         let png = out.join(format!("plot-{stem}.png"));
         plot_trajectory(&png, system.as_ref(), &metrics, &traj, &lo, &hi)?;
@@ -309,17 +327,24 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn controller_stem(c: ControllerChoice) -> &'static str {
-    match c {
-        ControllerChoice::Dedicated => "dedicated",
-        ControllerChoice::Clarabel => "clarabel",
-        ControllerChoice::ClosedForm => "closed-form",
-        ControllerChoice::Lqr => "lqr",
-        ControllerChoice::Shooting => "shooting",
-        ControllerChoice::ShootingOracle => "shooting-oracle",
-        ControllerChoice::Bilinear => "bilinear",
-        ControllerChoice::ZeroInput => "zero-input",
-        ControllerChoice::All => "all",
+/// What to give on the command line for the model `kind` plans on (not at hand).
+fn missing_model(kind: ControllerKind, model_is_nndm: bool) -> String {
+    match kind.needs() {
+        Some(ModelNeed::Nndm) => "--solver shooting plans on an NNDM: give --model DIR of kind nndm or \
+             --nndm DIR (random shooting on the true system is --solver shooting-oracle)"
+            .into(),
+        Some(ModelNeed::Bilinear) => "--solver bilinear needs a bilinear model: --model DIR of kind \
+             bilinear or --bilinear DIR"
+            .into(),
+        _ => format!(
+            "--solver {} needs a lifted model: --model DIR of kind koopman or edmd, --fit or --train{}",
+            kind.name(),
+            if model_is_nndm {
+                " (the given model is an NNDM: use --solver shooting)"
+            } else {
+                ""
+            }
+        ),
     }
 }
 
@@ -335,17 +360,11 @@ fn load_model(
         (Some(dir), _) => koopman::model::load_lifted(dir)
             .with_context(|| format!("loading the model in {}", dir.display())),
         (None, Some(features)) => {
-            eprintln!("fitting a stand-in model ({features} random tanh features, 2000 windows)…");
-            let data = koopman::data::generate(
-                system,
-                2000,
-                system.window_steps(),
-                42,
-                koopman::data::Pairing::Aligned,
-            )?;
-            Ok(Box::new(koopman::mpc::fit::fit_random_features(
-                &data, features, 1e-8, 1,
-            )?))
+            eprintln!(
+                "fitting a stand-in model ({features} random tanh features, {} windows)…",
+                stand_in::FIT_WINDOWS
+            );
+            Ok(stand_in::build(StandIn::Fit { system, features })?.into_lifted())
         }
         (None, None) => {
             bail!("give --model DIR (a trained model) or --fit FEATURES (an in-process stand-in)")
@@ -353,6 +372,7 @@ fn load_model(
     }
 }
 
+/// Trains the `--train` stand-in with a progress bar and saves it under `dir`.
 fn train_stand_in(
     system: &dyn System,
     iterations: usize,
@@ -360,23 +380,11 @@ fn train_stand_in(
 ) -> anyhow::Result<Box<dyn LiftedModel>> {
     use std::ops::ControlFlow;
     eprintln!(
-        "generating 18000 aligned windows of {} (seed 42)…",
-        system.name()
+        "generating {} aligned windows of {} (seed {})…",
+        stand_in::TRAIN_WINDOWS + stand_in::VALIDATION_WINDOWS,
+        system.name(),
+        stand_in::DATA_SEED
     );
-    let data = koopman::data::generate(
-        system,
-        18_000,
-        system.window_steps(),
-        42,
-        koopman::data::Pairing::Aligned,
-    )?;
-    let train = data.head(16_000)?;
-    let val = data.select(&(16_000..18_000).collect::<Vec<_>>())?;
-    let cfg = koopman::train::TrainConfig {
-        iterations,
-        validate_every: (iterations / 5).max(1),
-        ..koopman::train::TrainConfig::default()
-    };
     let bar = indicatif::ProgressBar::new(iterations as u64);
     bar.set_style(
         indicatif::ProgressStyle::with_template(
@@ -391,115 +399,54 @@ fn train_stand_in(
         }
         ControlFlow::Continue(())
     };
-    let outcome = koopman::train::train(&cfg, &train, &val, None, &mut observer)?;
+    let made = stand_in::build(StandIn::Train {
+        system,
+        iterations,
+        observer: &mut observer,
+    })?;
     bar.finish_and_clear();
-    eprintln!(
-        "trained: best validation prediction error {:?} at iteration {:?}",
-        outcome.metrics.best_validation_prediction_error, outcome.metrics.best_iteration
-    );
-    outcome
-        .model
-        .save(dir)
-        .with_context(|| format!("saving the model to {}", dir.display()))?;
-    eprintln!("saved the model to {}", dir.display());
-    Ok(Box::new(outcome.model))
+    if let StandInModel::Trained(outcome) = &made {
+        eprintln!(
+            "trained: best validation prediction error {:?} at iteration {:?}",
+            outcome.metrics.best_validation_prediction_error, outcome.metrics.best_iteration
+        );
+        outcome
+            .model
+            .save(dir)
+            .with_context(|| format!("saving the model to {}", dir.display()))?;
+        eprintln!("saved the model to {}", dir.display());
+    }
+    Ok(made.into_lifted())
 }
 
-/// The models a controller may plan on: a lifted model (Koopman MPC, LQR) and an NNDM
-/// (random shooting).
-#[derive(Clone, Copy)]
-struct Models<'m> {
-    lifted: Option<&'m dyn LiftedModel>,
-    nndm: Option<&'m dyn OneStepModel>,
-    bilinear: Option<&'m BilinearModel>,
-}
-
+/// Runs one controller of the library's factory in closed loop, with a progress bar.
 fn run_one(
-    args: &ControlArgs,
-    choice: ControllerChoice,
-    system: &dyn System,
+    kind: ControllerKind,
     models: Models<'_>,
+    settings: &ControllerSettings,
     task: &Task,
-    lo: &[f64],
-    hi: &[f64],
 ) -> anyhow::Result<(ClosedLoopMetrics, Trajectory)> {
-    let Models {
-        lifted: model,
-        nndm,
-        bilinear,
-    } = models;
-    let lifted = || model.context("this controller needs a lifted model (koopman or edmd)");
-    let nu = system.nu();
     let bar = indicatif::ProgressBar::new(task.steps as u64);
     bar.set_style(
         indicatif::ProgressStyle::with_template("{msg:>24} [{bar:30}] {pos}/{len} steps {elapsed}")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    bar.set_message(controller_stem(choice));
+    bar.set_message(kind.name());
     let progress = |k: usize, _n: usize| bar.set_position(k as u64);
-    let goal = GoalSpec::default();
-    let oracle = SystemAsModel(system);
-    let mut policy: Box<dyn Policy + '_> = match choice {
-        ControllerChoice::Dedicated | ControllerChoice::Clarabel | ControllerChoice::ClosedForm => {
-            let solver = match choice {
-                ControllerChoice::Dedicated => SolverKind::Dedicated,
-                ControllerChoice::Clarabel => SolverKind::Clarabel,
-                _ => SolverKind::ClosedForm,
-            };
-            let cfg = MpcConfig {
-                horizon: args.horizon,
-                r: Some(vec![args.r; nu]),
-                solver,
-                ..MpcConfig::with_bounds(lo.to_vec(), hi.to_vec())
-            };
-            Box::new(MpcController::new(lifted()?, &cfg)?)
-        }
-        ControllerChoice::Lqr => {
-            let model = lifted()?;
-            let lqr = Lqr::new(
-                model,
-                &vec![1.0; system.nx()],
-                &vec![args.r.max(1e-6); nu],
-                20_000,
-                1e-10,
-            )?;
-            if !lqr.converged {
-                eprintln!(
-                    "warning: the Riccati iteration did not converge in {} iterations",
-                    lqr.iterations
-                );
-            }
-            Box::new(LqrPolicy::new(lqr, model, lo.to_vec(), hi.to_vec())?)
-        }
-        ControllerChoice::Shooting | ControllerChoice::ShootingOracle => {
-            let planner = RandomShooting::new(
-                1000,
-                args.horizon,
-                vec![1.0; system.nx()],
-                lo.to_vec(),
-                hi.to_vec(),
-                1,
-            )?;
-            if choice == ControllerChoice::Shooting {
-                let nndm = nndm.context("--solver shooting needs an NNDM model")?;
-                Box::new(ShootingPolicy::new(planner, nndm, "nndm"))
-            } else {
-                Box::new(ShootingPolicy::new(planner, &oracle, "true-system"))
-            }
-        }
-        ControllerChoice::Bilinear => {
-            let cfg = MpcConfig {
-                horizon: args.horizon,
-                r: Some(vec![args.r; nu]),
-                ..MpcConfig::with_bounds(lo.to_vec(), hi.to_vec())
-            };
-            let model = bilinear.context("--solver bilinear needs a bilinear model")?;
-            Box::new(BilinearMpc::new(model, &cfg, ScpOptions::default())?)
-        }
-        ControllerChoice::ZeroInput => Box::new(ConstantPolicy::zero(nu)),
-        ControllerChoice::All => unreachable!("expanded by the caller"),
-    };
-    let result = run_closed_loop(system, policy.as_mut(), task, lo, hi, &goal, progress);
+    let mut built = controllers::build(kind, models, settings)?;
+    if let Some(w) = &built.warning {
+        eprintln!("warning: {w}");
+    }
+    let (lo, hi) = (&settings.u_min, &settings.u_max);
+    let result = run_closed_loop(
+        models.system,
+        built.policy.as_mut(),
+        task,
+        lo,
+        hi,
+        &GoalSpec::default(),
+        progress,
+    );
     bar.finish_and_clear();
     Ok(result?)
 }

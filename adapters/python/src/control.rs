@@ -22,31 +22,19 @@ fn encode<T: serde::Serialize>(v: &T) -> Result<Vec<u8>> {
     serde_json::to_vec(v).map_err(|e| Error::Config(e.to_string()))
 }
 
-/// Fetches model `name` with `bridge::services::models::fetch` into a fresh folder beside
-/// `dest`, then renames its model directory to `dest` (replacing an older one). Nothing is left
-/// behind on failure. Returns `dest`.
+/// Fetches model `name` with `bridge::services::models::fetch` into a fresh temporary folder
+/// beside `dest`, then moves its model directory to `dest` (replacing an older one) with
+/// `koopman::fsutil::commit_dir`. Nothing is left behind on failure. Returns `dest`.
 pub fn fetch_model(inner: &Inner, name: &str, dest: &Path, timeout: Duration) -> Result<PathBuf> {
-    let io = |p: &Path, e| Error::Io {
-        path: p.to_path_buf(),
+    let dest = std::path::absolute(dest).map_err(|e| Error::Io {
+        path: dest.to_path_buf(),
         source: e,
-    };
-    let dest = std::path::absolute(dest).map_err(|e| io(dest, e))?;
-    let parent = dest.parent().unwrap_or(Path::new("/")).to_path_buf();
-    let nonce = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.subsec_nanos())
-        .unwrap_or(0);
-    let tmp = parent.join(format!(".fetch-{name}-{}-{nonce}", std::process::id()));
-    let result = (|| {
-        let got = models::fetch(inner, name, &tmp, timeout)?;
-        if dest.is_dir() {
-            std::fs::remove_dir_all(&dest).map_err(|e| io(&dest, e))?;
-        }
-        std::fs::rename(&got, &dest).map_err(|e| io(&dest, e))?;
-        Ok(dest.clone())
-    })();
-    let _ = std::fs::remove_dir_all(&tmp);
-    result
+    })?;
+    // Removed when dropped, whatever happens below.
+    let tmp = koopman::fsutil::TempDir::beside(&dest)?;
+    let got = models::fetch(inner, name, tmp.path(), timeout)?;
+    koopman::fsutil::commit_dir(&got, &dest)?;
+    Ok(dest)
 }
 
 /// Configures MPC service `id` with `model` and the MPC settings `mpc` (JSON object of

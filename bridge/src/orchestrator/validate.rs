@@ -2,7 +2,8 @@
 //! before the expensive phases: `[train].config`, `[control].mpc`, and the lengths of
 //! `control.x0`/`control.reference`, so that a typo fails in seconds, not after collection.
 
-use koopman::mpc::{MatrixModel, MpcConfig, MpcController};
+use koopman::mpc::{MpcConfig, MpcController};
+use koopman::train::stand_in::{self, StandIn};
 use koopman::train::TrainConfig;
 
 use crate::error::{Error, Result};
@@ -105,8 +106,10 @@ fn validate_control(ctrl: &ControlSpec, sim: &str, info: &SimInfo) -> Result<()>
     }
     // The real controller is built by the MPC service from the trained model after training;
     // the same settings on a stand-in model of the same dimensions fail the same way now.
-    let stand_in = MatrixModel::random_stable(nx, nx, nu, 0.9, 0).map_err(Error::from)?;
-    MpcController::new(&stand_in, &cfg)
+    let model = stand_in::build(StandIn::Dimensions { nx, nu })
+        .map_err(Error::from)?
+        .into_lifted();
+    MpcController::new(model.as_ref(), &cfg)
         .map(|_| ())
         .map_err(|e| Error::Config(format!("[control].mpc: {e}")))
 }

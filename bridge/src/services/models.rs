@@ -92,9 +92,35 @@ pub fn pack(name: &str, dir: &Path) -> Result<Vec<u8>> {
     Ok(out)
 }
 
-/// Unpacks an archive into `dir/{name}` (written to a temporary folder, then renamed).
+/// Unpacks an archive into `dir/{name}` (written to a temporary folder, then renamed). Every
+/// part is checked before anything is written: a bad archive leaves `dir` as it was.
 pub fn unpack(bytes: &[u8], dir: &Path) -> Result<(ArchiveHeader, PathBuf)> {
-    let bad = |m: &str| Error::protocol(ErrorCode::BadRequest, format!("model archive: {m}"));
+    let (header, bodies) = parse(bytes)?;
+    let final_dir = write(&header, &bodies, dir)?;
+    Ok((header, final_dir))
+}
+
+/// [`unpack`] of the archive of model `name` into `dir/{name}`: the archive of another model is
+/// refused before anything is written (else a store answering for `a` with model `b` would
+/// replace `dir/b`).
+pub fn unpack_model(bytes: &[u8], dir: &Path, name: &str) -> Result<PathBuf> {
+    let (header, bodies) = parse(bytes)?;
+    if header.name != name {
+        return Err(bad_archive(&format!(
+            "asked for model '{name}', got '{}'",
+            header.name
+        )));
+    }
+    write(&header, &bodies, dir)
+}
+
+fn bad_archive(m: &str) -> Error {
+    Error::protocol(ErrorCode::BadRequest, format!("model archive: {m}"))
+}
+
+/// An archive's header and the bytes of each of its files (in header order), every one checked.
+fn parse(bytes: &[u8]) -> Result<(ArchiveHeader, Vec<&[u8]>)> {
+    let bad = bad_archive;
     if bytes.len() < 8 || bytes[..4] != ARCHIVE_MAGIC {
         return Err(bad("missing KBM1 magic"));
     }
@@ -108,7 +134,7 @@ pub fn unpack(bytes: &[u8], dir: &Path) -> Result<(ArchiveHeader, PathBuf)> {
     validate_chunk("model name", &header.name)?;
     // Every file is checked before anything is written.
     let mut body = &rest[hl..];
-    let mut parts = Vec::with_capacity(header.files.len());
+    let mut bodies = Vec::with_capacity(header.files.len());
     for f in &header.files {
         if !safe_file_name(&f.name) {
             return Err(bad(&format!("unsafe file name {:?}", f.name)));
@@ -117,19 +143,26 @@ pub fn unpack(bytes: &[u8], dir: &Path) -> Result<(ArchiveHeader, PathBuf)> {
         if body.len() < n {
             return Err(bad("truncated body"));
         }
-        parts.push((f.name.as_str(), &body[..n]));
+        bodies.push(&body[..n]);
         body = &body[n..];
     }
     if !body.is_empty() {
         return Err(bad("trailing bytes"));
     }
+    Ok((header, bodies))
+}
+
+/// Writes a parsed archive as the folder `dir/{name}`, atomically.
+fn write(header: &ArchiveHeader, bodies: &[&[u8]], dir: &Path) -> Result<PathBuf> {
     let final_dir = dir.join(&header.name);
     koopman::fsutil::write_dir_atomic(&final_dir, |tmp| {
-        parts
+        header
+            .files
             .iter()
-            .try_for_each(|(name, bytes)| koopman::fsutil::write_atomic(&tmp.join(name), bytes))
+            .zip(bodies)
+            .try_for_each(|(f, bytes)| koopman::fsutil::write_atomic(&tmp.join(&f.name), bytes))
     })?;
-    Ok((header, final_dir))
+    Ok(final_dir)
 }
 
 /// Fetches model `name` from the session's model store into `dir/{name}`.
@@ -140,7 +173,7 @@ pub fn fetch(client: &Client, name: &str, dir: &Path, timeout: Duration) -> Resu
         path: dir.to_path_buf(),
         source: e,
     })?;
-    Ok(unpack(&bytes, dir)?.1)
+    unpack_model(&bytes, dir, name)
 }
 
 /// Serves `store/{name}` at `…/models/{name}` until `stop` is set.
@@ -199,6 +232,86 @@ mod tests {
         let s = String::from_utf8_lossy(&evil).replace("model.safetensors", "../../xxx.safeten");
         evil = s.into_bytes();
         assert!(unpack(&evil, &root.join("dst")).is_err());
+        let _ = std::fs::remove_dir_all(&root);
+    }
+
+    /// An empty scratch folder for test `what` and the unpack target inside it.
+    fn fresh(what: &str) -> (PathBuf, PathBuf) {
+        let root = std::env::temp_dir().join(format!("kb-models-{what}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let dst = root.join("dst");
+        (root, dst)
+    }
+
+    /// A model folder `root/{name}` with `config.json` and `weights`, packed.
+    fn archive_of(root: &Path, name: &str, weights: &[u8]) -> Vec<u8> {
+        let src = root.join(name);
+        std::fs::create_dir_all(&src).unwrap();
+        std::fs::write(src.join("config.json"), br#"{"kind":"koopman"}"#).unwrap();
+        std::fs::write(src.join("weights"), weights).unwrap();
+        pack(name, &src).unwrap()
+    }
+
+    /// Every entry under `dir` (hidden ones too) with its bytes, for before/after comparisons.
+    fn snapshot(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+        let mut out = Vec::new();
+        let mut stack = vec![dir.to_path_buf()];
+        while let Some(d) = stack.pop() {
+            for e in std::fs::read_dir(&d).unwrap() {
+                let p = e.unwrap().path();
+                if p.is_dir() {
+                    out.push((p.clone(), Vec::new()));
+                    stack.push(p);
+                } else {
+                    out.push((p.clone(), std::fs::read(&p).unwrap()));
+                }
+            }
+        }
+        out.sort();
+        out
+    }
+
+    #[test]
+    fn a_truncated_archive_leaves_no_temporary_folder_and_the_target_untouched() {
+        let (root, dst) = fresh("trunc");
+        // The target already holds version 1 of m1; version 2 arrives cut at every length.
+        unpack(&archive_of(&root.join("v1"), "m1", b"old weights"), &dst).unwrap();
+        let before = snapshot(&dst);
+        assert_eq!(before.len(), 3, "{before:?}"); // m1/, m1/config.json, m1/weights
+        let v2 = archive_of(&root.join("v2"), "m1", &[7u8; 300]);
+        for cut in 0..v2.len() {
+            let err = unpack(&v2[..cut], &dst).expect_err("a truncated archive was unpacked");
+            assert!(matches!(err, Error::Protocol { .. }), "cut {cut}: {err:?}");
+            assert_eq!(
+                snapshot(&dst),
+                before,
+                "cut {cut} changed the target folder"
+            );
+        }
+        unpack(&v2, &dst).unwrap();
+        assert_eq!(
+            std::fs::read(dst.join("m1/weights")).unwrap(),
+            vec![7u8; 300]
+        );
+        assert_eq!(snapshot(&dst).len(), 3);
+        let _ = std::fs::remove_dir_all(&root);
+    }
+
+    #[test]
+    fn the_archive_of_another_model_is_refused_before_anything_is_written() {
+        let (root, dst) = fresh("name");
+        unpack(&archive_of(&root.join("v1"), "b", b"b's own weights"), &dst).unwrap();
+        let before = snapshot(&dst);
+        // Asked for `a`, answered with a `b`: `dst/b` must not be replaced.
+        let other = archive_of(&root.join("v2"), "b", b"someone else's weights");
+        let err = unpack_model(&other, &dst, "a").expect_err("a wrong model was unpacked");
+        assert!(
+            err.to_string().contains("asked for model 'a', got 'b'"),
+            "{err}"
+        );
+        assert_eq!(snapshot(&dst), before);
+        let a = archive_of(&root.join("v3"), "a", b"a");
+        assert_eq!(unpack_model(&a, &dst, "a").unwrap(), dst.join("a"));
         let _ = std::fs::remove_dir_all(&root);
     }
 }

@@ -494,13 +494,8 @@ fn finish(
         path: runs.clone(),
         source: e,
     })?;
-    let (header, dir) = crate::services::models::unpack(&bytes, &runs)?;
-    if header.name != p.name {
-        return Err(Error::protocol(
-            ErrorCode::BadRequest,
-            format!("asked for model '{}', got '{}'", p.name, header.name),
-        ));
-    }
+    // The archive of another model is refused before it could replace that model's run.
+    let dir = crate::services::models::unpack_model(&bytes, &runs, &p.name)?;
     koopman::fsutil::write_atomic(
         &dir.join("metrics.json"),
         &serde_json::to_vec_pretty(&metrics_json).map_err(|e| Error::Config(e.to_string()))?,

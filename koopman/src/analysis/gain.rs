@@ -146,7 +146,7 @@ pub fn gain_agreement(model: &InputGain, reference: &InputGain) -> Result<GainAg
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mpc::matrix_model::MatrixModel;
+    use crate::model::matrix::MatrixModel;
 
     /// A linear system `x⁺ = F x + G u` as a `System`, to compare both gain routes exactly.
     struct Linear {

@@ -1,6 +1,6 @@
 //! Models with linear latent dynamics `z⁺ = A z + B u` and a lifting `z = Φ(x)`: the neural Koopman
 //! model, EDMD with control, and the NNDM baseline; the bilinear Koopman model
-//! (`+ Σ u_i N_i z`, [`bilinear`]); save/load.
+//! (`+ Σ u_i N_i z`, [`bilinear`]); the explicit-matrix stand-in model ([`matrix`]); save/load.
 
 use faer::Mat;
 
@@ -39,6 +39,7 @@ pub mod edmd;
 pub mod encoder;
 pub mod init;
 pub mod koopman;
+pub mod matrix;
 pub mod nndm;
 pub mod scalar;
 pub mod store;

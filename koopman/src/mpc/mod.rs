@@ -10,7 +10,8 @@
 //!   diagonal, so the optimum is unique and the Cholesky factorisation stable.
 //! - Baselines: [`SolverKind::ClosedForm`] (unconstrained optimum, clamped), [`Lqr`] with
 //!   feed-forward on the lifted model, [`RandomShooting`] on any [`OneStepModel`]; every
-//!   controller is a [`Policy`] that [`run_closed_loop`] evaluates on a reference system.
+//!   controller is a [`Policy`] that [`run_closed_loop`] evaluates on a reference system;
+//!   [`controllers::build`] makes any of them by [`controllers::ControllerKind`].
 //! - [`BilinearMpc`]: sequential convex MPC on a bilinear model (`z⁺ = A z + B u + Σ u_i N_i z`),
 //!   re-linearised along each new plan (at most [`ScpOptions::max_linearisations`] QPs on the
 //!   dedicated box solver); [`ScpStatus`] says whether it converged.
@@ -27,9 +28,8 @@ pub mod condensed;
 pub mod config;
 pub mod constraints;
 pub mod controller;
-pub mod fit;
+pub mod controllers;
 pub mod lqr;
-pub mod matrix_model;
 pub mod metrics;
 pub mod policy;
 pub mod qp;
@@ -40,7 +40,6 @@ pub use closed_loop::{run_closed_loop, ClosedLoopMetrics, Task, TaskKind, Trajec
 pub use config::{MpcConfig, SolverKind};
 pub use controller::{FallbackReason, MpcController, MpcSolution, SolveStatus};
 pub use lqr::Lqr;
-pub use matrix_model::{Activation, MatrixModel};
 pub use policy::{Action, ConstantPolicy, LqrPolicy, Policy, ShootingPolicy};
 pub use qp::{QpOutcome, QpSolver, QpStatus};
 pub use shooting::{OneStepModel, RandomShooting, SystemAsModel};

@@ -5,9 +5,10 @@ use std::time::{Duration, Instant};
 
 use super::controller::{MpcController, SolveStatus};
 use super::lqr::Lqr;
-use super::shooting::{OneStepModel, RandomShooting};
+use super::shooting::{OneStepModel, RandomShooting, SystemAsModel};
 use crate::error::{Error, Result};
 use crate::model::LiftedModel;
+use crate::systems::System;
 
 /// One control decision.
 #[derive(Clone, Debug, PartialEq)]
@@ -108,8 +109,15 @@ impl Policy for LqrPolicy<'_> {
 pub struct ShootingPolicy<'m> {
     /// The planner.
     pub planner: RandomShooting,
-    model: &'m dyn OneStepModel,
+    model: PlanningModel<'m>,
     label: String,
+}
+
+/// The one-step model a [`ShootingPolicy`] plans on: borrowed, or a reference system wrapped
+/// by the policy itself (so that no caller has to keep the wrapper alive).
+enum PlanningModel<'m> {
+    Borrowed(&'m dyn OneStepModel),
+    System(SystemAsModel<'m>),
 }
 
 impl<'m> ShootingPolicy<'m> {
@@ -117,8 +125,26 @@ impl<'m> ShootingPolicy<'m> {
     pub fn new(planner: RandomShooting, model: &'m dyn OneStepModel, label: &str) -> Self {
         ShootingPolicy {
             planner,
-            model,
+            model: PlanningModel::Borrowed(model),
             label: label.to_string(),
+        }
+    }
+
+    /// Plans on the true system as its own one-step model (the oracle baseline).
+    pub fn on_system(planner: RandomShooting, system: &'m dyn System, label: &str) -> Self {
+        ShootingPolicy {
+            planner,
+            model: PlanningModel::System(SystemAsModel(system)),
+            label: label.to_string(),
+        }
+    }
+}
+
+impl PlanningModel<'_> {
+    fn get(&self) -> &dyn OneStepModel {
+        match self {
+            PlanningModel::Borrowed(m) => *m,
+            PlanningModel::System(m) => m,
         }
     }
 }
@@ -132,7 +158,7 @@ impl Policy for ShootingPolicy<'_> {
     }
     fn act(&mut self, x: &[f64], _current: &[f64], future: &[f64]) -> Result<Action> {
         let t = Instant::now();
-        let (u, _) = self.planner.plan(self.model, x, future)?;
+        let (u, _) = self.planner.plan(self.model.get(), x, future)?;
         Ok(Action {
             u,
             solve_time: t.elapsed(),

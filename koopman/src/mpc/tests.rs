@@ -7,6 +7,7 @@ use faer::{Col, Mat};
 
 use super::condensed::{Condensed, Weights};
 use super::*;
+use crate::model::matrix::MatrixModel;
 use crate::model::LiftedModel;
 use crate::rng::Rng;
 

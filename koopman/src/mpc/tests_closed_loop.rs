@@ -7,6 +7,7 @@ use faer::Mat;
 use super::closed_loop::{run_closed_loop, Task, TaskKind};
 use super::metrics::GoalSpec;
 use super::*;
+use crate::model::matrix::MatrixModel;
 use crate::model::LiftedModel;
 use crate::rng::Rng;
 use crate::systems::System;
@@ -181,7 +182,7 @@ fn fitted_model_mpc_brings_the_damped_pendulum_closer_without_violations() {
     let sys = crate::systems::by_name("damped-pendulum").unwrap();
     let data =
         crate::data::generate(sys.as_ref(), 1500, 15, 42, crate::data::Pairing::Aligned).unwrap();
-    let model = super::fit::fit_random_features(&data, 40, 1e-8, 1).unwrap();
+    let model = crate::model::matrix::fit_random_features(&data, 40, 1e-8, 1).unwrap();
     // One-step prediction on fresh data is much better than "no change" (the floor is ~9% of
     // it: the input gain cos θ is state dependent, which a constant B cannot represent).
     let test =

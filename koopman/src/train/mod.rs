@@ -9,6 +9,7 @@ pub mod loss;
 pub mod nndm;
 pub mod pinv;
 mod run;
+pub mod stand_in;
 mod tracker;
 
 pub use checkpoint::Checkpoint;

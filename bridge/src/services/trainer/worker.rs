@@ -124,7 +124,8 @@ fn run_job(
     flag: &AtomicBool,
 ) -> Option<Ended> {
     let final_dir = cx.store.join(&spec.model);
-    let tmp = match koopman::fsutil::temp_path(&final_dir) {
+    // Removed on every way out (error, stop, panic) unless committed to `final_dir`.
+    let tmp = match koopman::fsutil::TempDir::beside(&final_dir) {
         Ok(t) => t,
         Err(e) => return Some(Err((false, e.to_string()))),
     };
@@ -148,32 +149,24 @@ fn run_job(
             ControlFlow::Continue(())
         }
     };
-    let outcome = std::fs::create_dir(&tmp)
-        .map_err(|e| Error::Io {
-            path: tmp.clone(),
-            source: e,
+    // Checked again: a job persisted earlier (or a path changed since) must not escape the data
+    // root either.
+    let outcome = super::confine(&cx.data_root, spec.clone())
+        .map_err(|e| Error::Protocol {
+            code: e.code,
+            message: e.message,
         })
-        .and_then(|()| {
-            // Checked again: a job persisted earlier (or a path changed since) must not escape
-            // the data root either.
-            let spec =
-                super::confine(&cx.data_root, spec.clone()).map_err(|e| Error::Protocol {
-                    code: e.code,
-                    message: e.message,
-                })?;
-            trainer.train(&spec, &tmp, checkpoint, &mut on_progress)
-        });
+        .and_then(|spec| trainer.train(&spec, tmp.path(), checkpoint, &mut on_progress));
     if shared.done.load(Ordering::Relaxed) && flag.load(Ordering::Relaxed) {
-        let _ = std::fs::remove_dir_all(&tmp);
         return None;
     }
     let ended = match outcome {
         Ok(metrics) => koopman::fsutil::write_atomic(
-            &tmp.join("metrics.json"),
+            &tmp.path().join("metrics.json"),
             &serde_json::to_vec_pretty(&metrics).unwrap_or_default(),
         )
-        .and_then(|()| koopman::fsutil::commit_dir(&tmp, &final_dir))
-        .map(|()| metrics)
+        .and_then(|()| tmp.commit())
+        .map(|_| metrics)
         .map_err(|e| {
             (
                 false,
@@ -188,8 +181,6 @@ fn run_job(
             e.to_string(),
         )),
     };
-    // Gone after a successful commit; left over otherwise.
-    let _ = std::fs::remove_dir_all(&tmp);
     Some(ended)
 }
 

@@ -1,11 +1,14 @@
 //! A lifted model given by its matrices and a fixed random-feature lifting: the stand-in model
-//! of the MPC tests and benchmarks (random stable systems of any size).
+//! of the MPC tests and benchmarks (random stable systems of any size), and its least-squares fit.
 
 use faer::Mat;
 
 use crate::error::{Error, Result};
 use crate::model::LiftedModel;
 use crate::rng::Rng;
+
+mod fit;
+pub use fit::fit_random_features;
 
 /// The nonlinearity of the lifting features.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]

@@ -4,9 +4,10 @@
 use faer::linalg::solvers::Solve;
 use faer::{Mat, Side};
 
-use super::matrix_model::{Activation, MatrixModel};
+use super::{Activation, MatrixModel};
 use crate::data::Dataset;
 use crate::error::{Error, Result};
+use crate::model::LiftedModel;
 use crate::rng::Rng;
 
 /// Fits `z⁺ ≈ A z + B u` with `z = [x, tanh(F x + c)]`, `n_features` random features scaled by
@@ -59,7 +60,6 @@ pub fn fit_random_features(
         c.clone(),
     )?;
     lifter.activation = Activation::Tanh;
-    use crate::model::LiftedModel;
     // Normal equations G θ = C with regressors w = [z; u] and targets z⁺.
     let d = latent + nu;
     let mut g = Mat::<f64>::zeros(d, d);
