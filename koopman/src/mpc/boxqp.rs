@@ -5,10 +5,10 @@ use std::time::{Duration, Instant};
 
 use faer::{Mat, MatRef, Side};
 
-use super::chol::SmallCholesky;
 use super::condensed::gemv_acc;
 use super::qp::{QpOutcome, QpSolver, QpStatus};
 use crate::error::{Error, Result};
+use crate::linalg::SmallCholesky;
 
 /// Projected Newton (Bertsekas 1982) for a strictly convex box-constrained QP.
 ///
