@@ -8,6 +8,7 @@
 //! - [`model`]: the neural Koopman model, EDMD and NNDM baselines, save/load;
 //! - [`train`]: losses with hand-written gradients, Adam, the training loop;
 //! - [`mpc`]: condensed linear MPC, its solvers and baselines;
+//! - [`linalg`]: the small dense Cholesky (solve, inverse, one-row updates) training and MPC share;
 //! - [`analysis`]: conditioning, spectra, scaling-law fits;
 //! - [`fsutil`]: the one atomic file write everything uses.
 
@@ -15,6 +16,7 @@ pub mod analysis;
 pub mod data;
 pub mod error;
 pub mod fsutil;
+pub mod linalg;
 pub mod model;
 pub mod mpc;
 pub mod rng;

@@ -1,6 +1,8 @@
 //! `koopbridge bench mpc`: solve times of the dedicated box-QP solver and Clarabel on random
-//! stable lifted models along receding-horizon closed loops, with the inputs compared per step.
+//! stable lifted models along receding-horizon closed loops, with the inputs compared per step;
+//! `--dump-qps` records each loop's QP sequence for an external solver to replay.
 
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
@@ -36,6 +38,14 @@ pub struct BenchMpcArgs {
     /// One JSON object per line instead of a table.
     #[arg(long)]
     pub json: bool,
+    /// Skip Clarabel (only the dedicated solver's lines; no agreement column).
+    #[arg(long)]
+    pub no_clarabel: bool,
+    /// Write each case's QP sequence to DIR/qp_N<N>_nu<nu>_H<H>.npz: `P` [n, n], `q` [S, n],
+    /// `lower`, `upper` [n], the dedicated solver's plans `u` [S, n], its QP times `time_ns` [S]
+    /// and whole-step times `step_ns` [S] (the format of an external QP anchor script).
+    #[arg(long, value_name = "DIR")]
+    pub dump_qps: Option<PathBuf>,
 }
 
 /// One line of the report.
@@ -47,8 +57,12 @@ struct CaseResult {
     inputs: usize,
     horizon: usize,
     steps: usize,
+    /// Whole step (lift, q, QP).
     median_ms: f64,
     p99_ms: f64,
+    /// The QP alone (dedicated solver's line only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    qp_median_ms: Option<f64>,
     mean_iterations: f64,
     /// Largest |u_dedicated − u_clarabel| over all steps and plan entries.
     max_abs_input_diff: f64,
@@ -68,9 +82,12 @@ pub fn run(args: BenchMpcArgs) -> anyhow::Result<()> {
     if !(args.r.is_finite() && args.r >= 0.0) {
         anyhow::bail!("--r must be finite and ≥ 0, got {}", args.r);
     }
+    if let Some(dir) = &args.dump_qps {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
     if !args.json {
         println!(
-            "{:>10} {:>5} {:>3} {:>3} {:>3} {:>10} {:>10} {:>6} {:>10} {:>7} {:>8}",
+            "{:>10} {:>5} {:>3} {:>3} {:>3} {:>10} {:>10} {:>10} {:>6} {:>10} {:>7} {:>8}",
             "solver",
             "N",
             "nx",
@@ -78,6 +95,7 @@ pub fn run(args: BenchMpcArgs) -> anyhow::Result<()> {
             "H",
             "median ms",
             "p99 ms",
+            "QP ms",
             "iters",
             "max|Δu|",
             "active",
@@ -87,14 +105,14 @@ pub fn run(args: BenchMpcArgs) -> anyhow::Result<()> {
     for &latent in &args.latent {
         for &nu in &args.inputs {
             for &h in &args.horizon {
-                let [ded, cla] = bench_case(&args, latent, nu, h)
+                let lines = bench_case(&args, latent, nu, h)
                     .with_context(|| format!("case N={latent} nu={nu} H={h}"))?;
-                for c in [&ded, &cla] {
+                for c in &lines {
                     if args.json {
                         println!("{}", serde_json::to_string(c)?);
                     } else {
                         println!(
-                            "{:>10} {:>5} {:>3} {:>3} {:>3} {:>10.4} {:>10.4} {:>6.1} {:>10.2e} {:>7.2} {:>8}",
+                            "{:>10} {:>5} {:>3} {:>3} {:>3} {:>10.4} {:>10.4} {:>10} {:>6.1} {:>10.2e} {:>7.2} {:>8}",
                             c.solver,
                             c.latent,
                             c.states,
@@ -102,6 +120,7 @@ pub fn run(args: BenchMpcArgs) -> anyhow::Result<()> {
                             c.horizon,
                             c.median_ms,
                             c.p99_ms,
+                            c.qp_median_ms.map(|t| format!("{t:.4}")).unwrap_or_default(),
                             c.mean_iterations,
                             c.max_abs_input_diff,
                             c.active_fraction,
@@ -121,6 +140,44 @@ fn quantile_ms(times: &mut [f64], p: f64) -> f64 {
     times[idx] * 1e3
 }
 
+/// The QP sequence of one case, as `--dump-qps` writes it.
+struct QpRecord {
+    n: usize,
+    hessian: Vec<f64>,
+    bound: f64,
+    q: Vec<f64>,
+    u: Vec<f64>,
+    time_ns: Vec<f64>,
+    step_ns: Vec<f64>,
+}
+
+impl QpRecord {
+    fn write(&self, path: &Path) -> anyhow::Result<()> {
+        use koopman::data::npy::encode;
+        let (n, steps) = (self.n, self.time_ns.len());
+        let p = encode(&[n, n], &self.hessian);
+        let q = encode(&[steps, n], &self.q);
+        let lower = encode(&[n], &vec![-self.bound; n]);
+        let upper = encode(&[n], &vec![self.bound; n]);
+        let u = encode(&[steps, n], &self.u);
+        let t = encode(&[steps], &self.time_ns);
+        let st = encode(&[steps], &self.step_ns);
+        koopman::data::npz::write_npz(
+            path,
+            &[
+                ("P.npy", &p),
+                ("q.npy", &q),
+                ("lower.npy", &lower),
+                ("upper.npy", &upper),
+                ("u.npy", &u),
+                ("time_ns.npy", &t),
+                ("step_ns.npy", &st),
+            ],
+        )?;
+        Ok(())
+    }
+}
+
 /// Runs one case: both controllers see the same sequence of states (the closed loop driven
 /// by the dedicated solver's first input on the model itself, tracking a moving reference).
 fn bench_case(
@@ -128,7 +185,7 @@ fn bench_case(
     latent: usize,
     nu: usize,
     horizon: usize,
-) -> anyhow::Result<[CaseResult; 2]> {
+) -> anyhow::Result<Vec<CaseResult>> {
     let nx = (latent / 17).max(1);
     let seed = args.seed ^ ((latent as u64) << 20) ^ ((nu as u64) << 8) ^ horizon as u64;
     let model = MatrixModel::random_stable(nx, latent, nu, 0.995, seed)?;
@@ -150,17 +207,34 @@ fn bench_case(
         ..free_cfg
     };
     let mut ded = MpcController::new(&model, &cfg)?;
-    let mut cla = MpcController::new(
-        &model,
-        &MpcConfig {
-            solver: SolverKind::Clarabel,
-            ..cfg.clone()
-        },
-    )?;
+    let mut cla = if args.no_clarabel {
+        None
+    } else {
+        Some(MpcController::new(
+            &model,
+            &MpcConfig {
+                solver: SolverKind::Clarabel,
+                ..cfg.clone()
+            },
+        )?)
+    };
+    let nv = horizon * nu;
+    let mut record = args.dump_qps.as_ref().map(|_| {
+        let h = &ded.condensed().hessian;
+        QpRecord {
+            n: nv,
+            hessian: (0..nv * nv).map(|k| h[(k / nv, k % nv)]).collect(),
+            bound,
+            q: Vec::with_capacity(args.steps * nv),
+            u: Vec::with_capacity(args.steps * nv),
+            time_ns: Vec::with_capacity(args.steps),
+            step_ns: Vec::with_capacity(args.steps),
+        }
+    });
     let phases: Vec<f64> = (0..nx)
         .map(|_| rng.uniform(0.0, std::f64::consts::TAU))
         .collect();
-    let (mut t_ded, mut t_cla) = (Vec::new(), Vec::new());
+    let (mut t_ded, mut t_qp, mut t_cla) = (Vec::new(), Vec::new(), Vec::new());
     let (mut it_ded, mut it_cla, mut diff, mut active, mut bad_d, mut bad_c) =
         (0usize, 0usize, 0.0f64, 0usize, 0, 0);
     let mut x = x0;
@@ -176,19 +250,28 @@ fn bench_case(
         let t0 = Instant::now();
         let sd = ded.solve(&x, &reference)?;
         t_ded.push(t0.elapsed().as_secs_f64());
-        let t1 = Instant::now();
-        let sc = cla.solve(&x, &reference)?;
-        t_cla.push(t1.elapsed().as_secs_f64());
+        t_qp.push(sd.qp_time.as_secs_f64());
+        if let Some(r) = record.as_mut() {
+            r.q.extend_from_slice(ded.linear_term());
+            r.u.extend_from_slice(&sd.u);
+            r.time_ns.push(sd.qp_time.as_secs_f64() * 1e9);
+            r.step_ns.push(sd.solve_time.as_secs_f64() * 1e9);
+        }
         it_ded += sd.iterations;
-        it_cla += sc.iterations;
         bad_d += usize::from(sd.status != SolveStatus::Solved);
-        bad_c += usize::from(sc.status != SolveStatus::Solved);
-        diff = diff.max(
-            sd.u.iter()
-                .zip(&sc.u)
-                .map(|(p, q)| (p - q).abs())
-                .fold(0.0, f64::max),
-        );
+        if let Some(cla) = cla.as_mut() {
+            let t1 = Instant::now();
+            let sc = cla.solve(&x, &reference)?;
+            t_cla.push(t1.elapsed().as_secs_f64());
+            it_cla += sc.iterations;
+            bad_c += usize::from(sc.status != SolveStatus::Solved);
+            diff = diff.max(
+                sd.u.iter()
+                    .zip(&sc.u)
+                    .map(|(p, q)| (p - q).abs())
+                    .fold(0.0, f64::max),
+            );
+        }
         active +=
             sd.u.iter()
                 .filter(|v| v.abs() >= bound * (1.0 - 1e-12))
@@ -202,9 +285,16 @@ fn bench_case(
             })
             .collect();
     }
+    if let (Some(r), Some(dir)) = (&record, &args.dump_qps) {
+        let path = dir.join(format!("qp_N{latent}_nu{nu}_H{horizon}.npz"));
+        r.write(&path)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
     let n = args.steps.max(1) as f64;
-    let (md, mc) = (quantile_ms(&mut t_ded, 0.5), quantile_ms(&mut t_cla, 0.5));
-    let mk = |solver, times: &mut Vec<f64>, median, iters: usize, bad, speed| CaseResult {
+    let md = quantile_ms(&mut t_ded, 0.5);
+    let mc = (!t_cla.is_empty()).then(|| quantile_ms(&mut t_cla, 0.5));
+    let diff = if cla.is_some() { diff } else { f64::NAN };
+    let mk = |solver, times: &mut Vec<f64>, median, qp, iters: usize, bad, speed| CaseResult {
         solver,
         latent,
         states: nx,
@@ -213,14 +303,25 @@ fn bench_case(
         steps: args.steps,
         median_ms: median,
         p99_ms: quantile_ms(times, 0.99),
+        qp_median_ms: qp,
         mean_iterations: iters as f64 / n,
         max_abs_input_diff: diff,
-        active_fraction: active as f64 / (n * (horizon * nu) as f64),
+        active_fraction: active as f64 / (n * nv as f64),
         speedup_vs_clarabel: speed,
         not_solved: bad,
     };
-    Ok([
-        mk("dedicated", &mut t_ded, md, it_ded, bad_d, Some(mc / md)),
-        mk("clarabel", &mut t_cla, mc, it_cla, bad_c, None),
-    ])
+    let qp = Some(quantile_ms(&mut t_qp, 0.5));
+    let mut lines = vec![mk(
+        "dedicated",
+        &mut t_ded,
+        md,
+        qp,
+        it_ded,
+        bad_d,
+        mc.map(|c| c / md),
+    )];
+    if let Some(mc) = mc {
+        lines.push(mk("clarabel", &mut t_cla, mc, None, it_cla, bad_c, None));
+    }
+    Ok(lines)
 }

@@ -47,17 +47,10 @@ impl Dataset {
             .map_err(|e| Error::format(path, format!("cannot encode metadata: {e}")))?;
         let x = npy::encode(&[self.n, self.steps + 1, self.nx], &self.x);
         let u = npy::encode(&[self.n, self.steps, self.nu], &self.u);
-        write_atomic_with(path, |file| {
-            let mut zip = zip::ZipWriter::new(std::io::BufWriter::new(file));
-            let opts = zip::write::SimpleFileOptions::default()
-                .compression_method(zip::CompressionMethod::Stored)
-                .large_file(x.len() as u64 >= u32::MAX as u64);
-            for (name, bytes) in [("x.npy", &x), ("u.npy", &u), ("meta.json", &meta_json)] {
-                zip.start_file(name, opts).map_err(std::io::Error::other)?;
-                zip.write_all(bytes)?;
-            }
-            zip.finish().map_err(std::io::Error::other)?.flush()
-        })?;
+        write_npz(
+            path,
+            &[("x.npy", &x), ("u.npy", &u), ("meta.json", &meta_json)],
+        )?;
         write_atomic(&sidecar_path(path), &meta_json)
     }
 
@@ -142,6 +135,25 @@ impl Dataset {
             .map_err(|e| Error::format(path, e.to_string()))?;
         Ok(data)
     }
+}
+
+/// Writes an uncompressed `.npz` (zip) archive of the given members (name, bytes; arrays made
+/// with [`npy::encode`]) to `path`, atomically.
+pub fn write_npz(path: &Path, members: &[(&str, &[u8])]) -> Result<()> {
+    let large = members
+        .iter()
+        .any(|(_, b)| b.len() as u64 >= u32::MAX as u64);
+    write_atomic_with(path, |file| {
+        let mut zip = zip::ZipWriter::new(std::io::BufWriter::new(file));
+        let opts = zip::write::SimpleFileOptions::default()
+            .compression_method(zip::CompressionMethod::Stored)
+            .large_file(large);
+        for (name, bytes) in members {
+            zip.start_file(*name, opts).map_err(std::io::Error::other)?;
+            zip.write_all(bytes)?;
+        }
+        zip.finish().map_err(std::io::Error::other)?.flush()
+    })
 }
 
 fn read_member<R: std::io::Read + std::io::Seek>(

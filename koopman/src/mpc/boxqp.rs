@@ -1,49 +1,78 @@
-//! The dedicated dense solver for `min ½uᵀHu + qᵀu` s.t. `lo ≤ u ≤ hi`: projected Newton with a
-//! cached Cholesky factorisation of the free block of H, warm-started by the caller.
+//! The dedicated dense solver for `min ½uᵀHu + qᵀu` s.t. `lo ≤ u ≤ hi`: a dual active-set
+//! method on the explicit inverse of H, whose working-set factor grows and shrinks one bound at a
+//! time, warm-started from the bounds the caller's initial point sits on.
 
 use std::time::{Duration, Instant};
 
-use faer::{Mat, MatRef, Side};
+use faer::{Mat, MatRef};
 
-use super::chol::SmallCholesky;
 use super::condensed::gemv_acc;
 use super::qp::{QpOutcome, QpSolver, QpStatus};
 use crate::error::{Error, Result};
+use crate::linalg::SmallCholesky;
 
-/// Projected Newton (Bertsekas 1982) for a strictly convex box-constrained QP.
+/// Where a variable is held: free, or on a bound of the working set.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Side {
+    Free,
+    Lower,
+    Upper,
+    /// `lo == hi`: always in the working set, its multiplier has no sign.
+    Fixed,
+}
+
+const NONE: usize = usize::MAX;
+
+/// Dual active set (Goldfarb–Idnani; the box case of DAQP, Arnström et al. 2022) for a strictly
+/// convex box-constrained QP.
 ///
-/// Each iteration fixes the variables that sit on a bound with the gradient pushing outwards
-/// (the ε-active set), takes the Newton step on the others (`H_FF d_F = −g_F`, solved with a
-/// Cholesky factorisation that is reused as long as the free set does not change — in steady
-/// receding-horizon operation it rarely does), projects onto the box and backtracks (Armijo
-/// along the projection arc). Every iterate is feasible and the cost decreases monotonically;
-/// once the right active set is found the step is exact, so it stops on the KKT conditions to
-/// rounding accuracy (projected gradient ≤ `tol`).
+/// With the working set W (bounds held with equality, values `b_W`), the optimum of the
+/// equality-constrained problem is `u = u* − H⁻¹[:, W] μ`, `u* = −H⁻¹q`, where `μ` solves
+/// `K μ = u*_W − b_W` with `K = (H⁻¹)_WW`: only the Cholesky factor of K (|W| rows) is kept, and
+/// adding or dropping one bound appends or deletes one of its rows in O(|W|²). The iteration keeps
+/// the multipliers dual feasible (μ ≥ 0 at upper bounds, ≤ 0 at lower ones): if the new μ is not,
+/// it steps towards it until a multiplier reaches zero and drops that bound; otherwise it adds the
+/// most violated bound of the primal point, and stops when there is none. Once the right working
+/// set is found the answer is exact to rounding. A warm start names the working set: the bounds
+/// the initial point sits on (the shifted previous plan of a receding-horizon loop); the factor of
+/// the previous solve is reused and edited when the two sets differ in few bounds. Nothing is
+/// allocated on the hot path once the solver is built.
 pub struct BoxQp {
     n: usize,
     h: Mat<f64>,
+    /// H⁻¹ (n × n, column-major, exactly symmetric).
+    hinv: Vec<f64>,
+    /// False after a Hessian that is not positive definite: every solve is `Numerical`.
+    valid: bool,
     lo: Vec<f64>,
     hi: Vec<f64>,
     max_iterations: usize,
     time_limit: Option<Duration>,
-    /// Absolute KKT tolerance on the projected gradient, scaled by the problem's size.
-    rel_tol: f64,
-    // Cached factorisation of H_FF for the free set `cached_free`.
-    cached_free: Vec<usize>,
+    /// 1 + the largest finite bound: the scale of the primal tolerance.
+    bscale: f64,
+    /// Edits of the factor since it was last computed afresh (bounds rounding drift).
+    edits: usize,
+    /// Working set in factor order, each variable's position in it (or NONE) and its side.
+    ws: Vec<usize>,
+    pos: Vec<usize>,
+    side: Vec<Side>,
+    /// Cholesky factor of `(H⁻¹)_WW` in the order of `ws`, valid for the current H.
     chol: SmallCholesky,
     chol_valid: bool,
     // Workspace.
+    want: Vec<Side>,
+    ustar: Vec<f64>,
+    mu: Vec<f64>,
+    mustar: Vec<f64>,
+    row: Vec<f64>,
+    u0: Vec<f64>,
     g: Vec<f64>,
-    d: Vec<f64>,
-    rhs: Vec<f64>,
-    trial: Vec<f64>,
-    step: Vec<f64>,
-    hs: Vec<f64>,
-    free: Vec<usize>,
+    hd: Vec<f64>,
 }
 
 impl BoxQp {
-    /// A solver for the Hessian `h` (symmetric positive definite) and the box `[lo, hi]`.
+    /// A solver for the Hessian `h` (symmetric positive definite) and the box `[lo, hi]`, with at
+    /// most `max_iterations` working-set changes per solve and an optional time limit (s).
     pub fn new(
         h: MatRef<'_, f64>,
         lo: &[f64],
@@ -67,32 +96,43 @@ impl BoxQp {
         if max_iterations == 0 {
             return Err(Error::InvalidArgument("max_iterations must be ≥ 1".into()));
         }
-        let h = h.to_owned();
-        // faer's factorisation (blocked, fast for large n) checks definiteness once up front.
-        h.llt(Side::Lower).map_err(|_| {
-            Error::Numerical(
-                "the MPC Hessian is not positive definite; increase R or the regularization".into(),
-            )
-        })?;
-        Ok(BoxQp {
+        let mut chol = SmallCholesky::default();
+        chol.reserve(n);
+        let mut s = BoxQp {
             n,
-            h,
+            h: h.to_owned(),
+            hinv: vec![0.0; n * n],
+            valid: false,
             lo: lo.to_vec(),
             hi: hi.to_vec(),
             max_iterations,
             time_limit: time_limit.map(Duration::from_secs_f64),
-            rel_tol: 1e-11,
-            cached_free: Vec::new(),
-            chol: SmallCholesky::default(),
+            bscale: 1.0
+                + lo.iter()
+                    .chain(hi)
+                    .filter(|v| v.is_finite())
+                    .fold(0.0f64, |m, v| m.max(v.abs())),
+            edits: 0,
+            ws: Vec::with_capacity(n),
+            pos: vec![NONE; n],
+            side: vec![Side::Free; n],
+            chol,
             chol_valid: false,
+            want: vec![Side::Free; n],
+            ustar: vec![0.0; n],
+            mu: Vec::with_capacity(n),
+            mustar: vec![0.0; n],
+            row: vec![0.0; n],
+            u0: vec![0.0; n],
             g: vec![0.0; n],
-            d: vec![0.0; n],
-            rhs: vec![0.0; n],
-            trial: vec![0.0; n],
-            step: vec![0.0; n],
-            hs: vec![0.0; n],
-            free: Vec::with_capacity(n),
-        })
+            hd: vec![0.0; n],
+        };
+        if !s.invert_hessian() {
+            return Err(Error::Numerical(
+                "the MPC Hessian is not positive definite; increase R or the regularization".into(),
+            ));
+        }
+        Ok(s)
     }
 
     /// Number of variables.
@@ -100,31 +140,181 @@ impl BoxQp {
         self.n
     }
 
-    /// Replaces the Hessian (same size, symmetric positive definite) for the next solves, as a
-    /// time-varying QP needs; copies into the existing buffer and drops the cached factor.
+    /// Replaces the Hessian (same size) for the next solves, as a time-varying QP needs; if it is
+    /// not positive definite the next solves end `Numerical`.
     pub fn set_hessian(&mut self, h: MatRef<'_, f64>) -> Result<()> {
         if h.nrows() != self.n || h.ncols() != self.n {
             return Err(Error::dimension("Hessian rows", self.n, h.nrows()));
         }
         self.h.copy_from(h);
-        self.chol_valid = false;
+        self.invert_hessian();
         Ok(())
     }
 
-    fn gradient(&mut self, q: &[f64], u: &[f64]) {
-        self.g.copy_from_slice(q);
-        gemv_acc(self.h.as_ref(), u, &mut self.g);
+    /// Computes H⁻¹ (symmetrised) and drops the working-set factor; false if H is not
+    /// numerically positive definite.
+    fn invert_hessian(&mut self) -> bool {
+        let n = self.n;
+        self.chol_valid = false;
+        let mut c = SmallCholesky::default();
+        let h = &self.h;
+        let finite = (0..n).all(|j| (0..n).all(|i| h[(i, j)].is_finite()));
+        self.valid = finite && c.factor(n, |i, j| h[(i, j)]);
+        if self.valid {
+            c.inverse_into(&mut self.hinv);
+            for i in 0..n {
+                for j in 0..i {
+                    let v = 0.5 * (self.hinv[i * n + j] + self.hinv[j * n + i]);
+                    self.hinv[i * n + j] = v;
+                    self.hinv[j * n + i] = v;
+                }
+            }
+        }
+        self.valid
     }
 
-    /// Factorises `H_FF` for the current free set unless the cached factor already is for it.
-    fn factor_free(&mut self) -> bool {
-        if self.chol_valid && self.cached_free == self.free {
+    fn hinv_col(&self, j: usize) -> &[f64] {
+        &self.hinv[j * self.n..(j + 1) * self.n]
+    }
+
+    fn bound(&self, i: usize) -> f64 {
+        match self.side[i] {
+            Side::Upper => self.hi[i],
+            _ => self.lo[i],
+        }
+    }
+
+    /// Appends variable `j` on `side` to the working set (and a zero multiplier).
+    fn add(&mut self, j: usize, side: Side) -> bool {
+        let m = self.ws.len();
+        let col = &self.hinv[j * self.n..(j + 1) * self.n];
+        for (r, &i) in self.row.iter_mut().zip(&self.ws) {
+            *r = col[i];
+        }
+        if !self.chol.append(&self.row[..m], col[j]) {
+            return false;
+        }
+        self.edits += 1;
+        self.ws.push(j);
+        self.pos[j] = m;
+        self.side[j] = side;
+        self.mu.push(0.0);
+        true
+    }
+
+    /// Drops position `k` of the working set (and its multiplier).
+    fn drop_at(&mut self, k: usize) {
+        let i = self.ws.remove(k);
+        self.mu.remove(k);
+        self.chol.delete(k);
+        self.edits += 1;
+        self.pos[i] = NONE;
+        self.side[i] = Side::Free;
+        for (kk, &v) in self.ws.iter().enumerate().skip(k) {
+            self.pos[v] = kk;
+        }
+    }
+
+    /// Makes the working set `want`, editing the cached factor when few bounds differ and
+    /// refactorising otherwise; multipliers start at zero.
+    fn set_working_set(&mut self) -> bool {
+        let n = self.n;
+        let target = self.want.iter().filter(|s| **s != Side::Free).count();
+        // A factor edited many times is computed afresh (rounding accumulates in the updates).
+        let mut edit = self.chol_valid && self.edits <= 4 * n;
+        if edit {
+            let drops = self
+                .ws
+                .iter()
+                .filter(|&&i| self.want[i] == Side::Free)
+                .count();
+            let adds = target - (self.ws.len() - drops);
+            // Each edit costs O(|W|²), a fresh factor O(|W|³/3).
+            edit = 3 * (drops + adds) <= target;
+        }
+        self.mu.clear();
+        if edit {
+            for k in (0..self.ws.len()).rev() {
+                let i = self.ws[k];
+                if self.want[i] == Side::Free {
+                    self.ws.remove(k);
+                    self.chol.delete(k);
+                    self.edits += 1;
+                    self.pos[i] = NONE;
+                    self.side[i] = Side::Free;
+                }
+            }
+            self.mu.resize(self.ws.len(), 0.0);
+            for k in 0..self.ws.len() {
+                let i = self.ws[k];
+                self.pos[i] = k;
+                self.side[i] = self.want[i];
+            }
+            for j in 0..n {
+                if self.want[j] != Side::Free && self.pos[j] == NONE && !self.add(j, self.want[j]) {
+                    self.chol_valid = false;
+                    return false;
+                }
+            }
             return true;
         }
-        let (f, h) = (&self.free, &self.h);
-        self.chol_valid = self.chol.factor(f.len(), |i, j| h[(f[i], f[j])]);
-        self.cached_free.clone_from(&self.free);
+        self.ws.clear();
+        for i in 0..n {
+            self.side[i] = self.want[i];
+            self.pos[i] = NONE;
+            if self.want[i] != Side::Free {
+                self.pos[i] = self.ws.len();
+                self.ws.push(i);
+            }
+        }
+        self.mu.resize(self.ws.len(), 0.0);
+        let (ws, hinv) = (&self.ws, &self.hinv);
+        self.chol_valid = self.chol.factor(ws.len(), |a, b| hinv[ws[a] * n + ws[b]]);
+        self.edits = 0;
         self.chol_valid
+    }
+
+    /// `u = u* − H⁻¹[:, W] μ` with the working set exactly on its bounds.
+    fn primal(&self, u: &mut [f64]) {
+        u.copy_from_slice(&self.ustar);
+        for (k, &i) in self.ws.iter().enumerate() {
+            let m = self.mu[k];
+            if m != 0.0 {
+                for (ui, hi) in u.iter_mut().zip(self.hinv_col(i)) {
+                    *ui -= m * hi;
+                }
+            }
+        }
+        for &i in &self.ws {
+            u[i] = self.bound(i);
+        }
+    }
+
+    /// At an iteration or time limit: the best point on the segment from the warm start `u0` to
+    /// the current iterate clamped to the box (feasible, and no worse than the warm start).
+    fn stopped_early(&mut self, q: &[f64], u: &mut [f64]) {
+        self.primal(u);
+        for (i, v) in u.iter_mut().enumerate() {
+            *v = v.clamp(self.lo[i], self.hi[i]);
+        }
+        // d = c − u0 (in u); f(u0 + t d) = f(u0) + t gᵀd + ½ t² dᵀHd, g = H u0 + q.
+        for (ui, u0) in u.iter_mut().zip(&self.u0) {
+            *ui -= u0;
+        }
+        self.g.copy_from_slice(q);
+        gemv_acc(self.h.as_ref(), &self.u0, &mut self.g);
+        self.hd.fill(0.0);
+        gemv_acc(self.h.as_ref(), u, &mut self.hd);
+        let gd: f64 = self.g.iter().zip(u.iter()).map(|(a, b)| a * b).sum();
+        let dhd: f64 = self.hd.iter().zip(u.iter()).map(|(a, b)| a * b).sum();
+        let t = if dhd > 0.0 && gd < 0.0 {
+            (-gd / dhd).min(1.0)
+        } else {
+            0.0
+        };
+        for (i, (ui, u0)) in u.iter_mut().zip(&self.u0).enumerate() {
+            *ui = (u0 + t * *ui).clamp(self.lo[i], self.hi[i]);
+        }
     }
 }
 
@@ -133,132 +323,158 @@ impl QpSolver for BoxQp {
         "dedicated"
     }
 
-    // Index loops over several parallel arrays (u, g, d, bounds) read best here.
+    // Index loops over several parallel arrays (u, bounds, sides) read best here.
     #[allow(clippy::needless_range_loop)]
     fn solve(&mut self, q: &[f64], _h: &[f64], u: &mut [f64]) -> QpOutcome {
-        let start = Instant::now();
+        let start = self.time_limit.map(|_| Instant::now());
         let n = self.n;
-        if q.len() != n || u.len() != n {
-            return QpOutcome {
-                status: QpStatus::Numerical,
-                iterations: 0,
-                feasible_iterate: false,
-            };
+        let outcome = |status, iterations, feasible_iterate| QpOutcome {
+            status,
+            iterations,
+            feasible_iterate,
+        };
+        if q.len() != n || u.len() != n || !self.valid || q.iter().any(|v| !v.is_finite()) {
+            return outcome(QpStatus::Numerical, 0, false);
         }
+        // Warm start: feasible, and the bounds it sits on are the first working set.
+        let mut warm = false;
         for i in 0..n {
             let v = if u[i].is_finite() { u[i] } else { 0.0 };
             u[i] = v.clamp(self.lo[i], self.hi[i]);
+            self.u0[i] = u[i];
+            self.want[i] = if self.lo[i] == self.hi[i] {
+                Side::Fixed
+            } else if u[i] == self.hi[i] {
+                Side::Upper
+            } else if u[i] == self.lo[i] {
+                Side::Lower
+            } else {
+                Side::Free
+            };
+            warm |= matches!(self.want[i], Side::Upper | Side::Lower);
         }
-        let scale = 1.0
-            + q.iter().fold(0.0f64, |m, v| m.max(v.abs()))
-            + (0..n).fold(0.0f64, |m, i| m.max(self.h[(i, i)]))
-                * u.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        let tol = self.rel_tol * scale;
-        let outcome = |status, iterations| QpOutcome {
-            status,
-            iterations,
-            feasible_iterate: true,
-        };
-        for it in 0..self.max_iterations {
-            self.gradient(q, u);
-            // Projected gradient and the ε-active set.
-            let mut pg = 0.0f64;
+        // u* = −H⁻¹ q.
+        self.ustar.fill(0.0);
+        for (j, &qj) in q.iter().enumerate() {
+            if qj != 0.0 {
+                let col = &self.hinv[j * n..(j + 1) * n];
+                for (s, c) in self.ustar.iter_mut().zip(col) {
+                    *s -= qj * c;
+                }
+            }
+        }
+        if !warm {
+            // Cold: the bounds the unconstrained optimum violates.
             for i in 0..n {
-                let p = u[i] - (u[i] - self.g[i]).clamp(self.lo[i], self.hi[i]);
-                pg = pg.max(p.abs());
-            }
-            if !pg.is_finite() {
-                return outcome(QpStatus::Numerical, it);
-            }
-            if pg <= tol {
-                return outcome(QpStatus::Solved, it);
-            }
-            if let Some(limit) = self.time_limit {
-                if start.elapsed() > limit {
-                    return outcome(QpStatus::TimeLimit, it);
-                }
-            }
-            let eps = pg.min(1e-3 * (1.0 + u.iter().fold(0.0f64, |m, v| m.max(v.abs()))));
-            self.free.clear();
-            for i in 0..n {
-                let at_lo = u[i] <= self.lo[i] + eps && self.g[i] > 0.0;
-                let at_hi = u[i] >= self.hi[i] - eps && self.g[i] < 0.0;
-                if !(at_lo || at_hi) {
-                    self.free.push(i);
-                }
-            }
-            // Direction: Newton on the free set, scaled gradient on the active set.
-            for i in 0..n {
-                self.d[i] = -self.g[i] / self.h[(i, i)];
-            }
-            if !self.free.is_empty() {
-                if !self.factor_free() {
-                    return outcome(QpStatus::Numerical, it);
-                }
-                let nf = self.free.len();
-                for (k, &i) in self.free.iter().enumerate() {
-                    self.rhs[k] = -self.g[i];
-                }
-                self.chol.solve_in_place(&mut self.rhs[..nf]);
-                for (k, &i) in self.free.iter().enumerate() {
-                    self.d[i] = self.rhs[k];
-                }
-            }
-            // Armijo backtracking along the projection arc.
-            let sigma = 1e-4;
-            let mut alpha = 1.0;
-            let mut accepted = false;
-            for _ in 0..40 {
-                let mut decrease_bound = 0.0;
-                let mut fi = 0;
-                for i in 0..n {
-                    self.trial[i] = (u[i] + alpha * self.d[i]).clamp(self.lo[i], self.hi[i]);
-                    self.step[i] = self.trial[i] - u[i];
-                    let is_free = fi < self.free.len() && self.free[fi] == i;
-                    if is_free {
-                        fi += 1;
-                        decrease_bound += -alpha * self.g[i] * self.d[i];
-                    } else {
-                        decrease_bound += self.g[i] * (u[i] - self.trial[i]);
+                if self.want[i] == Side::Free {
+                    if self.ustar[i] > self.hi[i] {
+                        self.want[i] = Side::Upper;
+                    } else if self.ustar[i] < self.lo[i] {
+                        self.want[i] = Side::Lower;
                     }
                 }
-                self.hs.fill(0.0);
-                gemv_acc(self.h.as_ref(), &self.step, &mut self.hs);
-                let mut df = 0.0;
-                for i in 0..n {
-                    df += self.step[i] * (self.g[i] + 0.5 * self.hs[i]);
-                }
-                if df <= -sigma * decrease_bound || self.step.iter().all(|s| *s == 0.0) {
-                    accepted = true;
-                    break;
-                }
-                alpha *= 0.5;
             }
-            if !accepted {
-                // No decrease is possible at rounding level: the point is optimal as far as
-                // arithmetic can tell, or the problem is numerically broken.
-                return outcome(
-                    if pg <= 1e3 * tol {
-                        QpStatus::Solved
-                    } else {
-                        QpStatus::Numerical
-                    },
-                    it + 1,
-                );
-            }
-            u.copy_from_slice(&self.trial);
         }
-        self.gradient(q, u);
-        let pg = (0..n)
-            .map(|i| (u[i] - (u[i] - self.g[i]).clamp(self.lo[i], self.hi[i])).abs())
-            .fold(0.0f64, f64::max);
-        outcome(
-            if pg <= tol {
-                QpStatus::Solved
+        if !self.set_working_set() {
+            return outcome(QpStatus::Numerical, 0, false);
+        }
+
+        let bscale = self.bscale;
+        let tol = 1e-12 * bscale;
+        let (mut its, mut last_added, mut tabu) = (0usize, NONE, NONE);
+        loop {
+            let limit = if its >= self.max_iterations {
+                Some(QpStatus::MaxIterations)
+            } else if start.is_some_and(|t| Some(t.elapsed()) > self.time_limit) {
+                Some(QpStatus::TimeLimit)
             } else {
-                QpStatus::MaxIterations
-            },
-            self.max_iterations,
-        )
+                None
+            };
+            // μ* of the working set.
+            let m = self.ws.len();
+            for k in 0..m {
+                let i = self.ws[k];
+                self.mustar[k] = self.ustar[i] - self.bound(i);
+            }
+            self.chol.solve_in_place(&mut self.mustar[..m]);
+            if self.mustar[..m].iter().any(|v| !v.is_finite()) {
+                return outcome(QpStatus::Numerical, its, false);
+            }
+            let mtol = 1e-13 * (1.0 + self.mustar[..m].iter().fold(0.0f64, |a, v| a.max(v.abs())));
+            // The first multiplier to reach zero on the way to μ*; among ties (several at zero
+            // already, as after a warm start) the one furthest on the wrong side.
+            let (mut alpha, mut block, mut worst_dual) = (1.0f64, NONE, 0.0f64);
+            for k in 0..m {
+                let s = match self.side[self.ws[k]] {
+                    Side::Upper => 1.0,
+                    Side::Lower => -1.0,
+                    _ => continue,
+                };
+                let (sm, sms) = (s * self.mu[k], s * self.mustar[k]);
+                if sms < -mtol {
+                    let a = (sm / (sm - sms)).max(0.0);
+                    if a < alpha || (a == alpha && sms < worst_dual) {
+                        (alpha, block, worst_dual) = (a, k, sms);
+                    }
+                }
+            }
+            if block != NONE {
+                if let Some(status) = limit {
+                    self.stopped_early(q, u);
+                    return outcome(status, its, true);
+                }
+                for k in 0..m {
+                    self.mu[k] += alpha * (self.mustar[k] - self.mu[k]);
+                }
+                if self.ws[block] == last_added && alpha <= 0.0 {
+                    // The bound just added is dropped again at once: its violation is at
+                    // rounding level; do not add it again (Lawson–Hanson's guard).
+                    tabu = last_added;
+                }
+                self.drop_at(block);
+                its += 1;
+                continue;
+            }
+            self.mu[..m].copy_from_slice(&self.mustar[..m]);
+            self.primal(u);
+            // The most violated bound among the free variables.
+            let (mut worst, mut j, mut side) = (tol, NONE, Side::Free);
+            for i in 0..n {
+                if self.side[i] != Side::Free || i == tabu {
+                    continue;
+                }
+                if u[i] - self.hi[i] > worst {
+                    (worst, j, side) = (u[i] - self.hi[i], i, Side::Upper);
+                } else if self.lo[i] - u[i] > worst {
+                    (worst, j, side) = (self.lo[i] - u[i], i, Side::Lower);
+                }
+            }
+            if j == NONE {
+                let stuck = tabu != NONE
+                    && (u[tabu] - self.hi[tabu]).max(self.lo[tabu] - u[tabu]) > 1e-6 * bscale;
+                for i in 0..n {
+                    u[i] = u[i].clamp(self.lo[i], self.hi[i]);
+                }
+                let status = if stuck || u.iter().any(|v| !v.is_finite()) {
+                    QpStatus::Numerical
+                } else {
+                    QpStatus::Solved
+                };
+                return outcome(status, its, true);
+            }
+            if let Some(status) = limit {
+                self.stopped_early(q, u);
+                return outcome(status, its, true);
+            }
+            if !self.add(j, side) {
+                self.chol_valid = false;
+                return outcome(QpStatus::Numerical, its, false);
+            }
+            if j != tabu {
+                tabu = NONE;
+            }
+            last_added = j;
+            its += 1;
+        }
     }
 }

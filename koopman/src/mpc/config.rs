@@ -65,7 +65,8 @@ pub struct MpcConfig {
     /// of the optimum of relative size ~δ in the well-determined directions and a preference
     /// for small inputs along the directions the cost does not see.
     pub regularization: f64,
-    /// Iteration limit of the solver.
+    /// Iteration limit of the solver: Clarabel's interior-point iterations; for the dedicated
+    /// box solver, working-set changes (one bound added or dropped) per solve.
     pub max_iterations: usize,
     /// Time limit per solve in seconds (`None` = none).
     pub time_limit: Option<f64>,

@@ -56,6 +56,8 @@ pub struct MpcSolution {
     pub status: SolveStatus,
     /// Wall time of the solve (lifting, linear term and QP).
     pub solve_time: Duration,
+    /// Wall time of the QP alone (within `solve_time`).
+    pub qp_time: Duration,
     /// Solver iterations.
     pub iterations: usize,
 }
@@ -223,6 +225,12 @@ impl<'m> MpcController<'m> {
         &self.condensed
     }
 
+    /// The linear term `q` of the last solve's QP (`min ½UᵀHU + qᵀU`, H·nu values; zeros
+    /// before the first solve), e.g. to record the QP sequence of a closed loop.
+    pub fn linear_term(&self) -> &[f64] {
+        &self.q
+    }
+
     /// Forgets the warm start and the previous input (e.g. at the start of an episode).
     pub fn reset(&mut self) {
         self.plan = None;
@@ -297,7 +305,9 @@ impl<'m> MpcController<'m> {
             c.rhs(&free, &self.u_prev, &mut self.h);
         }
         let mut u = self.shifted_plan();
+        let qp_start = Instant::now();
         let outcome = self.solver.solve(&self.q, &self.h, &mut u);
+        let qp_time = qp_start.elapsed();
         let finite = u.iter().all(|v| v.is_finite());
         let status = match outcome.status {
             QpStatus::Solved if finite => SolveStatus::Solved,
@@ -326,6 +336,7 @@ impl<'m> MpcController<'m> {
             u,
             status,
             solve_time: start.elapsed(),
+            qp_time,
             iterations: outcome.iterations,
         })
     }

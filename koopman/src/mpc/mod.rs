@@ -20,7 +20,6 @@
 
 pub mod bilinear;
 pub mod boxqp;
-pub mod chol;
 pub mod clarabel_qp;
 pub mod closed_form;
 pub mod closed_loop;

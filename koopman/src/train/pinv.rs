@@ -1,8 +1,10 @@
 //! The pseudo-inverse algebra of the inverse-control loss: the gradient that flows through
-//! `pinv(B) = (BᵀB)⁻¹Bᵀ`, and the inverse of the small SPD matrix `BᵀB`.
+//! `pinv(B) = (BᵀB)⁻¹Bᵀ`; the inverse of the small SPD matrix `BᵀB` is
+//! [`crate::linalg::spd_inverse`], re-exported here for the losses.
 
 use faer::MatRef;
 
+pub use crate::linalg::spd_inverse;
 use crate::model::scalar::Real;
 
 /// Adds the gradient of the loss w.r.t. B that flows through `P = pinv(B) = (BᵀB)⁻¹Bᵀ`:
@@ -52,47 +54,4 @@ pub(crate) fn pinv_backward<T: Real>(
             gb[c * nu + r] += T::from_f64(s);
         }
     }
-}
-
-/// Inverse of a small symmetric positive definite matrix (row-major, f64) by Cholesky; `None`
-/// if it is not numerically positive definite.
-pub fn spd_inverse(m: &[f64], n: usize) -> Option<Vec<f64>> {
-    let mut l = vec![0.0; n * n];
-    let scale = (0..n).map(|i| m[i * n + i].abs()).fold(0.0, f64::max);
-    for i in 0..n {
-        for j in 0..=i {
-            let mut s = m[i * n + j];
-            for k in 0..j {
-                s -= l[i * n + k] * l[j * n + k];
-            }
-            if i == j {
-                if s.is_nan() || s <= 1e-13 * scale || !s.is_finite() {
-                    return None;
-                }
-                l[i * n + i] = s.sqrt();
-            } else {
-                l[i * n + j] = s / l[j * n + j];
-            }
-        }
-    }
-    // inv = L⁻ᵀ L⁻¹, column by column.
-    let mut inv = vec![0.0; n * n];
-    for col in 0..n {
-        let mut y = vec![0.0; n];
-        for i in 0..n {
-            let mut s = if i == col { 1.0 } else { 0.0 };
-            for k in 0..i {
-                s -= l[i * n + k] * y[k];
-            }
-            y[i] = s / l[i * n + i];
-        }
-        for i in (0..n).rev() {
-            let mut s = y[i];
-            for k in i + 1..n {
-                s -= l[k * n + i] * inv[k * n + col];
-            }
-            inv[i * n + col] = s / l[i * n + i];
-        }
-    }
-    Some(inv)
 }
