@@ -105,7 +105,7 @@ def report(out: Path, sim_id: str, state: str, u_limit: float, plot: bool = True
         metric=f"Frobenius norm of the (y, z) end-effector deviation after the first {SKIP} steps (SPEC)",
         steps=len(x) - 1,
         u_limit=u_limit,
-        errors={k: round(v, 6) for k, v in errors.items()},
+        errors=errors,
         rms_deviation_m=float(np.sqrt(np.mean(dev[SKIP:] ** 2))),
         max_deviation_m=float(dev[SKIP:].max()),
         saturated_fraction=round(float(np.mean(np.abs(u) >= u_limit - 1e-9)), 4),
