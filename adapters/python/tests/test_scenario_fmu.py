@@ -9,16 +9,11 @@ from __future__ import annotations
 import json
 import os
 import re
-import shutil
 import signal
 import subprocess
-import tempfile
 import threading
 import time
 import tomllib
-from pathlib import Path
-
-import pytest
 
 from conftest import ROOT, koopbridge_binary_or_skip
 

@@ -27,8 +27,8 @@ from typing import Any
 import numpy as np
 
 from .._native import InvalidInput, KoopbridgeError
-from ..serving import run_main
 from ..collect import Windows
+from ..serving import run_main
 from ..simulator import SimInfo
 from .drake_model import CONTINUOUS, EFFORT_LIMITS, JOINT_NAMES, POSITION_LIMITS, VELOCITY_LIMITS, build_gen3
 
