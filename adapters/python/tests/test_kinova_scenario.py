@@ -81,3 +81,30 @@ def test_tracking_errors_written_out():
     e = ks.tracking_errors(x, ref)
     assert e["rms_rad"] == pytest.approx(np.sqrt((0.09 + 0.16) / 21))
     assert e["final_rad"] == pytest.approx(0.4) and e["rms_per_joint_rad"][0] == pytest.approx(np.sqrt(0.25 / 3), abs=1e-6)
+
+
+def test_report_scores_the_closed_loop_against_feed_forward_and_lqr(tmp_path, planner):
+    """A "closed loop" that is the feed-forward run itself scores exactly as the feed-forward
+    baseline (same deterministic simulation); the report, its LQR run and kinova.png are written."""
+    import json
+
+    from koopbridge import KoopmanModel
+    from koopbridge.adapters.drake_sim import DrakeGen3Sim
+
+    ref = ks.plan_reference(handler(planner), [(1, np.array([0.3, 0.2, 0.0, 0.4, 0.0, 0.3, 0.0]))], 0.001, 0.05, np.zeros(7))
+    np.save(tmp_path / ks.REFERENCE, ref["x"])
+    np.save(tmp_path / ks.FEEDFORWARD, ref["ff"])
+    KoopmanModel.init(14, 7, hidden=[16], n_mult=2).save(tmp_path / "models" / "kinova-gen3")
+    sim = DrakeGen3Sim()
+    x = sim.reset(x0=ref["x"][0])
+    xs = [x] + [sim.step(u) for u in ref["ff"]]
+    entry = dict(sim="gen3", model="kinova-gen3", x=np.array(xs).tolist(), u=ref["ff"].tolist(), solve_median_us=1.0)
+    (tmp_path / "report.json").write_text(json.dumps(dict(control=entry, controls=[entry])))
+    assert ks.main(["report", "--out", str(tmp_path)]) == 0
+    rep = json.loads((tmp_path / "report.json").read_text())["kinova"]
+    c = rep["controllers"]
+    assert c["koopman-mpc"] == c["feed-forward"]
+    err = np.array(xs)[:, :7] - ref["x"][:, :7]
+    assert c["feed-forward"]["rms_rad"] == pytest.approx(np.sqrt(np.mean(err**2)), rel=1e-12)
+    assert np.isfinite(c["feed-forward+lqr"]["rms_rad"]) and rep["steps"] == len(ref["ff"])
+    assert (tmp_path / "kinova.png").read_bytes()[:4] == b"\x89PNG"
