@@ -16,12 +16,17 @@ import numpy as np
 from conftest import ROOT, koopbridge_binary_or_skip
 
 
-def _tiny(name: str, repo_tmp, **subs: int) -> str:
-    """The scenario ``name`` with the integer settings ``subs`` replaced, written into the repository."""
+def _tiny(name: str, repo_tmp, control_steps: int, **subs: int) -> str:
+    """The scenario ``name`` with the integer settings ``subs`` and the closed loop's steps
+    replaced, written into the repository."""
     text = (ROOT / "scenarios" / f"{name}.toml").read_text()
     for key, value in subs.items():
         text, n = re.subn(rf"^{key} = \d+", f"{key} = {value}", text, count=1, flags=re.M)
         assert n == 1, key
+    head, sep, tail = text.partition("reference_file =")
+    tail, n = re.subn(r"^steps = \d+", f"steps = {control_steps}", tail, count=1, flags=re.M)
+    assert sep and n == 1, "[control] steps"
+    text = head + sep + tail
     text = re.sub(r"iterations = \d+, validate_every = \d+", "iterations = 150, validate_every = 75", text, count=1)
     path = repo_tmp / f"{name}.toml"
     path.write_text(text)
@@ -38,7 +43,7 @@ def _run(exe, scenario: str, out) -> dict:
 
 def test_franka_figure8_scenario_tracks_better_than_zero_input(tmp_path, repo_tmp):
     exe = koopbridge_binary_or_skip()
-    sc = _tiny("franka-figure8", repo_tmp, train_windows=400, val_windows=64, test_windows=64, steps=600)
+    sc = _tiny("franka-figure8", repo_tmp, 600, train_windows=400, val_windows=64, test_windows=64)
     rep = _run(exe, sc, tmp_path / "out")
     e = rep["figure8"]["errors"]
     assert np.isfinite(e["koopman-mpc"]) and e["koopman-mpc"] < e["zero-input"], e
@@ -48,7 +53,7 @@ def test_franka_figure8_scenario_tracks_better_than_zero_input(tmp_path, repo_tm
 
 def test_kinova_drake_scenario_tracks_held_out_plans(tmp_path, repo_tmp):
     exe = koopbridge_binary_or_skip()
-    sc = _tiny("kinova-drake", repo_tmp, train_windows=400, val_windows=64, test_windows=64, steps=2500)
+    sc = _tiny("kinova-drake", repo_tmp, 2500, train_windows=400, val_windows=64, test_windows=64)
     sc_text = open(sc).read().replace("--goals 2", "--goals 1")
     open(sc, "w").write(sc_text)
     out = tmp_path / "out"
