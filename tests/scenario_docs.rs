@@ -79,6 +79,9 @@ fn every_setting_has_a_row() {
         "train_config",
         "\"uniform\"",
         "\"scripted\"",
+        "reference_file",
+        "phase",
+        "role",
     ] {
         assert!(row(key), "scenarios/README.md has no row for `{key}`");
     }

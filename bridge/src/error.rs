@@ -29,6 +29,8 @@ pub enum ErrorCode {
     /// The request names something this participant may not touch (e.g. a dataset path outside
     /// the trainer's data root); the message names no file.
     Forbidden,
+    /// A planner found no trajectory (the message names the pass and each solver's status).
+    Infeasible,
     /// An unexpected failure inside the service.
     Internal,
 }
@@ -170,5 +172,27 @@ impl Error {
             }
             other => ErrorReply::new(ErrorCode::Internal, other.to_string()),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_code_round_trips_through_its_snake_case_name() {
+        for (code, name) in [
+            (ErrorCode::Forbidden, "forbidden"),
+            (ErrorCode::Infeasible, "infeasible"),
+            (ErrorCode::SimFailure, "sim_failure"),
+        ] {
+            assert_eq!(code.to_string(), name);
+            let body = format!(r#"{{"code":"{name}","message":"m"}}"#);
+            assert_eq!(ErrorReply::from_json(body.as_bytes()).code, code);
+        }
+        // An unknown code is still an internal error quoting the body.
+        let r = ErrorReply::from_json(br#"{"code":"nope","message":"m"}"#);
+        assert_eq!(r.code, ErrorCode::Internal);
+        assert!(r.message.contains("nope"), "{}", r.message);
     }
 }

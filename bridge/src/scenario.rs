@@ -8,6 +8,10 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::keyexpr::validate_chunk;
 
+pub mod extras;
+
+pub use extras::{CommandLine, HookPhase, HookSpec, ParticipantRole, ParticipantSpec};
+
 /// A whole scenario.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -24,9 +28,16 @@ pub struct Scenario {
     /// Training (through the trainer service); absent = no training, no control.
     #[serde(default)]
     pub train: Option<TrainSpec>,
-    /// Closed-loop control (through the MPC service).
+    /// Closed-loop control (through the MPC service): one `[control]` table, or one
+    /// `[[control]]` entry per controlled simulator (all stepped in one lockstep loop).
+    #[serde(default, deserialize_with = "one_or_many")]
+    pub control: Vec<ControlSpec>,
+    /// Commands run at fixed phases of the run (`[[hooks]]`).
     #[serde(default)]
-    pub control: Option<ControlSpec>,
+    pub hooks: Vec<HookSpec>,
+    /// Extra participants started beside the simulators (`[[participants]]`).
+    #[serde(default)]
+    pub participants: Vec<ParticipantSpec>,
     /// Overrides applied with `koopbridge run --full` (the SPEC budget).
     #[serde(default)]
     pub full: Option<FullSpec>,
@@ -35,6 +46,19 @@ pub struct Scenario {
     /// ([`repository_of`]); `None` (parsed text) = the current folder. Not a TOML field.
     #[serde(skip)]
     pub base_dir: Option<PathBuf>,
+}
+
+/// `[control]` (one table) or `[[control]]` (an array of tables).
+fn one_or_many<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> std::result::Result<Vec<ControlSpec>, D::Error> {
+    // Read as a value first, then as the one or the other, so that the error names the field.
+    let v = toml::Value::deserialize(d)?;
+    match v {
+        toml::Value::Array(_) => Vec::<ControlSpec>::deserialize(v),
+        _ => ControlSpec::deserialize(v).map(|c| vec![c]),
+    }
+    .map_err(serde::de::Error::custom)
 }
 
 /// The repository a file belongs to: the nearest folder above it that holds `.git`, else the
@@ -128,14 +152,21 @@ pub struct TrainSpec {
     pub config: serde_json::Map<String, serde_json::Value>,
 }
 
-/// Closed-loop regulation of each simulator with the MPC service.
+/// Closed-loop control of one simulator with the MPC service.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ControlSpec {
     /// Initial state (`nx` values) of the controlled simulator.
     pub x0: Vec<f64>,
-    /// Reference state (`nx` values).
-    pub reference: Vec<f64>,
+    /// Reference state (`nx` values, or `horizon·nx`: the stacked x_1..x_H); exactly one of
+    /// `reference` and `reference_file`.
+    #[serde(default)]
+    pub reference: Option<Vec<f64>>,
+    /// A time-varying reference: a float64 `.npy` of shape (T, nx), row k the reference state
+    /// at step k (rows past the end repeat the last). May hold `{out}` (the run's output
+    /// folder); a relative path resolves in the scenario's repository.
+    #[serde(default)]
+    pub reference_file: Option<String>,
     /// Closed-loop steps.
     pub steps: usize,
     /// `koopman::mpc::MpcConfig` fields to override (JSON object).
@@ -214,12 +245,12 @@ impl Scenario {
                 ));
             }
         }
-        if let Some(ctrl) = &self.control {
-            if self.train.is_none() {
-                return Err(Error::Config(
-                    "[control] needs [train] (the model comes from training)".into(),
-                ));
-            }
+        if !self.control.is_empty() && self.train.is_none() {
+            return Err(Error::Config(
+                "[control] needs [train] (the model comes from training)".into(),
+            ));
+        }
+        for (i, ctrl) in self.control.iter().enumerate() {
             if let Some(id) = &ctrl.sim {
                 if !self.sims.iter().any(|s| &s.id == id) {
                     return Err(Error::Config(format!(
@@ -227,8 +258,39 @@ impl Scenario {
                     )));
                 }
             }
+            if ctrl.reference.is_some() == ctrl.reference_file.is_some() {
+                return Err(Error::Config(format!(
+                    "[control] for '{}' needs exactly one of `reference` and `reference_file`",
+                    self.controlled_id(ctrl)
+                )));
+            }
+            if self.control[..i]
+                .iter()
+                .any(|o| self.controlled_id(o) == self.controlled_id(ctrl))
+            {
+                return Err(Error::Config(format!(
+                    "simulator '{}' has two [[control]] entries (one per simulator; name each with `sim`)",
+                    self.controlled_id(ctrl)
+                )));
+            }
         }
+        extras::validate(&self.hooks, &self.participants)?;
         Ok(())
+    }
+
+    /// The index in `sims` of the simulator a control entry drives (`sim`, else the first).
+    pub fn controlled_index(&self, ctrl: &ControlSpec) -> usize {
+        ctrl.sim
+            .as_ref()
+            .and_then(|id| self.sims.iter().position(|s| &s.id == id))
+            .unwrap_or(0)
+    }
+
+    /// The id of the simulator a control entry drives.
+    pub fn controlled_id(&self, ctrl: &ControlSpec) -> &str {
+        self.sims
+            .get(self.controlled_index(ctrl))
+            .map_or("", |s| s.id.as_str())
     }
 
     /// Applies the `[full]` overrides.

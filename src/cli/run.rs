@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use bridge::orchestrator::{run_scenario, Event, RunOptions};
+use bridge::orchestrator::{run_scenario_with, Event, RunExtras, RunOptions};
 use bridge::scenario::Scenario;
 
 /// Arguments of `koopbridge run`.
@@ -43,6 +43,17 @@ pub struct RunArgs {
     /// Seconds to wait for every participant to be ready.
     #[arg(long, default_value_t = 60.0)]
     pub ready_timeout: f64,
+    /// After the control loop of all controlled simulators, run each of them alone in the same
+    /// loop and report the loop's slowdown against the slowest one alone
+    /// (`control_loop.slowdown_vs_slowest_alone` in report.json).
+    #[arg(long)]
+    pub loop_baseline: bool,
+    /// On-policy aggregation: after the first control run, ROUNDS times retrain every
+    /// controlled simulator's model on the collected data plus the closed-loop rollouts the
+    /// recorder recorded so far, and control again (`aggregation` in report.json, plot
+    /// aggregation.png).
+    #[arg(long, value_name = "ROUNDS", default_value_t = 0)]
+    pub aggregate: usize,
     #[command(flatten)]
     pub zenoh: super::ZenohArgs,
 }
@@ -74,7 +85,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     let mut last_phase = String::new();
-    let report = run_scenario(&sc, &opts, &mut |e| match e {
+    let extras = RunExtras {
+        loop_baseline: args.loop_baseline,
+        aggregate: args.aggregate,
+    };
+    let report = run_scenario_with(&sc, &opts, &extras, &mut |e| match e {
         Event::Phase(p) => {
             if bar.is_hidden() {
                 eprintln!("== {p}");
@@ -109,7 +124,6 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     })?;
     bar.finish_and_clear();
     let path = out_dir.join("report.json");
-    bridge::fsutil::write_atomic(&path, &serde_json::to_vec_pretty(&report)?)?;
     println!(
         "scenario '{}' done in {:.1} s (session {})",
         report.scenario, report.wall_seconds, report.session
@@ -138,20 +152,62 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             t.metrics
         );
     }
-    if let Some(c) = &report.control {
-        let png = out_dir.join("control.png");
+    let several = report.controls.len() > 1;
+    for (i, c) in report.controls.iter().enumerate() {
+        // The first entry's plot keeps the name of a one-simulator run.
+        let png = if i == 0 {
+            out_dir.join("control.png")
+        } else {
+            out_dir.join(format!("control-{}.png", c.sim))
+        };
         match plot_control(c, &png) {
             Ok(()) => println!("  plot: {}", png.display()),
             Err(e) => eprintln!("warning: could not draw {}: {e:#}", png.display()),
         }
         println!(
-            "  control of '{}': final error {:.4}, time to goal {}, solve median {:.0} µs, round trip median {:.0} µs",
+            "  control of '{}': final error {:.4}, tracking RMS {:.4}, time to goal {}, solve median {:.0} µs, round trip median {:.0} µs",
             c.sim,
             c.final_error,
+            c.tracking_rms_total,
             time_to_goal(c.time_to_goal_steps),
             c.solve_median_us,
             c.solve_round_trip_median_us
         );
+    }
+    if let (true, Some(l)) = (several, &report.control_loop) {
+        println!(
+            "  control loop of {:?}: {} macro steps at {:.0} macro steps/s (median {:.0} µs){}",
+            l.sims,
+            l.macro_steps,
+            l.macro_steps_per_second,
+            l.macro_step_median_us,
+            l.slowdown_vs_slowest_alone
+                .map_or(String::new(), |r| format!(
+                    ", {r:.2}x the slowest simulator alone"
+                ))
+        );
+    }
+    if !report.aggregation.is_empty() {
+        for r in &report.aggregation {
+            for a in &r.sims {
+                println!(
+                    "  aggregation round {} '{}': {} training windows ({} recorded), tracking RMS {:.4} -> {:.4}, final error {:.4} -> {:.4}",
+                    r.round,
+                    a.sim,
+                    a.train_windows,
+                    a.recorded.windows,
+                    a.error_before,
+                    a.error_after,
+                    a.final_error_before,
+                    a.final_error_after
+                );
+            }
+        }
+        let png = out_dir.join("aggregation.png");
+        match plot_aggregation(&report.aggregation, &png) {
+            Ok(()) => println!("  plot: {}", png.display()),
+            Err(e) => eprintln!("warning: could not draw {}: {e:#}", png.display()),
+        }
     }
     println!("  report: {}", path.display());
     Ok(())
@@ -172,7 +228,10 @@ fn plot_control(
     let mut panels = Vec::new();
     for (i, name) in c.state_names.iter().enumerate() {
         let y: Vec<f64> = c.x.iter().map(|x| x[i]).collect();
-        let r = vec![c.reference.get(i).copied().unwrap_or(f64::NAN); t.len()];
+        let r: Vec<f64> = match &c.reference_trajectory {
+            Some(rows) => rows.iter().map(|r| r[i]).collect(),
+            None => vec![c.reference.get(i).copied().unwrap_or(f64::NAN); t.len()],
+        };
         panels.push(Panel {
             title: name.clone(),
             y_label: name.clone(),
@@ -180,6 +239,13 @@ fn plot_control(
                 Series::new(name.clone(), &t, &y),
                 Series::new("reference", &t, &r).dashed(),
             ],
+        });
+    }
+    if c.error.len() == t.len() {
+        panels.push(Panel {
+            title: "error ‖x − r‖ (angles wrapped)".into(),
+            y_label: "error".into(),
+            series: vec![Series::new("error", &t, &c.error)],
         });
     }
     for (j, name) in c.input_names.iter().enumerate() {
@@ -197,6 +263,39 @@ fn plot_control(
         &panels,
         900,
     )
+}
+
+/// Tracking RMS and final error of every controlled simulator against the aggregation round
+/// (round 0: the model trained on the collected data only).
+fn plot_aggregation(
+    rounds: &[bridge::orchestrator::aggregate::AggregationRound],
+    path: &std::path::Path,
+) -> anyhow::Result<()> {
+    use crate::plot::{time_series_png, Panel, Series};
+    let Some(first) = rounds.first() else {
+        anyhow::bail!("no rounds");
+    };
+    let t: Vec<f64> = (0..=rounds.len()).map(|r| r as f64).collect();
+    let mut panels = Vec::new();
+    for (j, s) in first.sims.iter().enumerate() {
+        let pick = |f: &dyn Fn(&bridge::orchestrator::aggregate::AggregatedSim) -> f64,
+                    before: f64| {
+            std::iter::once(before)
+                .chain(rounds.iter().map(|r| f(&r.sims[j])))
+                .collect::<Vec<f64>>()
+        };
+        let rms = pick(&|a| a.error_after, s.error_before);
+        let fin = pick(&|a| a.final_error_after, s.final_error_before);
+        panels.push(Panel {
+            title: format!("{}: error against the aggregation round", s.sim),
+            y_label: "error".into(),
+            series: vec![
+                Series::new("tracking RMS", &t, &rms),
+                Series::new("final error", &t, &fin).dashed(),
+            ],
+        });
+    }
+    time_series_png(path, "on-policy aggregation", "round", &panels, 900)
 }
 
 #[cfg(test)]

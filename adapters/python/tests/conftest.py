@@ -167,3 +167,18 @@ class Child:
             self.p.kill()
         self.p.wait(timeout=10)
         self.f.close()
+
+
+@pytest.fixture
+def repo_tmp():
+    """A temporary folder inside the repository (under target/, which git ignores): a scenario
+    file written there has the repository as its base, so its relative paths and ``{python}``
+    (the repository's venv) resolve as for the real scenario files."""
+    import shutil
+    import tempfile
+
+    base = ROOT / "target"
+    base.mkdir(exist_ok=True)
+    d = Path(tempfile.mkdtemp(prefix="pytest-scenario-", dir=base))
+    yield d
+    shutil.rmtree(d, ignore_errors=True)

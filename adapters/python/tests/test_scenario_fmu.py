@@ -9,32 +9,15 @@ from __future__ import annotations
 import json
 import os
 import re
-import shutil
 import signal
 import subprocess
-import tempfile
 import threading
 import time
 import tomllib
-from pathlib import Path
-
-import pytest
 
 from conftest import ROOT, koopbridge_binary_or_skip
 
 SCENARIO = ROOT / "scenarios" / "damped-pendulum-fmu.toml"
-
-
-@pytest.fixture
-def repo_tmp():
-    """A temporary folder inside the repository (under target/, which git ignores): a scenario
-    file written there has the repository as its base, so its relative FMU path and ``{python}``
-    (the repository's venv) resolve as for the real scenario file."""
-    base = ROOT / "target"
-    base.mkdir(exist_ok=True)
-    d = Path(tempfile.mkdtemp(prefix="pytest-scenario-", dir=base))
-    yield d
-    shutil.rmtree(d, ignore_errors=True)
 
 
 def test_scenario_file_is_consistent():

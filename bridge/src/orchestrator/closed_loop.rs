@@ -1,16 +1,18 @@
-//! Lockstep closed-loop regulation of one simulator by the MPC service: reset to `x0`, then
-//! solve → apply the first input → step, with the SPEC metrics of `koopman::mpc::metrics`.
+//! Lockstep closed-loop control of one simulator by the MPC service: reset to `x0`, then
+//! solve → apply the first input → step, with the SPEC metrics of `koopman::mpc::metrics`
+//! ([`ControlRun`] is one simulator's loop, driven step by step by [`super::control_loop`]).
 
 use std::time::{Duration, Instant};
 
 use koopman::mpc::metrics::{final_error, quantile, time_to_goal, wrapped_error, GoalSpec};
 use serde::{Deserialize, Serialize};
 
+use super::reference::Reference;
 use crate::client::{Client, Liveliness, SimClient};
-use crate::codec::{SolveReply, SolveRequest, SolveStatus};
+use crate::codec::{SolveReply, SolveRequest, SolveStatus, StateMsg};
 use crate::error::{Error, ErrorCode, Result};
-use crate::keyexpr::Role;
-use crate::messages::ResetRequest;
+use crate::keyexpr::{Role, SimLeaf};
+use crate::messages::{ResetRequest, SimInfo};
 
 /// Closed-loop control result.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -25,8 +27,12 @@ pub struct ControlReport {
     pub input_names: Vec<String>,
     /// Sampling period.
     pub dt: f64,
-    /// Reference state.
+    /// Reference state (a fixed reference: as given; a trajectory: its first row).
     pub reference: Vec<f64>,
+    /// The reference state at each step 0..=T (a trajectory from `reference_file`); absent for
+    /// a fixed reference.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference_trajectory: Option<Vec<Vec<f64>>>,
     /// States x_0..x_T.
     pub x: Vec<Vec<f64>>,
     /// Inputs u_0..u_{T-1}.
@@ -36,15 +42,27 @@ pub struct ControlReport {
     /// First step from which the state stays within the SPEC goal ([`GoalSpec::default`]:
     /// 0.05 for angles, 0.1 for the others) of the reference for 50 steps; `None` if never.
     pub time_to_goal_steps: Option<usize>,
+    /// Error norm ‖x_k − r_k‖ (angles wrapped) at each step 0..=T.
+    #[serde(default)]
+    pub error: Vec<f64>,
+    /// Tracking RMS per state over steps 0..=T (angles wrapped).
+    #[serde(default)]
+    pub tracking_rms: Vec<f64>,
+    /// Tracking RMS over every state and step.
+    #[serde(default)]
+    pub tracking_rms_total: f64,
     /// Median solve time inside the service in µs.
     pub solve_median_us: f64,
     /// Median solve round trip (query to reply) in µs.
     pub solve_round_trip_median_us: f64,
+    /// Median step round trip (query to reply) in µs.
+    #[serde(default)]
+    pub step_round_trip_median_us: f64,
     /// Solves whose status was not `solved`.
     pub not_solved: usize,
 }
 
-/// A closed-loop regulation task for the MPC service.
+/// A closed-loop control task for the MPC service.
 #[derive(Clone, Debug)]
 pub struct ControlTask<'a> {
     /// MPC service id.
@@ -53,13 +71,179 @@ pub struct ControlTask<'a> {
     pub model: &'a str,
     /// Initial state.
     pub x0: &'a [f64],
-    /// Reference state.
-    pub reference: &'a [f64],
+    /// What to track.
+    pub reference: &'a Reference,
+    /// The MPC horizon H (the window of a trajectory reference has H rows).
+    pub horizon: usize,
     /// Closed-loop steps.
     pub steps: usize,
+    /// Publish every executed state on the simulator's `state` key (`StateMsg`, as a free-run
+    /// adapter does), so that a recorder can record the closed loop.
+    pub publish: bool,
 }
 
-/// Closed-loop regulation of `sim` by the MPC service (lockstep): reset to `x0`, then `steps`
+/// One simulator's closed loop in progress.
+pub struct ControlRun<'a> {
+    sim: &'a mut SimClient,
+    task: ControlTask<'a>,
+    info: SimInfo,
+    key: String,
+    who: String,
+    xs: Vec<Vec<f64>>,
+    us: Vec<Vec<f64>>,
+    solve_us: Vec<f64>,
+    rt_us: Vec<f64>,
+    step_us: Vec<f64>,
+    not_solved: usize,
+    publisher: Option<zenoh::pubsub::Publisher<'static>>,
+}
+
+impl<'a> ControlRun<'a> {
+    /// Resets `sim` to the task's `x0` (and declares the state publisher when asked).
+    pub fn start(client: &Client, sim: &'a mut SimClient, task: ControlTask<'a>) -> Result<Self> {
+        let info = sim.info.sim.clone();
+        let first = sim.reset(&ResetRequest {
+            seed: None,
+            x0: Some(task.x0.to_vec()),
+        })?;
+        let publisher = if task.publish {
+            use zenoh::Wait;
+            Some(
+                client
+                    .session
+                    .declare_publisher(client.keys.sim(&sim.id, SimLeaf::State)?)
+                    .congestion_control(zenoh::qos::CongestionControl::Block)
+                    .wait()
+                    .map_err(Error::zenoh)?,
+            )
+        } else {
+            None
+        };
+        let mut run = ControlRun {
+            key: client.keys.mpc_solve(task.mpc_id)?,
+            who: format!("MPC service '{}'", task.mpc_id),
+            sim,
+            task,
+            info,
+            xs: vec![first.x],
+            us: Vec::new(),
+            solve_us: Vec::new(),
+            rt_us: Vec::new(),
+            step_us: Vec::new(),
+            not_solved: 0,
+            publisher,
+        };
+        run.publish(first.k, first.t, &[])?;
+        Ok(run)
+    }
+
+    /// The simulator's id.
+    pub fn sim_id(&self) -> &str {
+        &self.sim.id
+    }
+
+    /// Steps this loop has still to make.
+    pub fn remaining(&self) -> usize {
+        self.task.steps.saturating_sub(self.us.len())
+    }
+
+    fn publish(&self, k: u64, t: f64, u: &[f64]) -> Result<()> {
+        if let Some(p) = &self.publisher {
+            use zenoh::Wait;
+            let m = StateMsg {
+                seq: self.xs.len() as u64 - 1,
+                k,
+                t,
+                x: self.xs[self.xs.len() - 1].clone(),
+                u: u.to_vec(),
+            };
+            p.put(m.encode()).wait().map_err(Error::zenoh)?;
+        }
+        Ok(())
+    }
+
+    /// One step: solve at the current state (the reference window of this step), apply the
+    /// first input, step the simulator.
+    pub fn step(&mut self, client: &Client, live: &Liveliness) -> Result<()> {
+        let k = self.us.len();
+        let req = SolveRequest {
+            model: self.task.model.to_string(),
+            x: self.xs[k].clone(),
+            reference: self.task.reference.window(k, self.task.horizon),
+        };
+        let t = Instant::now();
+        let p = client.start(&self.key, req.encode(), Duration::from_secs(10), &self.who)?;
+        let b = p.wait(Some((live, Role::Mpc, self.task.mpc_id)))?;
+        self.rt_us.push(t.elapsed().as_secs_f64() * 1e6);
+        let r = SolveReply::decode(&b)?;
+        let nu = self.info.nu();
+        if r.u.len() < nu {
+            return Err(Error::protocol(
+                ErrorCode::Dimension,
+                format!("{} returned {} inputs", self.who, r.u.len()),
+            ));
+        }
+        self.solve_us.push(r.solve_time_ns as f64 / 1e3);
+        if r.status != SolveStatus::Solved {
+            self.not_solved += 1;
+        }
+        let u = r.u[..nu].to_vec();
+        let t = Instant::now();
+        let next = self.sim.step(&u, Some(live))?;
+        self.step_us.push(t.elapsed().as_secs_f64() * 1e6);
+        self.xs.push(next.x);
+        self.publish(next.k, next.t, &u)?;
+        self.us.push(u);
+        Ok(())
+    }
+
+    /// The report of the finished loop.
+    pub fn finish(self) -> ControlReport {
+        let info = &self.info;
+        let nx = info.nx();
+        let r = self.task.reference;
+        let refs: Vec<Vec<f64>> = (0..self.xs.len()).map(|k| r.at(k, nx)).collect();
+        let errs: Vec<Vec<f64>> = self
+            .xs
+            .iter()
+            .zip(&refs)
+            .map(|(x, rk)| wrapped_error(x, rk, &info.angle_indices))
+            .collect();
+        let norm = |e: &Vec<f64>| e.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let n = errs.len().max(1) as f64;
+        let tracking_rms: Vec<f64> = (0..nx)
+            .map(|i| {
+                let sq: f64 = errs.iter().filter_map(|e| e.get(i)).map(|v| v * v).sum();
+                (sq / n).sqrt()
+            })
+            .collect();
+        ControlReport {
+            sim: self.sim.id.clone(),
+            model: self.task.model.to_string(),
+            state_names: info.state_names.clone(),
+            input_names: info.input_names.clone(),
+            dt: info.dt,
+            reference: match r {
+                Reference::Fixed(v) => v.clone(),
+                Reference::Trajectory(_) => refs[0].clone(),
+            },
+            reference_trajectory: r.rows().map(|_| refs.clone()),
+            final_error: final_error(&errs),
+            time_to_goal_steps: time_to_goal(&errs, &info.angle_indices, &GoalSpec::default()),
+            error: errs.iter().map(norm).collect(),
+            tracking_rms_total: koopman::mpc::metrics::rms(&errs),
+            tracking_rms,
+            solve_median_us: quantile(&self.solve_us, 0.5),
+            solve_round_trip_median_us: quantile(&self.rt_us, 0.5),
+            step_round_trip_median_us: quantile(&self.step_us, 0.5),
+            not_solved: self.not_solved,
+            x: self.xs,
+            u: self.us,
+        }
+    }
+}
+
+/// Closed-loop control of `sim` by the MPC service (lockstep): reset to `x0`, then `steps`
 /// times solve → apply the first input → step.
 pub fn closed_loop(
     client: &Client,
@@ -68,67 +252,11 @@ pub fn closed_loop(
     task: &ControlTask<'_>,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<ControlReport> {
-    let ControlTask {
-        mpc_id,
-        model,
-        x0,
-        reference,
-        steps,
-    } = *task;
-    let info = sim.info.sim.clone();
-    let first = sim.reset(&ResetRequest {
-        seed: None,
-        x0: Some(x0.to_vec()),
-    })?;
-    let key = client.keys.mpc_solve(mpc_id)?;
-    let who = format!("MPC service '{mpc_id}'");
-    let mut xs = vec![first.x];
-    let mut us = Vec::new();
-    let (mut solve_us, mut rt_us, mut not_solved) = (Vec::new(), Vec::new(), 0);
+    let steps = task.steps;
+    let mut run = ControlRun::start(client, sim, task.clone())?;
     for k in 0..steps {
-        let req = SolveRequest {
-            model: model.to_string(),
-            x: xs[k].clone(),
-            reference: reference.to_vec(),
-        };
-        let t = Instant::now();
-        let p = client.start(&key, req.encode(), Duration::from_secs(10), &who)?;
-        let b = p.wait(Some((live, Role::Mpc, mpc_id)))?;
-        rt_us.push(t.elapsed().as_secs_f64() * 1e6);
-        let r = SolveReply::decode(&b)?;
-        if r.u.len() < info.nu() {
-            return Err(Error::protocol(
-                ErrorCode::Dimension,
-                format!("{who} returned {} inputs", r.u.len()),
-            ));
-        }
-        solve_us.push(r.solve_time_ns as f64 / 1e3);
-        if r.status != SolveStatus::Solved {
-            not_solved += 1;
-        }
-        let u = r.u[..info.nu()].to_vec();
-        let next = sim.step(&u, Some(live))?;
-        xs.push(next.x);
-        us.push(u);
+        run.step(client, live)?;
         progress(k + 1, steps);
     }
-    let errs: Vec<Vec<f64>> = xs
-        .iter()
-        .map(|x| wrapped_error(x, reference, &info.angle_indices))
-        .collect();
-    Ok(ControlReport {
-        sim: sim.id.clone(),
-        model: model.to_string(),
-        state_names: info.state_names.clone(),
-        input_names: info.input_names.clone(),
-        dt: info.dt,
-        reference: reference.to_vec(),
-        x: xs,
-        u: us,
-        final_error: final_error(&errs),
-        time_to_goal_steps: time_to_goal(&errs, &info.angle_indices, &GoalSpec::default()),
-        solve_median_us: quantile(&solve_us, 0.5),
-        solve_round_trip_median_us: quantile(&rt_us, 0.5),
-        not_solved,
-    })
+    Ok(run.finish())
 }

@@ -4,12 +4,13 @@
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
+use super::commands::Placeholders;
 use super::{RunOptions, SERVICES_ID};
 use crate::client::{Client, Liveliness};
 use crate::error::{Error, Result};
 use crate::keyexpr::{Keys, Role};
 use crate::procs::ChildProc;
-use crate::scenario::SimSpec;
+use crate::scenario::{CommandLine, ParticipantSpec, SimSpec};
 use crate::services::Service;
 use crate::session::{free_loopback_endpoint, open_session, ZenohOptions};
 
@@ -144,6 +145,20 @@ impl Cluster {
         services: &[Service],
         base: Option<&Path>,
     ) -> Result<Self> {
+        Self::launch_with(opts, session_id, sims, &[], services, base)
+    }
+
+    /// Like [`Cluster::launch_in`], with extra participants (`[[participants]]`, started like
+    /// command simulators and awaited by their liveliness tokens). Commands may hold the
+    /// placeholders of [`Placeholders`].
+    pub fn launch_with(
+        opts: &RunOptions,
+        session_id: &str,
+        sims: &[SimSpec],
+        participants: &[ParticipantSpec],
+        services: &[Service],
+        base: Option<&Path>,
+    ) -> Result<Self> {
         let keys = Keys::new(session_id)?;
         let mut z = opts.zenoh.clone();
         let endpoint = match z.listen.first() {
@@ -158,6 +173,7 @@ impl Cluster {
         let client = Client::new(session, keys);
         let live = Liveliness::new(&client)?;
         let mut who: Vec<(Role, String)> = sims.iter().map(|s| (Role::Sim, s.id.clone())).collect();
+        who.extend(participants.iter().map(|p| (p.role.role(), p.id.clone())));
         who.extend(services.iter().map(|s| (s.role(), SERVICES_ID.to_string())));
         let existing = already_present(&live, &who, &opts.zenoh);
         if !existing.is_empty() && !opts.attach_existing {
@@ -189,26 +205,40 @@ impl Cluster {
         let base = absolute(base.unwrap_or(Path::new(".")))?;
         let mut children = Vec::new();
         let logs = absolute(&opts.out_dir.join("logs"))?;
+        let ph = Placeholders::new(&base, &absolute(&opts.out_dir)?, session_id, &endpoint);
+        let tail_of = |id: &str| {
+            let mut t: Vec<String> = ["--id", id, "--session", session_id, "--stdin-lifeline"]
+                .map(String::from)
+                .to_vec();
+            t.extend(child_zenoh.iter().cloned());
+            t
+        };
+        for p in participants
+            .iter()
+            .filter(|p| missing(p.role.role(), &p.id))
+        {
+            let role = p.role.role().as_str();
+            let name = format!("participant {role}/{}", p.id);
+            let log = logs.join(format!("{role}-{}.log", p.id));
+            let (program, a) = ph.program(&p.command, &tail_of(&p.id), true);
+            children.push(ChildProc::spawn_in(&name, &program, &a, &base, &log)?);
+        }
         for spec in sims.iter().filter(|s| missing(Role::Sim, &s.id)) {
             let id = &spec.id;
             let name = format!("simulator '{id}'");
             let log = logs.join(format!("sim-{id}.log"));
-            let tail = ["--id", id, "--session", session_id, "--stdin-lifeline"].map(String::from);
             let child = match &spec.command {
                 Some(cmd) => {
-                    let Some((first, rest)) = cmd.split_first() else {
+                    if cmd.is_empty() {
                         return Err(Error::Config(format!("{name}: empty command")));
-                    };
-                    let mut a = rest.to_vec();
-                    a.extend(tail);
-                    a.extend(child_zenoh.iter().cloned());
-                    let program = external_program(first, &base);
+                    }
+                    let (program, a) =
+                        ph.program(&CommandLine::Argv(cmd.clone()), &tail_of(id), false);
                     ChildProc::spawn_in(&name, &program, &a, &base, &log)?
                 }
                 None => {
                     let mut a: Vec<String> = vec!["sim".into(), "--env".into(), spec.env.clone()];
-                    a.extend(tail);
-                    a.extend(child_zenoh.iter().cloned());
+                    a.extend(tail_of(id));
                     ChildProc::spawn(&name, &opts.exe, &a, &log)?
                 }
             };

@@ -3,13 +3,24 @@
 //! closes the loop through the MPC service; returns a report.
 //!
 //! - [`cluster`]: the child processes and the orchestrator's own session ([`Cluster`]);
-//! - [`closed_loop`]: lockstep regulation through the MPC service ([`closed_loop()`]);
+//! - [`closed_loop`]: one simulator's lockstep closed loop through the MPC service
+//!   ([`closed_loop()`], [`closed_loop::ControlRun`]);
+//! - [`control_loop`]: several controlled simulators in one lockstep loop, concurrently;
+//! - [`control`]: the control phase of a run (models configured, references read, the loop);
+//! - [`reference`]: fixed and time-varying (`reference_file`) references and their windows;
+//! - [`commands`]: command placeholders and `[[hooks]]`;
+//! - [`aggregate`]: on-policy aggregation rounds (`--aggregate`);
 //! - [`validate`]: the whole scenario checked against the simulators' `info` before collection;
 //! - [`reuse`]: a rerun into the same folder reuses unchanged data and models;
 //! - [`run`]: the whole scenario ([`run_scenario`]) and its report.
 
+pub mod aggregate;
 pub mod closed_loop;
 pub mod cluster;
+pub mod commands;
+pub mod control;
+pub mod control_loop;
+pub mod reference;
 pub mod reuse;
 pub mod run;
 pub mod validate;
@@ -21,7 +32,9 @@ use crate::session::ZenohOptions;
 
 pub use closed_loop::{closed_loop, ControlReport, ControlTask};
 pub use cluster::Cluster;
-pub use run::{run_scenario, CollectReport, Report, TrainReport};
+pub use control_loop::{control_loop, LoopReport};
+pub use reference::Reference;
+pub use run::{run_scenario, run_scenario_with, CollectReport, Report, RunExtras, TrainReport};
 
 /// Id of the services process started by the orchestrator.
 pub const SERVICES_ID: &str = "main";

@@ -2,21 +2,24 @@
 //! regulate through the MPC service, and the report of it all.
 
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use koopman::data::Dataset;
 use serde::{Deserialize, Serialize};
 
+use super::aggregate::{self, AggregationRound};
+use super::commands::{run_hooks, Placeholders};
+use super::control::{control_phase, ControlPhase};
+use super::control_loop::LoopReport;
 use super::reuse;
-use super::validate::{controlled_sim, mpc_config, validate_scenario};
-use super::{closed_loop, Cluster, ControlReport, ControlTask, Event, RunOptions, SERVICES_ID};
+use super::validate::validate_scenario;
+use super::{Cluster, ControlReport, Event, RunOptions, SERVICES_ID};
 use crate::client::SimClient;
 use crate::collect::{collect, CollectJob, Split};
 use crate::error::{Error, ErrorCode, Result};
 use crate::keyexpr::{fresh_session_id, Role};
 use crate::messages::SimInfo;
-use crate::scenario::Scenario;
-use crate::services::mpc::{configure, ConfigureRequest};
+use crate::scenario::{HookPhase, Scenario};
 use crate::services::trainer::{submit_and_wait_watching, DatasetRef, JobSpec};
 use crate::services::Service;
 
@@ -31,8 +34,18 @@ pub struct Report {
     pub collect: CollectReport,
     /// Training results, one per simulator.
     pub train: Vec<TrainReport>,
-    /// Closed-loop control result.
+    /// Closed-loop control result of the first `[control]` entry (as `controls[0]`).
     pub control: Option<ControlReport>,
+    /// Closed-loop control results, one per `[control]` entry (in order).
+    #[serde(default)]
+    pub controls: Vec<ControlReport>,
+    /// The figures of the control loop (all controlled simulators in one lockstep loop).
+    #[serde(default)]
+    pub control_loop: Option<LoopReport>,
+    /// On-policy aggregation rounds (`koopbridge run --aggregate ROUNDS`): per round and
+    /// controlled simulator, the error before and after retraining on the rollouts.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub aggregation: Vec<AggregationRound>,
     /// Total wall time in seconds.
     pub wall_seconds: f64,
 }
@@ -82,34 +95,87 @@ fn save(d: &Dataset, p: &Path) -> Result<PathBuf> {
 }
 
 /// The services a scenario needs.
-fn services_of(sc: &Scenario) -> Vec<Service> {
+fn services_of(sc: &Scenario, extras: &RunExtras) -> Vec<Service> {
     let mut services = Vec::new();
     if sc.train.is_some() {
         services.extend([Service::Trainer, Service::Models]);
     }
-    if sc.control.is_some() {
+    if !sc.control.is_empty() {
         services.push(Service::Mpc);
     }
+    if extras.aggregate > 0 {
+        services.push(Service::Recorder);
+    }
     services
+}
+
+/// Options of a run beyond [`RunOptions`] (`koopbridge run` flags).
+#[derive(Clone, Debug, Default)]
+pub struct RunExtras {
+    /// Also run each controlled simulator alone in the control loop, for the loop's slowdown
+    /// figure ([`LoopReport::slowdown_vs_slowest_alone`]).
+    pub loop_baseline: bool,
+    /// On-policy aggregation rounds after the first control run ([`super::aggregate`]); 0 =
+    /// none.
+    pub aggregate: usize,
+}
+
+/// The placeholders of a run's commands.
+fn placeholders(
+    sc: &Scenario,
+    opts: &RunOptions,
+    session: &str,
+    endpoint: &str,
+) -> Result<Placeholders> {
+    let abs = |p: &Path| {
+        std::path::absolute(p).map_err(|e| Error::Io {
+            path: p.to_path_buf(),
+            source: e,
+        })
+    };
+    let base = abs(sc.base_dir.as_deref().unwrap_or(Path::new(".")))?;
+    Ok(Placeholders::new(
+        &base,
+        &abs(&opts.out_dir)?,
+        session,
+        endpoint,
+    ))
 }
 
 /// Runs a whole scenario. `on` receives progress events. Right after the readiness barrier the
 /// whole scenario is checked against the simulators' `info` ([`validate_scenario`]); data and
 /// models a previous run left in the output folder are reused when their sections are
-/// unchanged ([`super::reuse`]).
+/// unchanged ([`super::reuse`]). Writes `report.json` into the output folder (before the
+/// `after-control` hooks run).
 pub fn run_scenario(
     sc: &Scenario,
     opts: &RunOptions,
     on: &mut dyn FnMut(Event<'_>),
 ) -> Result<Report> {
+    run_scenario_with(sc, opts, &RunExtras::default(), on)
+}
+
+/// [`run_scenario`] with the extra options.
+pub fn run_scenario_with(
+    sc: &Scenario,
+    opts: &RunOptions,
+    extras: &RunExtras,
+    on: &mut dyn FnMut(Event<'_>),
+) -> Result<Report> {
     let t0 = Instant::now();
+    if extras.aggregate > 0 && sc.control.is_empty() {
+        return Err(Error::Config(
+            "--aggregate needs [train] and [control] (it retrains on closed-loop rollouts)".into(),
+        ));
+    }
     let session_id = opts.session.clone().unwrap_or_else(fresh_session_id);
     on(Event::Phase("starting simulators and services"));
-    let cluster = Cluster::launch_in(
+    let cluster = Cluster::launch_with(
         opts,
         &session_id,
         &sc.sims,
-        &services_of(sc),
+        &sc.participants,
+        &services_of(sc, extras),
         sc.base_dir.as_deref(),
     )?;
     if !cluster.existing.is_empty() {
@@ -126,6 +192,11 @@ pub fn run_scenario(
     let infos: Vec<&SimInfo> = clients.iter().map(|c| &c.info.sim).collect();
     validate_scenario(sc, &infos)?;
     let collect_key = reuse::collect_key(sc, &infos);
+    let ph = placeholders(sc, opts, &session_id, &cluster.endpoint)?;
+    let hooks = |phase: HookPhase, on: &mut dyn FnMut(Event<'_>)| {
+        run_hooks(&sc.hooks, phase, &ph, &mut |m| on(Event::Phase(m)))
+    };
+    hooks(HookPhase::BeforeCollect, on)?;
 
     let collect_report = collect_phase(sc, opts, &cluster, &mut clients, &collect_key, on)?;
     let mut train_reports = Vec::new();
@@ -137,40 +208,60 @@ pub fn run_scenario(
         }
     }
 
-    let mut control = None;
-    if let Some(ctrl) = &sc.control {
+    hooks(HookPhase::BeforeControl, on)?;
+    let (mut controls, mut control_loop, mut aggregation) = (Vec::new(), None, Vec::new());
+    if !sc.control.is_empty() {
         on(Event::Phase("closed-loop control (MPC service)"));
-        let j = controlled_sim(sc, ctrl);
-        let model = format!("{}-{}", sc.name, sc.sims[j].id);
-        let req = ConfigureRequest {
-            model: model.clone(),
-            mpc: Some(mpc_config(&clients[j].info.sim, &ctrl.mpc)?),
-        };
-        let client = &cluster.client;
-        configure(client, SERVICES_ID, &req, Duration::from_secs(60))?;
-        control = Some(closed_loop(
-            client,
+        let record = extras.aggregate > 0;
+        if record {
+            aggregate::start_recording(sc, &cluster)?;
+        }
+        let model_of = |id: &str| aggregate::model_name(sc, id, 0);
+        let (c, l) = control_phase(
+            sc,
+            &cluster.client,
             &cluster.live,
-            &mut clients[j],
-            &ControlTask {
-                mpc_id: SERVICES_ID,
-                model: &model,
-                x0: &ctrl.x0,
-                reference: &ctrl.reference,
-                steps: ctrl.steps,
+            &mut clients,
+            &ph,
+            &ControlPhase {
+                model_of: &model_of,
+                publish: record,
+                baseline: extras.loop_baseline,
             },
-            &mut |k, n| on(Event::Control(k, n)),
-        )?);
+            on,
+        )?;
+        if record {
+            aggregation = aggregate::aggregate(
+                sc,
+                opts,
+                &cluster,
+                &mut clients,
+                &ph,
+                &c,
+                extras.aggregate,
+                on,
+            )?;
+        }
+        controls = c;
+        control_loop = Some(l);
     }
-    drop(cluster);
-    Ok(Report {
+    let report = Report {
         scenario: sc.name.clone(),
         session: session_id,
         collect: collect_report,
         train: train_reports,
-        control,
+        control: controls.first().cloned(),
+        controls,
+        control_loop,
+        aggregation,
         wall_seconds: t0.elapsed().as_secs_f64(),
-    })
+    };
+    let path = opts.out_dir.join("report.json");
+    let bytes = serde_json::to_vec_pretty(&report).map_err(|e| Error::Config(e.to_string()))?;
+    crate::fsutil::write_atomic(&path, &bytes)?;
+    hooks(HookPhase::AfterControl, on)?;
+    drop(cluster);
+    Ok(report)
 }
 
 /// Collects the three splits from every simulator and saves them under `out_dir/data/{sim}/`,
@@ -270,22 +361,39 @@ fn train_one(
         }
     }
     reuse::forget(&record)?;
+    let dir = opts.out_dir.join("data").join(sim);
+    let report = train_model(sc, opts, cluster, sim, &model, &dir.join("train.npz"), on)?;
+    reuse::store(&record, key, &report)?;
+    Ok(report)
+}
+
+/// Trains model `model` of simulator `sim` through the trainer service on the training windows
+/// in file `train` (validation and test: the collected `val.npz`/`test.npz` of `sim`), with the
+/// scenario's `[train]` settings.
+pub(super) fn train_model(
+    sc: &Scenario,
+    opts: &RunOptions,
+    cluster: &Cluster,
+    sim: &str,
+    model: &str,
+    train: &Path,
+    on: &mut dyn FnMut(Event<'_>),
+) -> Result<TrainReport> {
     let t = sc
         .train
         .as_ref()
         .ok_or_else(|| Error::Config("no [train]".into()))?;
     let dir = opts.out_dir.join("data").join(sim);
-    let abs = |n: &str| -> DatasetRef {
-        let p = dir.join(format!("{n}.npz"));
+    let abs = |p: PathBuf| -> DatasetRef {
         DatasetRef::Path {
             path: std::fs::canonicalize(&p).unwrap_or(p),
         }
     };
     let spec = JobSpec {
-        model: model.clone(),
-        train: abs("train"),
-        val: abs("val"),
-        test: (sc.collect.test_windows > 0).then(|| abs("test")),
+        model: model.to_string(),
+        train: abs(train.to_path_buf()),
+        val: abs(dir.join("val.npz")),
+        test: (sc.collect.test_windows > 0).then(|| abs(dir.join("test.npz"))),
         config: t.config.clone(),
     };
     // The simulators are needed again after training: a lost one ends the run now.
@@ -306,13 +414,11 @@ fn train_one(
         }
         e => e,
     })?;
-    let report = TrainReport {
+    Ok(TrainReport {
         sim: sim.to_string(),
-        model,
+        model: model.to_string(),
         job: rec.job,
         metrics: rec.metrics.unwrap_or_default(),
         reused: false,
-    };
-    reuse::store(&record, key, &report)?;
-    Ok(report)
+    })
 }

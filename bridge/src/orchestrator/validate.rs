@@ -1,11 +1,12 @@
 //! The whole scenario checked against its simulators' `info` right after the readiness barrier,
 //! before the expensive phases: `[train].config`, `[control].mpc`, and the lengths of
-//! `control.x0`/`control.reference`, so that a typo fails in seconds, not after collection.
+//! `control.x0`/`control.reference` (and a `reference_file` that exists already), so that a typo fails in seconds, not after collection.
 
 use koopman::mpc::{MpcConfig, MpcController};
 use koopman::train::stand_in::{self, StandIn};
 use koopman::train::TrainConfig;
 
+use super::reference::load_trajectory;
 use crate::error::{Error, Result};
 use crate::messages::SimInfo;
 use crate::scenario::{ControlSpec, Scenario};
@@ -45,19 +46,33 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
             ))
         })?;
     }
-    if let Some(ctrl) = &sc.control {
+    for ctrl in &sc.control {
         let j = controlled_sim(sc, ctrl);
         validate_control(ctrl, &sc.sims[j].id, infos[j])?;
+        if let Some(f) = ctrl
+            .reference_file
+            .as_deref()
+            .filter(|f| !f.contains("{out}"))
+        {
+            // A file that exists already is checked now; one a hook writes, when control starts.
+            let p = std::path::Path::new(f);
+            let p = match &sc.base_dir {
+                Some(b) if p.is_relative() => b.join(p),
+                _ => p.to_path_buf(),
+            };
+            if p.is_file() {
+                load_trajectory(&p, infos[j].nx()).map_err(|e| {
+                    Error::Config(format!("[control] for simulator '{}': {e}", sc.sims[j].id))
+                })?;
+            }
+        }
     }
     Ok(())
 }
 
-/// The index in `sc.sims` of the simulator `[control]` regulates (`control.sim`, else the first).
+/// The index in `sc.sims` of the simulator a control entry drives (`sim`, else the first).
 pub fn controlled_sim(sc: &Scenario, ctrl: &ControlSpec) -> usize {
-    ctrl.sim
-        .as_ref()
-        .and_then(|id| sc.sims.iter().position(|s| &s.id == id))
-        .unwrap_or(0)
+    sc.controlled_index(ctrl)
 }
 
 /// The names of every `TrainConfig` field (what `[train].config` may set).
@@ -84,19 +99,15 @@ fn validate_control(ctrl: &ControlSpec, sim: &str, info: &SimInfo) -> Result<()>
     }
     let cfg = mpc_config(info, &ctrl.mpc)?;
     let h = cfg.horizon;
-    if ctrl.reference.len() != nx && ctrl.reference.len() != h * nx {
+    let reference = ctrl.reference.as_deref().unwrap_or_default();
+    if ctrl.reference.is_some() && reference.len() != nx && reference.len() != h * nx {
         return bad(format!(
             "reference has {} values; expected {nx} (one state) or {} (horizon {h} × {nx})",
-            ctrl.reference.len(),
+            reference.len(),
             h * nx
         ));
     }
-    if let Some(v) = ctrl
-        .x0
-        .iter()
-        .chain(&ctrl.reference)
-        .find(|v| !v.is_finite())
-    {
+    if let Some(v) = ctrl.x0.iter().chain(reference).find(|v| !v.is_finite()) {
         return bad(format!("x0 and reference must be finite, got {v}"));
     }
     if nx == 0 || nu == 0 {

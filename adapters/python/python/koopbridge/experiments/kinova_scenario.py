@@ -1,0 +1,264 @@
+"""The Kinova steps of ``scenarios/kinova-drake.toml``: ``reference`` (a ``before-control`` hook)
+asks the scenario's Drake planner over Zenoh for trajectories to held-out goals (goals of no
+collection session) and writes them as the ``(T, 14)`` ``[q, q̇]`` reference that ``[control]
+reference_file`` reads; ``report`` (an ``after-control`` hook) scores the orchestrator's Koopman
+MPC run against the planner's open-loop feed-forward and feed-forward + LQR on the lifted model
+(both run in-process on the same Drake simulation), adds the result to ``report.json`` and draws
+``kinova.png``.
+
+    python -m koopbridge.experiments.kinova_scenario reference --out OUT --session S --connect EP [--goals 2]
+    python -m koopbridge.experiments.kinova_scenario report --out OUT [--sim gen3]
+
+``reference`` writes ``OUT/kinova-reference.npy`` (row k: the planned state at step k, 1 kHz, the
+plans chained from the upright arm with a hold at each goal), ``OUT/kinova-feedforward.npy``
+(row k: the planned velocity applied at step k) and ``OUT/kinova-plans.json`` (goals, their
+seeds, the planner's pass reports).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .figure8_scenario import closed_loop_of, update_report, write_npy
+
+__all__ = ["feedback_gain", "held_out_goals", "main", "parser", "plan_reference", "tracking_errors"]
+
+#: Goal sessions of the reference: far above any collection session of ``drake_collect``
+#: (sessions count from 0 per split), so no goal was used for training, validation or test.
+HELD_OUT_SESSION = 900
+REFERENCE, FEEDFORWARD, PLANS = "kinova-reference.npy", "kinova-feedforward.npy", "kinova-plans.json"
+
+
+def held_out_goals(seed: int, n: int, planner: Any) -> list[tuple[int, np.ndarray]]:
+    """``n`` collision-free goals (2 cm margin, as the collection draws them) with their seeds:
+    goal i from ``goal_seed(seed, "test", HELD_OUT_SESSION + i)``."""
+    from ..adapters.drake_collect import goal_seed
+    from ..adapters.drake_plan import random_goals
+
+    out = []
+    for i in range(n):
+        s = goal_seed(seed, "test", HELD_OUT_SESSION + i)
+        out.append((s, random_goals(s, 1, planner=planner, margin=0.02)[0]))
+    return out
+
+
+def plan_reference(ask: Any, goals: Sequence[tuple[int, np.ndarray]], dt: float, hold_s: float, q0: np.ndarray) -> dict[str, Any]:
+    """Chains plans from ``q0`` through ``goals`` (``ask(start, goal, dt) -> reply dict`` or an
+    exception with ``code == "infeasible"``: that goal is skipped), each followed by ``hold_s``
+    at rest. Returns ``x`` ``(T, 14)``, ``ff`` ``(T - 1, 7)`` and the plans' records."""
+    hold = int(round(hold_s / dt))
+    xs, ffs, plans = [np.r_[q0, np.zeros(7)][None, :]], [], []
+    start = np.asarray(q0, float)
+    for seed, goal in goals:
+        rec: dict[str, Any] = dict(goal=goal.tolist(), goal_seed=seed, start=start.tolist())
+        try:
+            r = ask(start.tolist(), goal.tolist(), dt)
+        except Exception as e:  # noqa: BLE001 - only the planner's typed refusal is expected
+            if getattr(e, "code", None) != "infeasible":
+                raise
+            rec["error"] = str(e)
+            plans.append(rec)
+            continue
+        q, qd = np.asarray(r["q"], float), np.asarray(r["qd"], float)
+        xs.append(np.c_[q, qd][1:])
+        ffs.append(qd[:-1])
+        xs.append(np.tile(np.r_[q[-1], np.zeros(7)], (hold, 1)))
+        ffs.append(np.zeros((hold, 7)))
+        rec.update(duration=r["duration"], steps=len(q) - 1, passes=r["passes"])
+        plans.append(rec)
+        start = q[-1]
+    if not ffs:
+        raise ValueError(f"the planner found no trajectory to any of the {len(goals)} goals")
+    return dict(x=np.concatenate(xs), ff=np.concatenate(ffs), plans=plans)
+
+
+def _reference(a: argparse.Namespace) -> int:
+    from .. import Client, RemoteError
+    from ..adapters.drake_plan import Gen3Planner
+
+    out = Path(a.out)
+    goals = held_out_goals(a.seed, a.goals, Gen3Planner())
+    key = f"planner/{a.planner}/plan"
+    with Client(session=a.session, connect=a.connect or None) as c:
+
+        def ask(start: list[float], goal: list[float], dt: float) -> dict[str, Any]:
+            body = json.dumps(dict(start=start, goal=goal, dt=dt)).encode()
+            for _ in range(600):  # `busy` (another plan running): retry for up to a minute
+                try:
+                    return json.loads(c.query(key, body, timeout=60.0))
+                except RemoteError as e:
+                    if e.code != "busy":
+                        raise
+                time.sleep(0.1)
+            raise RuntimeError(f"planner {a.planner!r} stayed busy for a minute")
+
+        ref = plan_reference(ask, goals, a.dt, a.hold, np.zeros(7))
+    write_npy(str(out / REFERENCE), ref["x"])
+    write_npy(str(out / FEEDFORWARD), ref["ff"])
+    meta = dict(seed=a.seed, sessions=f"test split, goal sessions {HELD_OUT_SESSION}..{HELD_OUT_SESSION + a.goals - 1}",
+                dt=a.dt, hold_s=a.hold, steps=len(ref["ff"]), plans=ref["plans"])
+    from .dataset_npz import write_atomic
+
+    write_atomic(str(out / PLANS), lambda f: f.write(json.dumps(meta, indent=1).encode()))  # type: ignore[attr-defined]
+    ok = sum("error" not in p for p in ref["plans"])
+    print(f"kinova reference: {ok}/{len(goals)} plans, {len(ref['ff'])} steps to {out / REFERENCE}", file=sys.stderr)
+    return 0
+
+
+def feedback_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, iters: int = 20000, tol: float = 1e-10) -> np.ndarray:
+    """The infinite-horizon discrete LQR gain ``K`` (u = −K z) by iterating the Riccati
+    recursion ``S ← Q + Aᵀ S A − Aᵀ S B (R + Bᵀ S B)⁻¹ Bᵀ S A`` to convergence."""
+    S = Q.copy()
+    for _ in range(iters):
+        BtS = B.T @ S
+        K = np.linalg.solve(R + BtS @ B, BtS @ A)
+        S_new = Q + A.T @ S @ (A - B @ K)
+        S_new = 0.5 * (S_new + S_new.T)
+        if np.max(np.abs(S_new - S)) <= tol * max(1.0, np.max(np.abs(S))):
+            S = S_new
+            break
+        S = S_new
+    return np.linalg.solve(R + B.T @ S @ B, B.T @ S @ A)
+
+
+def tracking_errors(x: np.ndarray, ref: np.ndarray) -> dict[str, Any]:
+    """Joint tracking RMS over every step and joint, per joint, and the final error (largest
+    joint deviation at the last step), rad."""
+    e = x[:, :7] - ref[: len(x), :7]
+    return dict(rms_rad=float(np.sqrt(np.mean(e**2))), rms_per_joint_rad=np.sqrt(np.mean(e**2, axis=0)).round(6).tolist(),
+                final_rad=float(np.max(np.abs(e[-1]))))
+
+
+def _run(sim: Any, x0: np.ndarray, steps: int, command: Any) -> np.ndarray:
+    from ..adapters.drake_model import VELOCITY_LIMITS
+
+    x = sim.reset(x0=x0)
+    xs = [x]
+    for k in range(steps):
+        x = sim.step(np.clip(command(k, x), -VELOCITY_LIMITS, VELOCITY_LIMITS))
+        xs.append(x)
+    return np.array(xs)
+
+
+def _padded(a: np.ndarray, n: int, fill: np.ndarray | None = None) -> np.ndarray:
+    """``a`` cut or extended to ``n`` rows (the last row repeated, or ``fill``)."""
+    if len(a) >= n:
+        return a[:n]
+    tail = np.tile(a[-1] if fill is None else fill, (n - len(a), 1))
+    return np.concatenate([a, tail])
+
+
+def _report(a: argparse.Namespace) -> int:
+    from .. import KoopmanModel
+    from ..adapters.drake_sim import DrakeGen3Sim
+
+    out = Path(a.out)
+    rep_path = out / "report.json"
+    ctrl = closed_loop_of(json.loads(rep_path.read_text()), a.sim)
+    x_mpc, u_mpc = np.asarray(ctrl["x"], float), np.asarray(ctrl["u"], float)
+    steps = len(u_mpc)
+    ref = _padded(np.load(out / REFERENCE), steps + 1)
+    ff = _padded(np.load(out / FEEDFORWARD), steps, np.zeros(7))
+    model = KoopmanModel.load(out / "models" / ctrl["model"])
+    A, B, P = (np.asarray(m, float) for m in (model.A, model.B, model.P))
+    q = np.asarray(a.q_weights if a.q_weights else np.ones(14), float)
+    K = feedback_gain(A, B, P.T @ np.diag(q) @ P + 1e-9 * np.eye(len(A)), a.r * np.eye(B.shape[1]))
+    z_ref = np.asarray(model.encode(ref), float)
+    sim = DrakeGen3Sim()
+    runs = {
+        "koopman-mpc": x_mpc,
+        "feed-forward": _run(sim, ref[0], steps, lambda k, x: ff[k]),
+        "feed-forward+lqr": _run(sim, ref[0], steps, lambda k, x: ff[k] - K @ (np.asarray(model.encode(x), float) - z_ref[k])),
+    }
+    entry: dict[str, Any] = dict(
+        steps=steps, dt=sim.dt,
+        metric="joint tracking error x[:7] - planned q over every step: RMS (all joints, per joint) and final (max |.| at the last step), rad",
+        controllers={k: tracking_errors(v, ref) for k, v in runs.items()},
+        lqr=dict(q=q.tolist(), r=a.r, law="u = qd_plan,k - K (phi(x_k) - phi(x_ref,k)), clipped to the velocity limits",
+                 closed_loop_spectral_radius=float(np.max(np.abs(np.linalg.eigvals(A - B @ K))))),
+        mpc=dict(solve_median_us=ctrl.get("solve_median_us"), round_trip_median_us=ctrl.get("solve_round_trip_median_us"),
+                 not_solved=ctrl.get("not_solved")),
+        plans=json.loads((out / PLANS).read_text())["plans"] if (out / PLANS).exists() else None,
+        plot=None if a.no_plot else "kinova.png",
+    )
+    if not a.no_plot:
+        _plot(out / "kinova.png", ref, runs, sim.dt)
+    update_report(rep_path, "kinova", entry)
+    print(json.dumps({k: (round(v["rms_rad"], 6), round(v["final_rad"], 6)) for k, v in entry["controllers"].items()}))
+    return 0
+
+
+def _plot(path: Path, ref: np.ndarray, runs: dict[str, np.ndarray], dt: float) -> None:
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .dataset_npz import write_atomic
+
+    t = dt * np.arange(len(ref))
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(13, 5))
+    for j in range(7):
+        line = ax1.plot(t, ref[:, j], "--", lw=1.2)[0]
+        ax1.plot(t, runs["koopman-mpc"][:, j], "-", lw=0.9, color=line.get_color(), label=f"q{j + 1}")
+    ax1.set_title("planned (dashed) vs executed by Koopman MPC (solid)")
+    ax1.set_xlabel("time (s)")
+    ax1.set_ylabel("joint angle (rad)")
+    ax1.legend(fontsize=7, ncol=2)
+    for name, x in runs.items():
+        ax2.semilogy(t, np.maximum(np.linalg.norm(x[:, :7] - ref[:, :7], axis=1), 1e-9), lw=1, label=name)
+    ax2.set_title("joint tracking error |q - q_plan|")
+    ax2.set_xlabel("time (s)")
+    ax2.set_ylabel("rad")
+    ax2.legend(fontsize=8)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    write_atomic(str(path), lambda f: f.write(buf.getvalue()))  # type: ignore[attr-defined]
+
+
+def parser() -> argparse.ArgumentParser:
+    """The command line (subcommands ``reference`` and ``report``)."""
+    p = argparse.ArgumentParser(prog="python -m koopbridge.experiments.kinova_scenario", description=__doc__.split("\n\n")[0])
+    sub = p.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("reference", help="plan held-out goals through the planner, write the reference")
+    r.add_argument("--out", required=True, help="the run's output folder")
+    r.add_argument("--session", required=True, help="the run's koopbridge session")
+    r.add_argument("--connect", action="append", default=[], help="a Zenoh endpoint of the run (repeatable)")
+    r.add_argument("--planner", default="planner0", help="the planner's id (default: %(default)s)")
+    r.add_argument("--goals", type=int, default=2, help="held-out goals, planned in a chain from the upright arm (default: %(default)s)")
+    r.add_argument("--seed", type=int, default=42, help="the data seed (goal seeds derive from it; default: %(default)s)")
+    r.add_argument("--dt", type=float, default=0.001, help="the simulator's dt, s (default: %(default)s)")
+    r.add_argument("--hold", type=float, default=0.2, help="seconds at rest at each goal (default: %(default)s)")
+    rep = sub.add_parser("report", help="score OUT/report.json's closed loop against feed-forward and LQR, draw OUT/kinova.png")
+    rep.add_argument("--out", required=True, help="the run's output folder")
+    rep.add_argument("--sim", default="gen3", help="the controlled simulator's id (default: %(default)s)")
+    rep.add_argument("--q-weights", type=lambda s: [float(v) for v in s.split(",")], help="LQR state weights, 14 values (default: ones)")
+    rep.add_argument("--r", type=float, default=1e-3, help="LQR input weight (times I; default: %(default)s)")
+    rep.add_argument("--no-plot", action="store_true", help="skip kinova.png")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Runs a subcommand; returns the exit code (2: bad arguments or input)."""
+    a = parser().parse_args(argv)
+    try:
+        return _reference(a) if a.cmd == "reference" else _report(a)
+    except (OSError, KeyError, ValueError) as e:
+        print(f"kinova_scenario {a.cmd}: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,110 @@
+"""The Kinova steps of scenarios/kinova-drake.toml: held-out goals come from no collection
+session, the reference chains real Drake plans (the planner service's own handler) and skips an
+infeasible goal, and the lifted-LQR gain solves the Riccati equation (closed form in 1-D,
+residual in n-D)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from koopbridge.adapters.drake_collect import goal_seed
+from koopbridge.adapters.drake_plan import Gen3Planner, Infeasible
+from koopbridge.adapters.drake_planner import handler
+from koopbridge.experiments import kinova_scenario as ks
+
+
+@pytest.fixture(scope="module")
+def planner():
+    return Gen3Planner()
+
+
+def test_held_out_goal_seeds_are_no_collection_sessions_seeds(planner):
+    goals = ks.held_out_goals(42, 2, planner)
+    used = {goal_seed(42, split, s) for split in ("train", "val", "test") for s in range(100)}
+    assert all(s not in used for s, _ in goals)
+    assert all(planner.min_distance(g) >= 0.02 for _, g in goals)
+
+
+def test_reference_chains_plans_and_skips_infeasible_goals(planner):
+    plan = handler(planner)
+
+    def ask(start, goal, dt):
+        try:
+            return plan(start, goal, dt)
+        except Infeasible as e:
+            assert e.code == "infeasible"
+            raise
+
+    g1 = np.array([0.5, 0.4, 0.0, 0.8, 0.0, 0.5, 0.0])
+    bad = np.array([0.0, 2.3, 0, 0, 0, 0, 0])  # lies in the table
+    g2 = np.array([-0.3, 0.2, 0.3, 0.5, -0.4, 0.2, 0.6])
+    ref = ks.plan_reference(ask, [(1, g1), (2, bad), (3, g2)], 0.001, 0.05, np.zeros(7))
+    x, ff, plans = ref["x"], ref["ff"], ref["plans"]
+    assert "error" in plans[1] and "error" not in plans[0] and "error" not in plans[2]
+    assert x.shape[1] == 14 and len(ff) == len(x) - 1
+    np.testing.assert_array_equal(x[0], np.zeros(14))
+    n1 = plans[0]["steps"]
+    np.testing.assert_allclose(x[n1, :7], g1, atol=1e-6)  # plan 1 ends at its goal ...
+    np.testing.assert_allclose(x[n1 + 50, :7], g1, atol=1e-6)  # ... held 50 ms at rest
+    assert np.all(x[n1 + 1 : n1 + 51, 7:] == 0) and np.all(ff[n1 : n1 + 50] == 0)
+    assert plans[2]["start"] == pytest.approx(g1.tolist(), abs=1e-6)  # plan 2 starts there
+    np.testing.assert_allclose(x[-1, :7], g2, atol=1e-6)
+    # The feed-forward at step k is the planned velocity at k: integrating it follows q.
+    np.testing.assert_allclose(x[0, :7] + 0.001 * np.cumsum(ff[:n1], axis=0)[-1], g1, atol=2e-2)
+
+
+def test_lqr_gain_solves_the_riccati_equation():
+    # 1-D: a = b = q = r = 1 gives S = (1 + sqrt 5) / 2 and K = S / (1 + S).
+    K = ks.feedback_gain(np.eye(1), np.eye(1), np.eye(1), np.eye(1))
+    s = (1 + np.sqrt(5)) / 2
+    assert K[0, 0] == pytest.approx(s / (1 + s), rel=1e-9)
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(6, 6)) * 0.4 + np.eye(6)
+    B = rng.normal(size=(6, 2))
+    Q, R = np.eye(6), 0.1 * np.eye(2)
+    K = ks.feedback_gain(A, B, Q, R)
+    assert np.max(np.abs(np.linalg.eigvals(A - B @ K))) < 1
+    # K is optimal: S from the closed loop's Lyapunov sum satisfies the Riccati equation.
+    Acl = A - B @ K
+    S, term = np.zeros((6, 6)), Q + K.T @ R @ K
+    for _ in range(5000):
+        S = term + Acl.T @ S @ Acl
+    riccati = Q + A.T @ S @ A - A.T @ S @ B @ np.linalg.solve(R + B.T @ S @ B, B.T @ S @ A)
+    np.testing.assert_allclose(riccati, S, rtol=1e-6, atol=1e-6)
+
+
+def test_tracking_errors_written_out():
+    ref = np.zeros((4, 14))
+    x = np.zeros((3, 14))
+    x[:, 0] = [0.0, 0.3, -0.4]
+    e = ks.tracking_errors(x, ref)
+    assert e["rms_rad"] == pytest.approx(np.sqrt((0.09 + 0.16) / 21))
+    assert e["final_rad"] == pytest.approx(0.4) and e["rms_per_joint_rad"][0] == pytest.approx(np.sqrt(0.25 / 3), abs=1e-6)
+
+
+def test_report_scores_the_closed_loop_against_feed_forward_and_lqr(tmp_path, planner):
+    """A "closed loop" that is the feed-forward run itself scores exactly as the feed-forward
+    baseline (same deterministic simulation); the report, its LQR run and kinova.png are written."""
+    import json
+
+    from koopbridge import KoopmanModel
+    from koopbridge.adapters.drake_sim import DrakeGen3Sim
+
+    ref = ks.plan_reference(handler(planner), [(1, np.array([0.3, 0.2, 0.0, 0.4, 0.0, 0.3, 0.0]))], 0.001, 0.05, np.zeros(7))
+    np.save(tmp_path / ks.REFERENCE, ref["x"])
+    np.save(tmp_path / ks.FEEDFORWARD, ref["ff"])
+    KoopmanModel.init(14, 7, hidden=[16], n_mult=2).save(tmp_path / "models" / "kinova-gen3")
+    sim = DrakeGen3Sim()
+    x = sim.reset(x0=ref["x"][0])
+    xs = [x] + [sim.step(u) for u in ref["ff"]]
+    entry = dict(sim="gen3", model="kinova-gen3", x=np.array(xs).tolist(), u=ref["ff"].tolist(), solve_median_us=1.0)
+    (tmp_path / "report.json").write_text(json.dumps(dict(control=entry, controls=[entry])))
+    assert ks.main(["report", "--out", str(tmp_path)]) == 0
+    rep = json.loads((tmp_path / "report.json").read_text())["kinova"]
+    c = rep["controllers"]
+    assert c["koopman-mpc"] == c["feed-forward"]
+    err = np.array(xs)[:, :7] - ref["x"][:, :7]
+    assert c["feed-forward"]["rms_rad"] == pytest.approx(np.sqrt(np.mean(err**2)), rel=1e-12)
+    assert np.isfinite(c["feed-forward+lqr"]["rms_rad"]) and rep["steps"] == len(ref["ff"])
+    assert (tmp_path / "kinova.png").read_bytes()[:4] == b"\x89PNG"

@@ -1,0 +1,117 @@
+//! The control phase of a run: every `[control]` entry's model configured on the MPC service,
+//! its reference read, and all controlled simulators stepped in one lockstep loop
+//! ([`control_loop`]); optionally each of them alone too, for the loop's slowdown figure.
+
+use std::time::Duration;
+
+use super::commands::Placeholders;
+use super::control_loop::{control_loop, LoopReport};
+use super::reference::{reference_of, Reference};
+use super::validate::{controlled_sim, mpc_config};
+use super::{ControlReport, ControlTask, Event, SERVICES_ID};
+use crate::client::{Client, Liveliness, SimClient};
+use crate::error::Result;
+use crate::scenario::Scenario;
+use crate::services::mpc::{configure, ConfigureRequest};
+
+/// One control entry made ready: which simulator, which model, what to track.
+struct Prepared {
+    sim: usize,
+    model: String,
+    reference: Reference,
+    horizon: usize,
+}
+
+/// What the control phase is asked to do.
+pub struct ControlPhase<'a> {
+    /// The model of simulator `id` (default `{scenario}-{id}`).
+    pub model_of: &'a dyn Fn(&str) -> String,
+    /// Publish the executed states (for the recorder).
+    pub publish: bool,
+    /// Also run each controlled simulator alone in the loop (after the loop of all), for
+    /// [`LoopReport::slowdown_vs_slowest_alone`].
+    pub baseline: bool,
+}
+
+/// Runs the control phase of `sc`: returns one report per `[control]` entry (in order) and the
+/// loop's figures. `clients[j]` is `sc.sims[j]`'s client.
+pub fn control_phase(
+    sc: &Scenario,
+    client: &Client,
+    live: &Liveliness,
+    clients: &mut [SimClient],
+    ph: &Placeholders,
+    what: &ControlPhase<'_>,
+    on: &mut dyn FnMut(Event<'_>),
+) -> Result<(Vec<ControlReport>, LoopReport)> {
+    let mut prepared = Vec::new();
+    for ctrl in &sc.control {
+        let j = controlled_sim(sc, ctrl);
+        let info = &clients[j].info.sim;
+        let model = (what.model_of)(&sc.sims[j].id);
+        let mpc = mpc_config(info, &ctrl.mpc)?;
+        let horizon = mpc.horizon;
+        let reference = reference_of(ctrl, info.nx(), ph).map_err(|e| {
+            crate::error::Error::Config(format!("[control] for simulator '{}': {e}", sc.sims[j].id))
+        })?;
+        let req = ConfigureRequest {
+            model: model.clone(),
+            mpc: Some(mpc),
+        };
+        configure(client, SERVICES_ID, &req, Duration::from_secs(60))?;
+        prepared.push(Prepared {
+            sim: j,
+            model,
+            reference,
+            horizon,
+        });
+    }
+    let run = |clients: &mut [SimClient],
+               which: &[usize],
+               on: &mut dyn FnMut(Event<'_>)|
+     -> Result<(Vec<ControlReport>, LoopReport)> {
+        // Disjoint &mut borrows of the controlled clients, in the order of `which`.
+        let mut slots: Vec<Option<&mut SimClient>> = clients.iter_mut().map(Some).collect();
+        let mut jobs = Vec::new();
+        for &i in which {
+            let (p, ctrl) = (&prepared[i], &sc.control[i]);
+            let Some(c) = slots[p.sim].take() else {
+                continue;
+            };
+            jobs.push((
+                c,
+                ControlTask {
+                    mpc_id: SERVICES_ID,
+                    model: &p.model,
+                    x0: &ctrl.x0,
+                    reference: &p.reference,
+                    horizon: p.horizon,
+                    steps: ctrl.steps,
+                    publish: what.publish,
+                },
+            ));
+        }
+        control_loop(client, live, jobs, &mut |k, n| on(Event::Control(k, n)))
+    };
+    let all: Vec<usize> = (0..prepared.len()).collect();
+    let (reports, mut figures) = run(clients, &all, on)?;
+    if what.baseline && prepared.len() > 1 {
+        on(Event::Phase(
+            "each controlled simulator alone in the loop (baseline)",
+        ));
+        for &i in &all {
+            let (_, alone) = run(clients, &[i], on)?;
+            figures
+                .alone_steps_per_second
+                .push(alone.macro_steps_per_second);
+        }
+        let slowest = figures
+            .alone_steps_per_second
+            .iter()
+            .copied()
+            .fold(f64::INFINITY, f64::min);
+        figures.slowdown_vs_slowest_alone =
+            Some(slowest / figures.macro_steps_per_second.max(1e-9));
+    }
+    Ok((reports, figures))
+}

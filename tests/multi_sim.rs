@@ -1,0 +1,118 @@
+//! `scenarios/multi-sim.toml` end to end at its small default budget: two FMUs (FMI 2 and 3), a
+//! built-in Rust system, the MuJoCo Franka and the Drake Kinova collected, trained and
+//! controlled in one lockstep loop; and (ignored: a measurement) the loop's macro-step rate
+//! against the slowest simulator alone in the same run.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The Python set-up the scenario needs (scripts/setup-python.sh), or why it is missing.
+fn python_ready() -> Result<(), String> {
+    for p in [
+        ".venv/bin/python",
+        "adapters/fmu/build/damped_pendulum.fmu",
+        "adapters/fmu/build/double_pendulum.fmu",
+    ] {
+        if !root().join(p).exists() {
+            return Err(format!("{p} is missing (run scripts/setup-python.sh)"));
+        }
+    }
+    Ok(())
+}
+
+fn run(scenario: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {
+    let mut args = vec![
+        "run",
+        scenario.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    let o = Command::new(common::exe()).args(&args).output().unwrap();
+    assert!(
+        o.status.success(),
+        "koopbridge run failed:\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    eprintln!("{}", String::from_utf8_lossy(&o.stdout));
+    serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap()
+}
+
+const SIMS: [&str; 5] = ["pend-fmu", "double-fmu", "rust-pend", "franka", "kinova"];
+
+#[test]
+fn the_multi_sim_scenario_collects_trains_and_controls_every_simulator_in_one_loop() {
+    if let Err(why) = python_ready() {
+        eprintln!("skipped: {why}");
+        return;
+    }
+    let out = common::scratch("multi-sim").join("out");
+    let r = run(&root().join("scenarios/multi-sim.toml"), &out, &[]);
+    assert_eq!(r["collect"]["sims"], serde_json::json!(SIMS));
+    let nx = [2, 4, 2, 14, 14];
+    for (j, id) in SIMS.iter().enumerate() {
+        let c = &r["controls"][j];
+        assert_eq!(c["sim"], *id);
+        assert_eq!(c["model"], format!("multi-sim-{id}"));
+        let x = c["x"].as_array().unwrap();
+        assert_eq!(x.len(), 101, "{id}");
+        assert_eq!(x[0].as_array().unwrap().len(), nx[j], "{id}");
+        assert_eq!(c["u"].as_array().unwrap().len(), 100, "{id}");
+        assert!(
+            c["tracking_rms_total"].as_f64().unwrap().is_finite(),
+            "{id}"
+        );
+        assert!(r["train"][j]["metrics"]["test_prediction_error"]
+            .as_f64()
+            .unwrap()
+            .is_finite());
+        let png = if j == 0 {
+            "control.png".to_string()
+        } else {
+            format!("control-{id}.png")
+        };
+        assert!(out.join(png).is_file(), "{id}");
+        // The simulators' data were collected together, from their own info.
+        let d =
+            koopman::data::Dataset::load_npz(&out.join(format!("data/{id}/train.npz"))).unwrap();
+        assert_eq!((d.n, d.steps, d.nx), (60, 15, nx[j]));
+    }
+    assert_eq!(r["control"], r["controls"][0]);
+    let l = &r["control_loop"];
+    assert_eq!(l["sims"], serde_json::json!(SIMS));
+    assert_eq!(l["macro_steps"], 100);
+    assert!(l["macro_steps_per_second"].as_f64().unwrap() > 0.0);
+    assert_eq!(l["step_round_trip_median_us"].as_array().unwrap().len(), 5);
+}
+
+/// The figure of issue 14: the macro-step rate of the five-simulator control loop against the
+/// slowest simulator alone in the same loop, measured in one run (500 control steps). Run with
+/// `cargo test --release --test multi_sim -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn the_multi_sim_loop_against_the_slowest_simulator_alone() {
+    python_ready().expect("the Python set-up");
+    let text = std::fs::read_to_string(root().join("scenarios/multi-sim.toml"))
+        .unwrap()
+        .replace("steps = 100", "steps = 500");
+    // Inside the repository, so that its commands resolve there.
+    let file = root().join("target/multi-sim-bench.toml");
+    std::fs::write(&file, text).unwrap();
+    let out = common::scratch("multi-sim-bench").join("out");
+    let r = run(&file, &out, &["--loop-baseline"]);
+    let l = &r["control_loop"];
+    eprintln!("{}", serde_json::to_string_pretty(l).unwrap());
+    let ratio = l["slowdown_vs_slowest_alone"].as_f64().unwrap();
+    eprintln!(
+        "loop: {:.0} macro steps/s; alone: {}; slowdown vs the slowest alone: {ratio:.3}",
+        l["macro_steps_per_second"].as_f64().unwrap(),
+        l["alone_steps_per_second"]
+    );
+    assert!(ratio.is_finite() && ratio > 0.0);
+}
