@@ -9,9 +9,9 @@ use koopman::model::nndm::NndmModel;
 use koopman::model::LiftedModel;
 use koopman::mpc::metrics::GoalSpec;
 use koopman::mpc::{
-    run_closed_loop, BilinearMpc, ClosedLoopMetrics, ConstantPolicy, Lqr, LqrPolicy, MpcConfig,
-    MpcController, OneStepModel, Policy, RandomShooting, ScpOptions, ShootingPolicy, SolverKind,
-    SystemAsModel, Task, TaskKind, Trajectory,
+    run_closed_loop, Action, BilinearMpc, ClosedLoopMetrics, ConstantPolicy, Lqr, LqrPolicy,
+    MpcConfig, MpcController, OffsetFreeConfig, OffsetMode, OneStepModel, Policy, RandomShooting,
+    ScpOptions, ShootingPolicy, SolverKind, SystemAsModel, Task, TaskKind, Trajectory,
 };
 use koopman::systems::System;
 
@@ -35,6 +35,10 @@ pub enum ControllerChoice {
     ShootingOracle,
     /// Sequential convex MPC on a bilinear model (--model of kind bilinear, or --bilinear DIR).
     Bilinear,
+    /// The bilinear MPC with the offset-free correction of --offset-free near the target.
+    BilinearOffsetFree,
+    /// Koopman MPC (dedicated solver) on the EDMD model of --edmd.
+    Edmd,
     /// u = 0 throughout: the free response every controller must beat.
     ZeroInput,
     /// Every controller above that the given models allow, one after the other, as one table.
@@ -67,6 +71,23 @@ pub struct ControlArgs {
     /// Bilinear model directory (kind bilinear) for --solver bilinear/all next to --model.
     #[arg(long, value_name = "DIR")]
     pub bilinear: Option<PathBuf>,
+    /// EDMD model directory (kind edmd) for --solver edmd/all next to --model: one more row,
+    /// the Koopman MPC (dedicated solver) on it.
+    #[arg(long, value_name = "DIR")]
+    pub edmd: Option<PathBuf>,
+    /// Offset-free correction of the bilinear MPC near the target (--solver
+    /// bilinear-offset-free; with --solver all, a row next to the plain bilinear MPC):
+    /// `integral` shifts the reference by the integrated error, `disturbance` adds a low-pass
+    /// estimate of the one-step prediction error to the predictions.
+    #[arg(long, value_enum, value_name = "MODE")]
+    pub offset_free: Option<OffsetArg>,
+    /// The correction is on while the wrapped error ‖x − r‖ is at most this.
+    #[arg(long, default_value_t = 0.3, value_name = "R")]
+    pub offset_radius: f64,
+    /// Per-state gains of the correction (nx values; integral: k per step, disturbance: the
+    /// filter constant in [0, 1]; default 0.1 on angles, 0 elsewhere).
+    #[arg(long, value_delimiter = ',', value_name = "G")]
+    pub offset_gain: Option<Vec<f64>>,
     /// Fit an in-process stand-in model instead (least squares on random tanh features, this
     /// many features, 2000 windows of aligned data, seed 42).
     #[arg(long, value_name = "FEATURES", conflicts_with = "model")]
@@ -113,6 +134,15 @@ pub struct ControlArgs {
     pub json: bool,
 }
 
+/// `--offset-free` values.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OffsetArg {
+    /// Integral action on the tracking error.
+    Integral,
+    /// Constant disturbance estimate from the one-step prediction error.
+    Disturbance,
+}
+
 /// `--task` values.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum TaskArg {
@@ -155,6 +185,22 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
         ("an", "NNDM", "--nndm"),
         NndmModel::load,
     )?;
+    let edmd = match &args.edmd {
+        Some(dir) => {
+            let kind = koopman::model::store::read_kind(dir)?;
+            if kind != "edmd" {
+                bail!(
+                    "--edmd {} is a model of kind {kind}, not edmd",
+                    dir.display()
+                );
+            }
+            Some(
+                koopman::model::load_lifted(dir)
+                    .with_context(|| format!("loading the EDMD model in {}", dir.display()))?,
+            )
+        }
+        None => None,
+    };
     let lifted_given = !model_is_nndm
         && !model_is_bilinear
         && (args.model.is_some() || args.fit.is_some() || args.train.is_some());
@@ -171,6 +217,12 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
             }
             if bilinear.is_some() {
                 c.insert(0, ControllerChoice::Bilinear);
+                if args.offset_free.is_some() {
+                    c.insert(0, ControllerChoice::BilinearOffsetFree);
+                }
+            }
+            if edmd.is_some() {
+                c.push(ControllerChoice::Edmd);
             }
             c.push(ControllerChoice::ShootingOracle);
             if nndm.is_some() {
@@ -183,12 +235,25 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
             "--solver shooting plans on an NNDM: give --model DIR of kind nndm or --nndm DIR \
              (random shooting on the true system is --solver shooting-oracle)"
         ),
-        ControllerChoice::Bilinear if bilinear.is_none() => bail!(
-            "--solver bilinear needs a bilinear model: --model DIR of kind bilinear or --bilinear DIR"
+        ControllerChoice::Bilinear | ControllerChoice::BilinearOffsetFree
+            if bilinear.is_none() =>
+        {
+            bail!(
+                "--solver {} needs a bilinear model: --model DIR of kind bilinear or --bilinear DIR",
+                controller_stem(args.solver)
+            )
+        }
+        ControllerChoice::BilinearOffsetFree if args.offset_free.is_none() => bail!(
+            "--solver bilinear-offset-free needs --offset-free integral|disturbance"
         ),
+        ControllerChoice::Edmd if edmd.is_none() => {
+            bail!("--solver edmd needs --edmd DIR (a model of kind edmd)")
+        }
         ControllerChoice::ShootingOracle
         | ControllerChoice::Shooting
         | ControllerChoice::Bilinear
+        | ControllerChoice::BilinearOffsetFree
+        | ControllerChoice::Edmd
         | ControllerChoice::ZeroInput => vec![args.solver],
         c if !lifted_given => bail!(
             "--solver {} needs a lifted model: --model DIR of kind koopman or edmd, --fit or --train{}",
@@ -212,6 +277,7 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
         bilinear
             .as_ref()
             .map(|m| ("bilinear model", m.nx(), m.nu())),
+        edmd.as_ref().map(|m| ("EDMD model", m.nx(), m.nu())),
     ];
     for (what, nx, nu) in dims.into_iter().flatten() {
         if nx != system.nx() || nu != system.nu() {
@@ -276,6 +342,7 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
                 lifted: model.as_deref(),
                 nndm: nndm.as_ref().map(|m| m as &dyn OneStepModel),
                 bilinear: bilinear.as_ref(),
+                edmd: edmd.as_deref(),
             },
             &task,
             &lo,
@@ -318,6 +385,8 @@ fn controller_stem(c: ControllerChoice) -> &'static str {
         ControllerChoice::Shooting => "shooting",
         ControllerChoice::ShootingOracle => "shooting-oracle",
         ControllerChoice::Bilinear => "bilinear",
+        ControllerChoice::BilinearOffsetFree => "bilinear-offset-free",
+        ControllerChoice::Edmd => "edmd",
         ControllerChoice::ZeroInput => "zero-input",
         ControllerChoice::All => "all",
     }
@@ -405,13 +474,14 @@ fn train_stand_in(
     Ok(Box::new(outcome.model))
 }
 
-/// The models a controller may plan on: a lifted model (Koopman MPC, LQR) and an NNDM
-/// (random shooting).
+/// The models a controller may plan on: a lifted model (Koopman MPC, LQR), an NNDM (random
+/// shooting), a bilinear model (sequential convex MPC) and an EDMD model (Koopman MPC).
 #[derive(Clone, Copy)]
 struct Models<'m> {
     lifted: Option<&'m dyn LiftedModel>,
     nndm: Option<&'m dyn OneStepModel>,
     bilinear: Option<&'m BilinearModel>,
+    edmd: Option<&'m dyn LiftedModel>,
 }
 
 fn run_one(
@@ -427,6 +497,7 @@ fn run_one(
         lifted: model,
         nndm,
         bilinear,
+        edmd,
     } = models;
     let lifted = || model.context("this controller needs a lifted model (koopman or edmd)");
     let nu = system.nu();
@@ -440,6 +511,18 @@ fn run_one(
     let goal = GoalSpec::default();
     let oracle = SystemAsModel(system);
     let mut policy: Box<dyn Policy + '_> = match choice {
+        ControllerChoice::Edmd => {
+            let cfg = MpcConfig {
+                horizon: args.horizon,
+                r: Some(vec![args.r; nu]),
+                ..MpcConfig::with_bounds(lo.to_vec(), hi.to_vec())
+            };
+            let model = edmd.context("--solver edmd needs --edmd DIR")?;
+            Box::new(Named(
+                MpcController::new(model, &cfg)?,
+                "edmd-mpc/dedicated",
+            ))
+        }
         ControllerChoice::Dedicated | ControllerChoice::Clarabel | ControllerChoice::ClosedForm => {
             let solver = match choice {
                 ControllerChoice::Dedicated => SolverKind::Dedicated,
@@ -487,14 +570,18 @@ fn run_one(
                 Box::new(ShootingPolicy::new(planner, &oracle, "true-system"))
             }
         }
-        ControllerChoice::Bilinear => {
+        ControllerChoice::Bilinear | ControllerChoice::BilinearOffsetFree => {
             let cfg = MpcConfig {
                 horizon: args.horizon,
                 r: Some(vec![args.r; nu]),
                 ..MpcConfig::with_bounds(lo.to_vec(), hi.to_vec())
             };
             let model = bilinear.context("--solver bilinear needs a bilinear model")?;
-            Box::new(BilinearMpc::new(model, &cfg, ScpOptions::default())?)
+            let mut mpc = BilinearMpc::new(model, &cfg, ScpOptions::default())?;
+            if choice == ControllerChoice::BilinearOffsetFree {
+                mpc.set_offset_free(Some(offset_config(args, system)?))?;
+            }
+            Box::new(mpc)
         }
         ControllerChoice::ZeroInput => Box::new(ConstantPolicy::zero(nu)),
         ControllerChoice::All => unreachable!("expanded by the caller"),
@@ -502,6 +589,44 @@ fn run_one(
     let result = run_closed_loop(system, policy.as_mut(), task, lo, hi, &goal, progress);
     bar.finish_and_clear();
     Ok(result?)
+}
+
+/// The offset-free settings of `--offset-free`, `--offset-radius`, `--offset-gain`.
+fn offset_config(args: &ControlArgs, system: &dyn System) -> anyhow::Result<OffsetFreeConfig> {
+    let mode = match args.offset_free {
+        Some(OffsetArg::Integral) => OffsetMode::Integral,
+        Some(OffsetArg::Disturbance) => OffsetMode::Disturbance,
+        None => bail!("--offset-free integral|disturbance is needed"),
+    };
+    let angles = system.angle_indices();
+    let gain = args.offset_gain.clone().unwrap_or_else(|| {
+        (0..system.nx())
+            .map(|i| if angles.contains(&i) { 0.1 } else { 0.0 })
+            .collect()
+    });
+    let cfg = OffsetFreeConfig {
+        mode,
+        radius: args.offset_radius,
+        gain,
+        angles,
+    };
+    cfg.check(system.nx())?;
+    Ok(cfg)
+}
+
+/// A policy under another name in reports.
+struct Named<P>(P, &'static str);
+
+impl<P: Policy> Policy for Named<P> {
+    fn name(&self) -> String {
+        self.1.into()
+    }
+    fn horizon(&self) -> usize {
+        self.0.horizon()
+    }
+    fn act(&mut self, x: &[f64], current: &[f64], future: &[f64]) -> koopman::Result<Action> {
+        self.0.act(x, current, future)
+    }
 }
 
 fn print_header() {

@@ -13,7 +13,8 @@
 //!   controller is a [`Policy`] that [`run_closed_loop`] evaluates on a reference system.
 //! - [`BilinearMpc`]: sequential convex MPC on a bilinear model (`z⁺ = A z + B u + Σ u_i N_i z`),
 //!   re-linearised along each new plan (at most [`ScpOptions::max_linearisations`] QPs on the
-//!   dedicated box solver); [`ScpStatus`] says whether it converged.
+//!   dedicated box solver); [`ScpStatus`] says whether it converged. [`OffsetFreeConfig`]
+//!   switches on an offset-free correction near the target (disturbance estimate or integral).
 //! - On solver failure the controller returns the shifted previous plan clamped to the bounds
 //!   ([`SolveStatus::Fallback`]), never NaN; bad input is a typed [`crate::Error`].
 
@@ -31,6 +32,7 @@ pub mod fit;
 pub mod lqr;
 pub mod matrix_model;
 pub mod metrics;
+pub mod offset_free;
 pub mod policy;
 pub mod qp;
 pub mod shooting;
@@ -41,6 +43,7 @@ pub use config::{MpcConfig, SolverKind};
 pub use controller::{FallbackReason, MpcController, MpcSolution, SolveStatus};
 pub use lqr::Lqr;
 pub use matrix_model::{Activation, MatrixModel};
+pub use offset_free::{OffsetFree, OffsetFreeConfig, OffsetMode};
 pub use policy::{Action, ConstantPolicy, LqrPolicy, Policy, ShootingPolicy};
 pub use qp::{QpOutcome, QpSolver, QpStatus};
 pub use shooting::{OneStepModel, RandomShooting, SystemAsModel};
