@@ -58,7 +58,9 @@ model; --solver shooting is random-shooting MPC (1000 samples) on an NNDM (--mod
 --nndm DIR next to a lifted --model); --solver shooting-oracle uses the true system as its model. \
 --solver all runs every controller the given models allow.\n\nExamples:\n  koopbridge control --model models/damped --env damped-pendulum --task regulate --solver all\n  \
 koopbridge control --model models/damped --nndm models/damped-nndm --env damped-pendulum --solver all\n  \
-koopbridge control --model models/damped-nndm --env damped-pendulum --solver shooting"
+koopbridge control --model models/damped-nndm --env damped-pendulum --solver shooting\n  \
+koopbridge control --model models/damped-linear --bilinear models/damped-bilinear --edmd models/damped-edmd \
+--env damped-pendulum --solver all --offset-free integral"
 )]
 pub struct ControlArgs {
     /// Model directory (config.json with "kind": koopman | edmd | nndm). A lifted model
