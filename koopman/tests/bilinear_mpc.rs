@@ -217,3 +217,92 @@ fn bad_input_is_a_typed_error_and_the_controller_keeps_working() {
     };
     assert!(BilinearMpc::new(&m, &c, no_its).is_err());
 }
+
+#[test]
+fn more_linearisations_never_give_a_worse_plan_than_fewer() {
+    // The iterates of a 3-QP solve include the 1-QP solve's plan (same start), and the returned
+    // plan is the best of them on the exact bilinear cost.
+    let m = model(6.0, 9);
+    let c = cfg(2.0, 0.0);
+    let x = [2.0, -1.0];
+    let z0 = m.lift(&x);
+    let solve = |cap: usize| {
+        let opts = ScpOptions {
+            max_linearisations: cap,
+            tol: 0.0,
+        };
+        let mut mpc = BilinearMpc::new(&m, &c, opts).unwrap();
+        let s = mpc.solve(&x, &[0.0, 0.0]).unwrap();
+        let exact = mpc.cost(&z0, &s.u, &[0.0, 0.0]).unwrap();
+        assert!(
+            (exact - s.cost).abs() <= 1e-12 * exact.max(1.0),
+            "{exact} vs {}",
+            s.cost
+        );
+        s
+    };
+    let (one, three) = (solve(1), solve(3));
+    assert_eq!(three.status, ScpStatus::NotConverged);
+    assert_eq!(three.linearisations, 3);
+    assert!(three.cost <= one.cost, "{} > {}", three.cost, one.cost);
+    assert!(three.u.iter().all(|v| v.is_finite() && v.abs() <= 2.0));
+}
+
+/// A model whose rollout overflows to ±∞/NaN within the horizon (A = 1e40·I).
+fn overflowing_model() -> BilinearModel {
+    let arch = Arch::new(2, 1, &[16, 16], 4).unwrap();
+    let lay = arch.layout();
+    let nn = arch.latent_dim();
+    let mut p = KoopmanModel::init(arch.clone(), 3)
+        .unwrap()
+        .params()
+        .to_vec();
+    for i in 0..nn {
+        p[lay.a + i * nn + i] = 1e40;
+    }
+    let n = vec![1e-3; nn * nn];
+    BilinearModel::from_parts(KoopmanModel::from_params(arch, p).unwrap(), n).unwrap()
+}
+
+#[test]
+fn a_linearisation_that_overflows_falls_back_to_a_finite_plan_and_never_sends_nan() {
+    use koopman::mpc::{FallbackReason, Policy};
+    let m = overflowing_model();
+    let c = cfg(1.5, 0.0);
+    let mut mpc = BilinearMpc::new(&m, &c, ScpOptions::default()).unwrap();
+    // The linearised QP itself is refused with a typed error.
+    let z0 = m.lift(&[0.3, 0.1]);
+    assert!(matches!(
+        mpc.linearised_qp(&z0, &vec![0.5; mpc.horizon()], &[0.0, 0.0]),
+        Err(Error::NonFinite(_))
+    ));
+    let s = mpc.solve(&[0.3, 0.1], &[0.0, 0.0]).unwrap();
+    assert_eq!(s.status, ScpStatus::Fallback(FallbackReason::Numerical));
+    assert!(
+        s.u.iter().all(|v| v.is_finite() && v.abs() <= 1.5),
+        "{:?}",
+        s.u
+    );
+    // In a loop, every input sent on is finite, in bounds and flagged as a fallback.
+    for k in 0..5 {
+        let a = mpc
+            .act(&[0.3 - 0.1 * k as f64, 0.1], &[0.0, 0.0], &[0.0, 0.0])
+            .unwrap();
+        assert!(a.fallback);
+        assert!(
+            a.u.iter().all(|v| v.is_finite() && v.abs() <= 1.5),
+            "{:?}",
+            a.u
+        );
+    }
+    // Without the fallback it is a typed error, not a NaN plan.
+    let strict = MpcConfig {
+        fallback: false,
+        ..c
+    };
+    let mut mpc = BilinearMpc::new(&m, &strict, ScpOptions::default()).unwrap();
+    assert!(matches!(
+        mpc.solve(&[0.3, 0.1], &[0.0, 0.0]),
+        Err(Error::Numerical(_))
+    ));
+}

@@ -9,7 +9,10 @@ use koopman::model::nndm::NndmModel;
 use koopman::model::LiftedModel;
 use koopman::mpc::controllers::{self, ControllerKind, ControllerSettings, ModelNeed, Models};
 use koopman::mpc::metrics::GoalSpec;
-use koopman::mpc::{run_closed_loop, ClosedLoopMetrics, OneStepModel, Task, TaskKind, Trajectory};
+use koopman::mpc::{
+    run_closed_loop, ClosedLoopMetrics, OffsetFreeConfig, OffsetMode, OneStepModel, Task, TaskKind,
+    Trajectory,
+};
 use koopman::systems::System;
 use koopman::train::stand_in::{self, StandIn, StandInModel};
 
@@ -81,6 +84,10 @@ fn solver_help(kind: ControllerKind) -> &'static str {
         ControllerKind::Bilinear => {
             "Sequential convex MPC on a bilinear model (--model of kind bilinear, or --bilinear DIR)"
         }
+        ControllerKind::BilinearOffsetFree => {
+            "The bilinear MPC with the offset-free correction of --offset-free near the target"
+        }
+        ControllerKind::Edmd => "Koopman MPC (dedicated solver) on the EDMD model of --edmd",
         ControllerKind::ZeroInput => "u = 0 throughout: the free response every controller must beat",
     }
 }
@@ -98,7 +105,9 @@ model; --solver shooting is random-shooting MPC (1000 samples) on an NNDM (--mod
 --nndm DIR next to a lifted --model); --solver shooting-oracle uses the true system as its model. \
 --solver all runs every controller the given models allow.\n\nExamples:\n  koopbridge control --model models/damped --env damped-pendulum --task regulate --solver all\n  \
 koopbridge control --model models/damped --nndm models/damped-nndm --env damped-pendulum --solver all\n  \
-koopbridge control --model models/damped-nndm --env damped-pendulum --solver shooting"
+koopbridge control --model models/damped-nndm --env damped-pendulum --solver shooting\n  \
+koopbridge control --model models/damped-linear --bilinear models/damped-bilinear --edmd models/damped-edmd \
+--env damped-pendulum --solver all --offset-free integral"
 )]
 pub struct ControlArgs {
     /// Model directory (config.json with "kind": koopman | edmd | nndm). A lifted model
@@ -111,6 +120,23 @@ pub struct ControlArgs {
     /// Bilinear model directory (kind bilinear) for --solver bilinear/all next to --model.
     #[arg(long, value_name = "DIR")]
     pub bilinear: Option<PathBuf>,
+    /// EDMD model directory (kind edmd) for --solver edmd/all next to --model: one more row,
+    /// the Koopman MPC (dedicated solver) on it.
+    #[arg(long, value_name = "DIR")]
+    pub edmd: Option<PathBuf>,
+    /// Offset-free correction of the bilinear MPC near the target (--solver
+    /// bilinear-offset-free; with --solver all, a row next to the plain bilinear MPC):
+    /// `integral` shifts the reference by the integrated error, `disturbance` adds a low-pass
+    /// estimate of the one-step prediction error to the predictions.
+    #[arg(long, value_enum, value_name = "MODE")]
+    pub offset_free: Option<OffsetArg>,
+    /// The correction is on while the wrapped error ‖x − r‖ is at most this.
+    #[arg(long, default_value_t = 0.3, value_name = "R")]
+    pub offset_radius: f64,
+    /// Per-state gains of the correction (nx values; integral: k per step, disturbance: the
+    /// filter constant in [0, 1]; default 0.1 on angles, 0 elsewhere).
+    #[arg(long, value_delimiter = ',', value_name = "G")]
+    pub offset_gain: Option<Vec<f64>>,
     /// Fit an in-process stand-in model instead (least squares on random tanh features, this
     /// many features, 2000 windows of aligned data, seed 42).
     #[arg(long, value_name = "FEATURES", conflicts_with = "model")]
@@ -157,6 +183,15 @@ pub struct ControlArgs {
     pub json: bool,
 }
 
+/// `--offset-free` values.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OffsetArg {
+    /// Integral action on the tracking error.
+    Integral,
+    /// Constant disturbance estimate from the one-step prediction error.
+    Disturbance,
+}
+
 /// `--task` values.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum TaskArg {
@@ -199,6 +234,22 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
         ("an", "NNDM", "--nndm"),
         NndmModel::load,
     )?;
+    let edmd = match &args.edmd {
+        Some(dir) => {
+            let kind = koopman::model::store::read_kind(dir)?;
+            if kind != "edmd" {
+                bail!(
+                    "--edmd {} is a model of kind {kind}, not edmd",
+                    dir.display()
+                );
+            }
+            Some(
+                koopman::model::load_lifted(dir)
+                    .with_context(|| format!("loading the EDMD model in {}", dir.display()))?,
+            )
+        }
+        None => None,
+    };
     let lifted_given = !model_is_nndm
         && !model_is_bilinear
         && (args.model.is_some() || args.fit.is_some() || args.train.is_some());
@@ -206,6 +257,8 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
         lifted_given.then_some(ModelNeed::Lifted),
         nndm.is_some().then_some(ModelNeed::Nndm),
         bilinear.is_some().then_some(ModelNeed::Bilinear),
+        (bilinear.is_some() && args.offset_free.is_some()).then_some(ModelNeed::BilinearOffsetFree),
+        edmd.is_some().then_some(ModelNeed::Edmd),
     ]
     .into_iter()
     .flatten()
@@ -230,6 +283,7 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
         bilinear
             .as_ref()
             .map(|m| ("bilinear model", m.nx(), m.nu())),
+        edmd.as_ref().map(|m| ("EDMD model", m.nx(), m.nu())),
     ];
     for (what, nx, nu) in dims.into_iter().flatten() {
         if nx != system.nx() || nu != system.nu() {
@@ -290,12 +344,17 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
         lifted: model.as_deref(),
         nndm: nndm.as_ref().map(|m| m as &dyn OneStepModel),
         bilinear: bilinear.as_ref(),
+        edmd: edmd.as_deref(),
     };
     let settings = ControllerSettings {
         horizon: args.horizon,
         r: args.r,
         u_min: lo.clone(),
         u_max: hi.clone(),
+        offset_free: match args.offset_free {
+            Some(mode) => Some(offset_config(mode, &args, system.as_ref())?),
+            None => None,
+        },
     };
     for choice in choices {
         let run = run_one(choice, models, &settings, &task);
@@ -336,6 +395,11 @@ fn missing_model(kind: ControllerKind, model_is_nndm: bool) -> String {
         Some(ModelNeed::Bilinear) => "--solver bilinear needs a bilinear model: --model DIR of kind \
              bilinear or --bilinear DIR"
             .into(),
+        Some(ModelNeed::BilinearOffsetFree) => "--solver bilinear-offset-free needs a bilinear \
+             model (--model DIR of kind bilinear or --bilinear DIR) and --offset-free \
+             integral|disturbance"
+            .into(),
+        Some(ModelNeed::Edmd) => "--solver edmd needs --edmd DIR (a model of kind edmd)".into(),
         _ => format!(
             "--solver {} needs a lifted model: --model DIR of kind koopman or edmd, --fit or --train{}",
             kind.name(),
@@ -417,6 +481,32 @@ fn train_stand_in(
         eprintln!("saved the model to {}", dir.display());
     }
     Ok(made.into_lifted())
+}
+
+/// The offset-free settings of `--offset-free`, `--offset-radius`, `--offset-gain`.
+fn offset_config(
+    mode: OffsetArg,
+    args: &ControlArgs,
+    system: &dyn System,
+) -> anyhow::Result<OffsetFreeConfig> {
+    let mode = match mode {
+        OffsetArg::Integral => OffsetMode::Integral,
+        OffsetArg::Disturbance => OffsetMode::Disturbance,
+    };
+    let angles = system.angle_indices();
+    let gain = args.offset_gain.clone().unwrap_or_else(|| {
+        (0..system.nx())
+            .map(|i| if angles.contains(&i) { 0.1 } else { 0.0 })
+            .collect()
+    });
+    let cfg = OffsetFreeConfig {
+        mode,
+        radius: args.offset_radius,
+        gain,
+        angles,
+    };
+    cfg.check(system.nx())?;
+    Ok(cfg)
 }
 
 /// Runs one controller of the library's factory in closed loop, with a progress bar.

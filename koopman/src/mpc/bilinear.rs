@@ -7,6 +7,11 @@
 //! `X ≈ X̄ + Γ (U − Ū)` and the QP in U is `min ½UᵀHU + qᵀU`, `H = ΓᵀQ̄Γ + R̄ + δI`,
 //! `q = ΓᵀQ̄ (X̄ − ΓŪ − r)`, `lo ≤ U ≤ hi`. With every N_i = 0 this is the linear MPC's QP.
 //! A fixed point of the iteration satisfies the KKT conditions of the bilinear problem.
+//!
+//! An optional offset-free correction ([`BilinearMpc::set_offset_free`], [`super::offset_free`])
+//! removes the steady offset a model bias leaves near the target: [`Policy::act`] updates it
+//! from each measured state; it adds a constant disturbance to the predictions or shifts the
+//! reference.
 
 use std::time::{Duration, Instant};
 
@@ -19,8 +24,9 @@ use super::condensed::gemv_acc;
 use super::config::MpcConfig;
 use super::constraints::input_box;
 use super::controller::{expand_reference, FallbackReason};
+use super::offset_free::{OffsetFree, OffsetFreeConfig};
 use super::policy::{Action, Policy};
-use super::qp::{QpSolver, QpStatus};
+use super::qp::{QpOutcome, QpSolver, QpStatus};
 use crate::error::{ensure_finite, Error, Result};
 use crate::model::bilinear::BilinearModel;
 
@@ -94,6 +100,7 @@ pub struct BilinearMpc<'m> {
     hi: Vec<f64>,
     solver: BoxQp,
     plan: Option<Vec<f64>>,
+    offset: Option<OffsetFree>,
     // Workspace.
     r: Vec<f64>,
     zbar: Vec<f64>,
@@ -198,6 +205,7 @@ impl<'m> BilinearMpc<'m> {
             hi,
             solver,
             plan: None,
+            offset: None,
             r: vec![0.0; hz * nx],
             zbar: vec![0.0; (hz + 1) * nn],
             at: vec![0.0; hz * nn * nn],
@@ -222,9 +230,49 @@ impl<'m> BilinearMpc<'m> {
         self.hz
     }
 
-    /// Forgets the warm start (e.g. at the start of an episode).
+    /// Forgets the warm start and the offset-free estimate (e.g. at the start of an episode).
     pub fn reset(&mut self) {
         self.plan = None;
+        if let Some(o) = &mut self.offset {
+            o.reset();
+        }
+    }
+
+    /// Switches the offset-free correction on (`Some`) or off (`None`).
+    ///
+    /// Errors: settings that do not fit the model's state (see [`OffsetFreeConfig::check`]).
+    pub fn set_offset_free(&mut self, cfg: Option<OffsetFreeConfig>) -> Result<()> {
+        self.offset = cfg.map(|c| OffsetFree::new(c, self.nx)).transpose()?;
+        Ok(())
+    }
+
+    /// The offset-free correction, if on.
+    pub fn offset_free(&self) -> Option<&OffsetFree> {
+        self.offset.as_ref()
+    }
+
+    /// Updates the offset-free correction (if on) from the measured state `x` and the current
+    /// reference `r` (nx values each): the next [`BilinearMpc::solve`] plans with it, and
+    /// [`BilinearMpc::record`] must then be told the input applied.
+    ///
+    /// Errors: wrong lengths or non-finite values.
+    pub fn observe(&mut self, x: &[f64], r: &[f64]) -> Result<()> {
+        let model = self.model;
+        if let Some(o) = &mut self.offset {
+            o.update(x, r, |xp, up| {
+                let mut next = vec![0.0; x.len()];
+                crate::mpc::OneStepModel::predict(model, xp, up, &mut next);
+                next
+            })?;
+        }
+        Ok(())
+    }
+
+    /// Records the input `u` applied at state `x` (for the offset-free disturbance estimate).
+    pub fn record(&mut self, x: &[f64], u: &[f64]) {
+        if let Some(o) = &mut self.offset {
+            o.record(x, u);
+        }
     }
 
     /// Plans from state `x` towards `reference` (nx values held, or the stacked H·nx values of
@@ -243,9 +291,17 @@ impl<'m> BilinearMpc<'m> {
         let (mut its, mut lins) = (0, 0);
         let mut status = ScpStatus::NotConverged;
         while lins < self.opts.max_linearisations {
-            self.build_qp(&ubar);
             let mut u = ubar.clone();
-            let out = self.solver.solve(&self.q, &[], &mut u);
+            // A rollout that overflowed gives a non-finite QP: never handed to the solver.
+            let out = if self.build_qp(&ubar) {
+                self.solver.solve(&self.q, &[], &mut u)
+            } else {
+                QpOutcome {
+                    status: QpStatus::Numerical,
+                    iterations: 0,
+                    feasible_iterate: false,
+                }
+            };
             lins += 1;
             its += out.iterations;
             let usable = u.iter().all(|v| v.is_finite())
@@ -319,7 +375,11 @@ impl<'m> BilinearMpc<'m> {
         ensure_finite("plan", ubar)?;
         self.set_reference(reference)?;
         self.rollout(z0, ubar);
-        self.build_qp(ubar);
+        if !self.build_qp(ubar) {
+            return Err(Error::NonFinite(
+                "the linearised QP (the rollout overflowed)".into(),
+            ));
+        }
         Ok((self.hess.clone(), self.q.clone()))
     }
 
@@ -333,11 +393,16 @@ impl<'m> BilinearMpc<'m> {
     }
 
     fn set_reference(&mut self, reference: &[f64]) -> Result<()> {
-        expand_reference(&mut self.r, reference, self.nx, self.hz)
+        expand_reference(&mut self.r, reference, self.nx, self.hz)?;
+        if let Some(o) = &self.offset {
+            o.shift_reference(&mut self.r);
+        }
+        Ok(())
     }
 
-    /// Rolls the bilinear model out along `u` (z̄ and A_τ into the workspace) and returns the
-    /// plan's cost (∞ when the rollout is not finite).
+    /// Rolls the bilinear model out along `u` (z̄ and A_τ into the workspace, plus the offset-free
+    /// disturbance on the state part of each step when it is on) and returns the plan's cost
+    /// (∞ when the rollout is not finite).
     fn rollout(&mut self, z0: &[f64], u: &[f64]) -> f64 {
         let (nn, nu, nx) = (self.nn, self.nu, self.nx);
         self.zbar[..nn].copy_from_slice(z0);
@@ -359,6 +424,11 @@ impl<'m> BilinearMpc<'m> {
             next.fill(0.0);
             gemv_acc(MatRef::from_column_major_slice(at, nn, nn), cur, next);
             gemv_acc(MatRef::from_column_major_slice(&self.b, nn, nu), ut, next);
+            if let Some(d) = self.offset.as_ref().and_then(|o| o.disturbance()) {
+                for (v, di) in next.iter_mut().zip(d) {
+                    *v += di;
+                }
+            }
             for (i, &v) in next[..nx].iter().enumerate() {
                 let d = v - self.r[t * nx + i];
                 cost += self.qbar[t * nx + i] * d * d;
@@ -375,8 +445,9 @@ impl<'m> BilinearMpc<'m> {
     }
 
     /// Builds `H` (into the solver) and `q` of the linearisation along `ubar`; needs the
-    /// rollout of `ubar` in the workspace.
-    fn build_qp(&mut self, ubar: &[f64]) {
+    /// rollout of `ubar` in the workspace. Returns false (and leaves the solver's Hessian as it
+    /// was) when `H` or `q` is not finite.
+    fn build_qp(&mut self, ubar: &[f64]) -> bool {
         let (nn, nu, nx, hz) = (self.nn, self.nu, self.nx, self.hz);
         // B_τ = B + [N_i z̄_τ].
         for t in 0..hz {
@@ -476,9 +547,9 @@ impl<'m> BilinearMpc<'m> {
         for c in 0..nv {
             self.q[c] = (0..hz * nx).map(|r| self.wq[(r, c)] * self.xfree[r]).sum();
         }
-        self.solver
-            .set_hessian(self.hess.as_ref())
-            .expect("the Hessian has the solver's size");
+        let finite = self.q.iter().all(|v| v.is_finite())
+            && (0..nv).all(|c| (0..nv).all(|r| self.hess[(r, c)].is_finite()));
+        finite && self.solver.set_hessian(self.hess.as_ref()).is_ok()
     }
 
     fn shifted_plan(&self) -> Vec<f64> {
@@ -497,16 +568,26 @@ impl<'m> BilinearMpc<'m> {
 
 impl Policy for BilinearMpc<'_> {
     fn name(&self) -> String {
-        "bilinear-mpc".into()
+        match &self.offset {
+            None => "bilinear-mpc".into(),
+            Some(o) => match o.config().mode {
+                super::offset_free::OffsetMode::Disturbance => "bilinear-mpc+disturbance".into(),
+                super::offset_free::OffsetMode::Integral => "bilinear-mpc+integral".into(),
+            },
+        }
     }
     fn horizon(&self) -> usize {
         self.hz
     }
-    fn act(&mut self, x: &[f64], _current: &[f64], future: &[f64]) -> Result<Action> {
+    fn act(&mut self, x: &[f64], current: &[f64], future: &[f64]) -> Result<Action> {
+        let start = Instant::now();
+        self.observe(x, current)?;
         let s = self.solve(x, future)?;
+        let u = s.u[..self.nu].to_vec();
+        self.record(x, &u);
         Ok(Action {
-            u: s.u[..self.nu].to_vec(),
-            solve_time: s.solve_time,
+            u,
+            solve_time: start.elapsed(),
             fallback: matches!(s.status, ScpStatus::Fallback(_)),
         })
     }

@@ -1,12 +1,13 @@
 //! The controllers a closed loop compares, made by kind from the models at hand: Koopman MPC
-//! with each solver, LQR, random shooting (on an NNDM or the true system), bilinear MPC and the
-//! zero input.
+//! with each solver, LQR, random shooting (on an NNDM or the true system), bilinear MPC (plain
+//! or with the offset-free correction), Koopman MPC on an EDMD model and the zero input.
 
 use super::bilinear::{BilinearMpc, ScpOptions};
 use super::config::{MpcConfig, SolverKind};
 use super::controller::MpcController;
 use super::lqr::Lqr;
-use super::policy::{ConstantPolicy, LqrPolicy, Policy, ShootingPolicy};
+use super::offset_free::OffsetFreeConfig;
+use super::policy::{Action, ConstantPolicy, LqrPolicy, Policy, ShootingPolicy};
 use super::shooting::{OneStepModel, RandomShooting};
 use crate::error::{Error, Result};
 use crate::model::bilinear::BilinearModel;
@@ -41,6 +42,10 @@ pub enum ControllerKind {
     ShootingOracle,
     /// [`BilinearMpc`], re-linearised along each plan.
     Bilinear,
+    /// [`BilinearMpc`] with the offset-free correction of [`ControllerSettings::offset_free`].
+    BilinearOffsetFree,
+    /// [`MpcController`] (dedicated solver) on the EDMD model of [`Models::edmd`].
+    Edmd,
     /// [`ConstantPolicy::zero`]: the free response.
     ZeroInput,
 }
@@ -54,16 +59,22 @@ pub enum ModelNeed {
     Nndm,
     /// A bilinear Koopman model.
     Bilinear,
+    /// A bilinear Koopman model and offset-free settings ([`ControllerSettings::offset_free`]).
+    BilinearOffsetFree,
+    /// An EDMD model next to the lifted one ([`Models::edmd`]).
+    Edmd,
 }
 
 impl ControllerKind {
     /// Every kind, in the order of a comparison report.
-    pub const ALL: [ControllerKind; 8] = [
+    pub const ALL: [ControllerKind; 10] = [
+        ControllerKind::BilinearOffsetFree,
         ControllerKind::Bilinear,
         ControllerKind::Dedicated,
         ControllerKind::Clarabel,
         ControllerKind::ClosedForm,
         ControllerKind::Lqr,
+        ControllerKind::Edmd,
         ControllerKind::ShootingOracle,
         ControllerKind::Shooting,
         ControllerKind::ZeroInput,
@@ -79,6 +90,8 @@ impl ControllerKind {
             ControllerKind::Shooting => "shooting",
             ControllerKind::ShootingOracle => "shooting-oracle",
             ControllerKind::Bilinear => "bilinear",
+            ControllerKind::BilinearOffsetFree => "bilinear-offset-free",
+            ControllerKind::Edmd => "edmd",
             ControllerKind::ZeroInput => "zero-input",
         }
     }
@@ -92,6 +105,8 @@ impl ControllerKind {
             | ControllerKind::Lqr => Some(ModelNeed::Lifted),
             ControllerKind::Shooting => Some(ModelNeed::Nndm),
             ControllerKind::Bilinear => Some(ModelNeed::Bilinear),
+            ControllerKind::BilinearOffsetFree => Some(ModelNeed::BilinearOffsetFree),
+            ControllerKind::Edmd => Some(ModelNeed::Edmd),
             ControllerKind::ShootingOracle | ControllerKind::ZeroInput => None,
         }
     }
@@ -116,6 +131,8 @@ pub struct Models<'m> {
     pub nndm: Option<&'m dyn OneStepModel>,
     /// A bilinear model (sequential convex MPC).
     pub bilinear: Option<&'m BilinearModel>,
+    /// An EDMD model (Koopman MPC, one more row beside the lifted model's).
+    pub edmd: Option<&'m dyn LiftedModel>,
 }
 
 /// The settings every controller shares.
@@ -129,6 +146,8 @@ pub struct ControllerSettings {
     pub u_min: Vec<f64>,
     /// Upper input bounds (nu).
     pub u_max: Vec<f64>,
+    /// The offset-free correction of [`ControllerKind::BilinearOffsetFree`].
+    pub offset_free: Option<OffsetFreeConfig>,
 }
 
 /// A controller ready for the closed loop, and what the caller should tell the user about it.
@@ -216,13 +235,43 @@ pub fn build<'m>(
             models.system,
             "true-system",
         )),
-        ControllerKind::Bilinear => {
+        ControllerKind::Bilinear | ControllerKind::BilinearOffsetFree => {
             let model = models.bilinear.ok_or_else(|| missing("a bilinear model"))?;
-            Box::new(BilinearMpc::new(model, &mpc_config, ScpOptions::default())?)
+            let mut mpc = BilinearMpc::new(model, &mpc_config, ScpOptions::default())?;
+            if kind == ControllerKind::BilinearOffsetFree {
+                let offset = settings
+                    .offset_free
+                    .clone()
+                    .ok_or_else(|| missing("offset-free settings"))?;
+                mpc.set_offset_free(Some(offset))?;
+            }
+            Box::new(mpc)
+        }
+        ControllerKind::Edmd => {
+            let model = models.edmd.ok_or_else(|| missing("an EDMD model"))?;
+            Box::new(Named(
+                MpcController::new(model, &mpc_config)?,
+                "edmd-mpc/dedicated",
+            ))
         }
         ControllerKind::ZeroInput => Box::new(ConstantPolicy::zero(nu)),
     };
     Ok(Built { policy, warning })
+}
+
+/// A policy under another name in reports (the EDMD row beside the Koopman model's).
+struct Named<P>(P, &'static str);
+
+impl<P: Policy> Policy for Named<P> {
+    fn name(&self) -> String {
+        self.1.into()
+    }
+    fn horizon(&self) -> usize {
+        self.0.horizon()
+    }
+    fn act(&mut self, x: &[f64], current: &[f64], future: &[f64]) -> Result<Action> {
+        self.0.act(x, current, future)
+    }
 }
 
 #[cfg(test)]
@@ -238,6 +287,7 @@ mod tests {
             lifted,
             nndm: None,
             bilinear: None,
+            edmd: None,
         }
     }
 
@@ -248,6 +298,7 @@ mod tests {
             r,
             u_min: vec![lo],
             u_max: vec![hi],
+            offset_free: None,
         }
     }
 
@@ -328,5 +379,34 @@ mod tests {
         let mut direct = MpcController::new(&model, &cfg).unwrap();
         let want = direct.solve(&x, &future).unwrap();
         assert_eq!(got, want.first(1).to_vec());
+    }
+
+    #[test]
+    fn the_edmd_row_is_the_dedicated_mpc_on_the_edmd_model_under_its_own_name() {
+        let system = by_name("damped-pendulum").unwrap();
+        let model = MatrixModel::random_stable(2, 8, 1, 0.95, 5).unwrap();
+        let set = settings(6, 0.0, -1.0, 1.0);
+        let x = [0.7, -0.3];
+        let future = vec![0.0; 2 * set.horizon];
+        let mut on_edmd = models(system.as_ref(), None);
+        on_edmd.edmd = Some(&model);
+        let mut edmd = build(ControllerKind::Edmd, on_edmd, &set).unwrap();
+        let mut dedicated = build(
+            ControllerKind::Dedicated,
+            models(system.as_ref(), Some(&model)),
+            &set,
+        )
+        .unwrap();
+        assert_eq!(edmd.policy.name(), "edmd-mpc/dedicated");
+        assert_ne!(dedicated.policy.name(), edmd.policy.name());
+        assert_eq!(
+            edmd.policy.act(&x, &[0.0, 0.0], &future).unwrap().u,
+            dedicated.policy.act(&x, &[0.0, 0.0], &future).unwrap().u
+        );
+        // Offset-free bilinear MPC without its settings (and without a model) is refused.
+        let err = build(ControllerKind::BilinearOffsetFree, on_edmd, &set)
+            .err()
+            .expect("refused");
+        assert!(matches!(err, Error::InvalidArgument(_)), "{err}");
     }
 }

@@ -14,7 +14,8 @@
 //!   [`controllers::build`] makes any of them by [`controllers::ControllerKind`].
 //! - [`BilinearMpc`]: sequential convex MPC on a bilinear model (`z⁺ = A z + B u + Σ u_i N_i z`),
 //!   re-linearised along each new plan (at most [`ScpOptions::max_linearisations`] QPs on the
-//!   dedicated box solver); [`ScpStatus`] says whether it converged.
+//!   dedicated box solver); [`ScpStatus`] says whether it converged. [`OffsetFreeConfig`]
+//!   switches on an offset-free correction near the target (disturbance estimate or integral).
 //! - On solver failure the controller returns the shifted previous plan clamped to the bounds
 //!   ([`SolveStatus::Fallback`]), never NaN; bad input is a typed [`crate::Error`].
 
@@ -30,6 +31,7 @@ pub mod controller;
 pub mod controllers;
 pub mod lqr;
 pub mod metrics;
+pub mod offset_free;
 pub mod policy;
 pub mod qp;
 pub mod shooting;
@@ -39,6 +41,7 @@ pub use closed_loop::{run_closed_loop, ClosedLoopMetrics, Task, TaskKind, Trajec
 pub use config::{MpcConfig, SolverKind};
 pub use controller::{FallbackReason, MpcController, MpcSolution, SolveStatus};
 pub use lqr::Lqr;
+pub use offset_free::{OffsetFree, OffsetFreeConfig, OffsetMode};
 pub use policy::{Action, ConstantPolicy, LqrPolicy, Policy, ShootingPolicy};
 pub use qp::{QpOutcome, QpSolver, QpStatus};
 pub use shooting::{OneStepModel, RandomShooting, SystemAsModel};
