@@ -149,7 +149,7 @@ fn a_participant_that_dies_fails_the_run_naming_it() {
 /// koopbridge adapter; it stops when its standard input closes).
 const PLANNER: &str = r#"
 import argparse, sys, threading
-from koopbridge import PlannerService
+from koopbridge._native import PlannerService
 p = argparse.ArgumentParser()
 p.add_argument("--id"); p.add_argument("--session")
 p.add_argument("--connect", action="append", default=[])

@@ -119,7 +119,7 @@ impl<'a> ControlRun<'a> {
         } else {
             None
         };
-        let mut run = ControlRun {
+        let run = ControlRun {
             key: client.keys.mpc_solve(task.mpc_id)?,
             who: format!("MPC service '{}'", task.mpc_id),
             sim,

@@ -68,6 +68,7 @@ pub fn control_phase(
     }
     let run = |clients: &mut [SimClient],
                which: &[usize],
+               publish: bool,
                on: &mut dyn FnMut(Event<'_>)|
      -> Result<(Vec<ControlReport>, LoopReport)> {
         // Disjoint &mut borrows of the controlled clients, in the order of `which`.
@@ -87,20 +88,21 @@ pub fn control_phase(
                     reference: &p.reference,
                     horizon: p.horizon,
                     steps: ctrl.steps,
-                    publish: what.publish,
+                    publish,
                 },
             ));
         }
         control_loop(client, live, jobs, &mut |k, n| on(Event::Control(k, n)))
     };
     let all: Vec<usize> = (0..prepared.len()).collect();
-    let (reports, mut figures) = run(clients, &all, on)?;
+    let (reports, mut figures) = run(clients, &all, what.publish, on)?;
     if what.baseline && prepared.len() > 1 {
         on(Event::Phase(
             "each controlled simulator alone in the loop (baseline)",
         ));
         for &i in &all {
-            let (_, alone) = run(clients, &[i], on)?;
+            // Not published: the recordings are of the loop of all.
+            let (_, alone) = run(clients, &[i], false, on)?;
             figures
                 .alone_steps_per_second
                 .push(alone.macro_steps_per_second);
