@@ -37,8 +37,11 @@ fn window(d: &Dataset, w: usize) -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
     )
 }
 
+/// One window: its states and its inputs.
+type Window = (Vec<Vec<f64>>, Vec<Vec<f64>>);
+
 /// The executed trajectory of a control report cut into windows of `t` transitions.
-fn executed(c: &serde_json::Value, t: usize) -> Vec<(Vec<Vec<f64>>, Vec<Vec<f64>>)> {
+fn executed(c: &serde_json::Value, t: usize) -> Vec<Window> {
     let x: Vec<Vec<f64>> = serde_json::from_value(c["x"].clone()).unwrap();
     let u: Vec<Vec<f64>> = serde_json::from_value(c["u"].clone()).unwrap();
     (0..u.len() / t)

@@ -4,10 +4,11 @@
 
 use faer::linalg::solvers::Solve;
 use faer::{Col, Mat};
+use koopman::model::matrix::MatrixModel;
 use koopman::model::LiftedModel;
 use koopman::mpc::boxqp::BoxQp;
 use koopman::mpc::clarabel_qp::ClarabelQp;
-use koopman::mpc::{MatrixModel, MpcConfig, MpcController, QpSolver, QpStatus, SolveStatus};
+use koopman::mpc::{MpcConfig, MpcController, QpSolver, QpStatus, SolveStatus};
 use koopman::rng::Rng;
 
 /// `½uᵀHu + qᵀu`.

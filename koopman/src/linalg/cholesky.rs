@@ -80,8 +80,8 @@ impl SmallCholesky {
         }
         for i in (0..n).rev() {
             let mut v = b[i];
-            for k in i + 1..n {
-                v -= self.l[k * s + i] * b[k];
+            for (k, bk) in b.iter().enumerate().take(n).skip(i + 1) {
+                v -= self.l[k * s + i] * bk;
             }
             b[i] = v / self.l[i * s + i];
         }
@@ -111,8 +111,8 @@ impl SmallCholesky {
         }
         let s = self.stride;
         let mut sq = 0.0;
-        for i in 0..n {
-            let mut v = r[i];
+        for (i, &ri) in r.iter().enumerate().take(n) {
+            let mut v = ri;
             for k in 0..i {
                 v -= self.l[i * s + k] * self.l[n * s + k];
             }
