@@ -81,7 +81,7 @@ def plan_reference(ask: Any, goals: Sequence[tuple[int, np.ndarray]], dt: float,
 
 
 def _reference(a: argparse.Namespace) -> int:
-    from .. import Client, RemoteError
+    from .. import BridgeTimeout, Client, RemoteError
     from ..adapters.drake_plan import Gen3Planner
 
     out = Path(a.out)
@@ -91,11 +91,19 @@ def _reference(a: argparse.Namespace) -> int:
 
         def ask(start: list[float], goal: list[float], dt: float) -> dict[str, Any]:
             body = json.dumps(dict(start=start, goal=goal, dt=dt)).encode()
-            for _ in range(600):  # `busy` (another plan running): retry for up to a minute
+            # `busy` (another plan running): retry for up to a minute. A query that ends at once
+            # without a reply found no route to the planner yet (this fresh session has not yet
+            # learnt the planner's queryable): retry that for up to 15 s.
+            unrouted_until = time.monotonic() + 15.0
+            for _ in range(600):
+                sent = time.monotonic()
                 try:
                     return json.loads(c.query(key, body, timeout=60.0))
                 except RemoteError as e:
                     if e.code != "busy":
+                        raise
+                except BridgeTimeout:
+                    if time.monotonic() - sent > 1.0 or time.monotonic() > unrouted_until:
                         raise
                 time.sleep(0.1)
             raise RuntimeError(f"planner {a.planner!r} stayed busy for a minute")
