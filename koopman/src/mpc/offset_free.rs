@@ -55,7 +55,7 @@ impl OffsetFreeConfig {
         if self.gain.len() != nx {
             return Err(Error::dimension("offset-free gains", nx, self.gain.len()));
         }
-        if !(self.radius > 0.0) {
+        if self.radius.is_nan() || self.radius <= 0.0 {
             return Err(Error::InvalidArgument(format!(
                 "the offset-free radius must be > 0, got {}",
                 self.radius
