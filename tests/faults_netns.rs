@@ -166,25 +166,7 @@ fn a_link_cut_mid_recording_is_detected_and_nothing_recorded_is_lost() {
             &cfg_s,
         ]
     };
-    let mut procs = vec![net.spawn(
-        &r,
-        "router",
-        &exe,
-        &[
-            "router",
-            "--listen",
-            "tcp/0.0.0.0:7447",
-            "--zenoh-config",
-            &cfg_s,
-            "--stdin-lifeline",
-        ],
-        &[],
-        &log("router"),
-    )];
-    // Clients that find no router exit at once: start them once it listens.
-    wait_until("the router listening", common::READY, || {
-        std::fs::read_to_string(log("router")).is_ok_and(|l| l.contains("listening on"))
-    });
+    let mut procs = vec![net.spawn_router(&r, &exe, &cfg_s, &log("router"))];
     let sim_args = [
         "sim",
         "--env",

@@ -14,7 +14,6 @@ use std::time::{Duration, Instant};
 
 use bridge::keyexpr::fresh_session_id;
 use common::netns::Net;
-use koopman::data::{generate_splits, Pairing, SplitSpec};
 
 /// Waits until `f` holds; panics with `what` (and the sweep's output) after `limit`.
 fn wait_until(what: &str, limit: Duration, log: &std::path::Path, mut f: impl FnMut() -> bool) {
@@ -61,42 +60,9 @@ fn a_sweep_from_a_fourth_host_survives_a_trainer_host_killed_midway() {
     let log = |n: &str| dir.join(format!("{n}.log"));
 
     let data = dir.join("sweep-host/data/pend");
-    let sys = koopman::systems::by_name("damped-pendulum").unwrap();
-    let spec = SplitSpec {
-        windows: 528,
-        train: 400,
-        val: 64,
-        test: 64,
-        seed: 5,
-        pairing: Pairing::Reference,
-        steps: Some(15),
-    };
-    generate_splits(sys.as_ref(), &spec)
-        .unwrap()
-        .save(&data)
-        .unwrap();
+    common::small_pendulum_dataset(&data, 5);
 
-    let router = net.spawn(
-        &r,
-        "router",
-        &exe,
-        &[
-            "router",
-            "--listen",
-            "tcp/0.0.0.0:7447",
-            "--zenoh-config",
-            &cfg_s,
-            "--stdin-lifeline",
-        ],
-        &[],
-        &log("router"),
-    );
-    wait_until(
-        "the router listening",
-        common::READY,
-        &log("router"),
-        || std::fs::read_to_string(log("router")).is_ok_and(|l| l.contains("listening on")),
-    );
+    let router = net.spawn_router(&r, &exe, &cfg_s, &log("router"));
     // Each trainer host has its own folders: nothing is shared with the sweep's host but Zenoh.
     let trainer = |ns: &str, id: &str, ep: &str| {
         let home = dir.join(format!("{id}-host"));

@@ -12,7 +12,6 @@ use std::time::{Duration, Instant};
 use bridge::keyexpr::Role;
 use bridge::orchestrator::Cluster;
 use bridge::services::trainer::{JobRecord, JobState};
-use koopman::data::{generate_splits, Pairing, SplitSpec};
 
 fn jobs(c: &Cluster, trainer: &str) -> Vec<JobRecord> {
     let b = c
@@ -103,20 +102,7 @@ fn sweep_cmd(
 fn a_sweep_survives_a_trainer_killed_midway_and_resumes_without_training_twice() {
     let (c, opts, session) = common::cluster("sweep", &[], &[]);
     let data = opts.out_dir.join("data/pend");
-    let sys = koopman::systems::by_name("damped-pendulum").unwrap();
-    let spec = SplitSpec {
-        windows: 528,
-        train: 400,
-        val: 64,
-        test: 64,
-        seed: 3,
-        pairing: Pairing::Reference,
-        steps: Some(15),
-    };
-    generate_splits(sys.as_ref(), &spec)
-        .unwrap()
-        .save(&data)
-        .unwrap();
+    common::small_pendulum_dataset(&data, 3);
     let out = opts.out_dir.join("sweep");
 
     // `n_mult` is a grid field: setting it through --set is refused before anything runs.

@@ -262,3 +262,23 @@ pub fn running(pid: u32) -> bool {
         .and_then(|s| s.rsplit(')').next().map(|r| r.trim_start().to_string()))
         .is_some_and(|r| !r.starts_with('Z'))
 }
+
+/// Writes a small damped-pendulum dataset (reference pairing, 400 / 64 / 64 windows of 15
+/// steps, data seed `seed`) into `dir` as train/val/test `.npz`.
+pub fn small_pendulum_dataset(dir: &std::path::Path, seed: u64) {
+    use koopman::data::{generate_splits, Pairing, SplitSpec};
+    let sys = koopman::systems::by_name("damped-pendulum").unwrap();
+    let spec = SplitSpec {
+        windows: 528,
+        train: 400,
+        val: 64,
+        test: 64,
+        seed,
+        pairing: Pairing::Reference,
+        steps: Some(15),
+    };
+    generate_splits(sys.as_ref(), &spec)
+        .unwrap()
+        .save(dir)
+        .unwrap();
+}

@@ -117,6 +117,38 @@ impl Net {
     }
 }
 
+impl Net {
+    /// Starts `koopbridge router` (the binary `exe`) in namespace `ns` on port 7447 of every
+    /// address with the Zenoh config `cfg`, and returns once it listens (clients that find no
+    /// router exit at once, so start them after this).
+    pub fn spawn_router(&self, ns: &str, exe: &Path, cfg: &str, log: &Path) -> ChildProc {
+        let mut router = self.spawn(
+            ns,
+            "router",
+            exe,
+            &[
+                "router",
+                "--listen",
+                "tcp/0.0.0.0:7447",
+                "--zenoh-config",
+                cfg,
+                "--stdin-lifeline",
+            ],
+            &[],
+            log,
+        );
+        let t = std::time::Instant::now();
+        while !std::fs::read_to_string(log).is_ok_and(|l| l.contains("listening on")) {
+            if let Some(m) = router.exited() {
+                panic!("the router ended before listening: {m}");
+            }
+            assert!(t.elapsed() < super::READY, "the router never listened");
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        router
+    }
+}
+
 impl Drop for Net {
     fn drop(&mut self) {
         for ns in self.namespaces.drain(..) {
