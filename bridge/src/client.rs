@@ -106,17 +106,41 @@ impl PendingQuery {
     /// Waits for the first reply: its payload, or the typed error it carries. With `watch`, fails
     /// early with [`Error::Gone`] when participant `(role, id)` loses its liveliness token.
     pub fn wait(self, watch: Option<(&Liveliness, Role, &str)>) -> Result<Vec<u8>> {
+        let mut first = None;
+        self.wait_many(watch, |b| {
+            first = Some(b);
+            Ok(true)
+        })?;
+        first.ok_or_else(|| Error::Config("a query ended without its reply".into()))
+    }
+
+    /// Waits for the replies of a query answered in several replies (the chunks of `collect`):
+    /// `on_reply` gets each payload in arrival order and returns `true` once it has all it
+    /// needs (or an error, which ends the wait). An error reply ends the wait with its typed
+    /// error; the query ending first is a timeout. `watch` as for [`PendingQuery::wait`].
+    pub fn wait_many(
+        self,
+        watch: Option<(&Liveliness, Role, &str)>,
+        mut on_reply: impl FnMut(Vec<u8>) -> Result<bool>,
+    ) -> Result<()> {
+        let mut replies = 0usize;
         loop {
             let now = Instant::now();
             let slice_end =
                 (now + Duration::from_millis(25)).min(self.deadline + Duration::from_millis(500));
             match self.rx.recv_deadline(slice_end) {
-                Ok(Some(reply)) => return self.decode(&reply),
+                Ok(Some(reply)) => {
+                    replies += 1;
+                    if on_reply(self.decode(&reply)?)? {
+                        return Ok(());
+                    }
+                }
                 Ok(None) => {}
                 Err(_) => {
-                    // Channel closed: the query finished without any reply. If the participant
-                    // is watched, give its liveliness token a moment to be withdrawn (a process
-                    // that died takes its queryable and its token down at about the same time).
+                    // Channel closed: the query finished without (all) its replies. If the
+                    // participant is watched, give its liveliness token a moment to be withdrawn
+                    // (a process that died takes its queryable and its token down at about the
+                    // same time).
                     if let Some((l, role, id)) = watch {
                         let until = Instant::now() + Duration::from_millis(500);
                         while Instant::now() < until {
@@ -126,7 +150,11 @@ impl PendingQuery {
                             std::thread::sleep(Duration::from_millis(10));
                         }
                     }
-                    return Err(self.timeout(format!("{} (no reply)", self.what)));
+                    let what = match replies {
+                        0 => format!("{} (no reply)", self.what),
+                        n => format!("{} (the query ended after {n} of its replies)", self.what),
+                    };
+                    return Err(self.timeout(what));
                 }
             }
             if let Some((l, role, id)) = watch {
@@ -330,6 +358,11 @@ impl SimClient {
 
     fn who(&self) -> String {
         format!("simulator '{}'", self.id)
+    }
+
+    /// The session client this simulator is reached through.
+    pub fn client(&self) -> &Client {
+        &self.client
     }
 
     /// Re-reads `info` (e.g. for the adapter's counters).

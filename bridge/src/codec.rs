@@ -1,5 +1,5 @@
-//! Compact little-endian binary codec of the hot-path messages (step, state, command, solve),
-//! each framed by the magic `KB`, the protocol version and a message type byte.
+//! Compact little-endian binary codec of the hot-path messages (step, state, command, solve,
+//! collect chunks), each framed by the magic `KB`, the protocol version and a message type byte.
 
 use crate::error::{Error, ErrorCode, Result};
 
@@ -26,6 +26,8 @@ pub enum MsgType {
     SolveRequest = 0x05,
     /// [`SolveReply`].
     SolveReply = 0x06,
+    /// [`CollectChunk`].
+    CollectChunk = 0x07,
 }
 
 /// `step` query: apply `u` at step `k` (`u_k` held over `[t_k, t_k + dt)`).
@@ -110,6 +112,32 @@ pub struct SolveReply {
     /// Solve time inside the service in nanoseconds.
     pub solve_time_ns: u64,
     /// The input sequence, `H·nu` values, first input first.
+    pub u: Vec<f64>,
+}
+
+/// One reply of a `collect` query: windows `first .. first + windows` of the collection,
+/// chunk `chunk` of the `chunks` replies that together hold the requested block.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CollectChunk {
+    /// The block index of the request.
+    pub block: u64,
+    /// This chunk's index (0-based).
+    pub chunk: u32,
+    /// How many chunks the block has.
+    pub chunks: u32,
+    /// The collection index of the chunk's first window.
+    pub first: u64,
+    /// Windows in this chunk.
+    pub windows: u32,
+    /// Transitions per window T.
+    pub steps: u32,
+    /// State dimension.
+    pub nx: u32,
+    /// Input dimension.
+    pub nu: u32,
+    /// States `[windows, steps + 1, nx]`, row-major.
+    pub x: Vec<f64>,
+    /// Inputs `[windows, steps, nu]`, row-major.
     pub u: Vec<f64>,
 }
 
@@ -408,6 +436,71 @@ impl SolveReply {
     }
 }
 
+impl CollectChunk {
+    /// Encodes: header, `block: u64`, `chunk: u32`, `chunks: u32`, `first: u64`,
+    /// `windows: u32`, `steps: u32`, `nx: u32`, `nu: u32`, `x: vec`, `u: vec`.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut w = Writer::new(
+            MsgType::CollectChunk,
+            48 + 8 * (self.x.len() + self.u.len()),
+        );
+        w.u64(self.block);
+        w.u32(self.chunk);
+        w.u32(self.chunks);
+        w.u64(self.first);
+        w.u32(self.windows);
+        w.u32(self.steps);
+        w.u32(self.nx);
+        w.u32(self.nu);
+        w.vec(&self.x);
+        w.vec(&self.u);
+        w.0
+    }
+    /// Decodes and checks the whole payload: `chunk < chunks`, and `x`/`u` hold exactly
+    /// `windows·(steps+1)·nx` and `windows·steps·nu` values.
+    pub fn decode(b: &[u8]) -> Result<Self> {
+        let what = "collect chunk";
+        let mut r = Reader::new(b, MsgType::CollectChunk, what)?;
+        let m = CollectChunk {
+            block: r.u64()?,
+            chunk: r.u32()?,
+            chunks: r.u32()?,
+            first: r.u64()?,
+            windows: r.u32()?,
+            steps: r.u32()?,
+            nx: r.u32()?,
+            nu: r.u32()?,
+            x: r.vec()?,
+            u: r.vec()?,
+        };
+        r.finish()?;
+        if m.chunk >= m.chunks {
+            return Err(bad(
+                what,
+                format!("chunk {} of {} chunks", m.chunk, m.chunks),
+            ));
+        }
+        let (n, t) = (u64::from(m.windows), u64::from(m.steps));
+        let want_x = n * (t + 1) * u64::from(m.nx);
+        let want_u = n * t * u64::from(m.nu);
+        if m.x.len() as u64 != want_x || m.u.len() as u64 != want_u {
+            return Err(bad(
+                what,
+                format!(
+                    "{} windows of {} steps (nx {}, nu {}) need {want_x} and {want_u} values, got {} and {}",
+                    m.windows,
+                    m.steps,
+                    m.nx,
+                    m.nu,
+                    m.x.len(),
+                    m.u.len()
+                ),
+            ));
+        }
+        Ok(m)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -521,6 +614,57 @@ mod tests {
              00000000000000c0"
         );
         assert_eq!(SolveReply::decode(&r.encode()).unwrap(), r);
+    }
+
+    #[test]
+    fn golden_collect_chunk() {
+        let m = CollectChunk {
+            block: 2,
+            chunk: 1,
+            chunks: 3,
+            first: 8,
+            windows: 1,
+            steps: 1,
+            nx: 1,
+            nu: 1,
+            x: vec![1.5, -2.0],
+            u: vec![0.02],
+        };
+        assert_eq!(
+            hex(&m.encode()),
+            "4b420107\
+             0200000000000000\
+             01000000\
+             03000000\
+             0800000000000000\
+             01000000\
+             01000000\
+             01000000\
+             01000000\
+             02000000\
+             000000000000f83f\
+             00000000000000c0\
+             01000000\
+             7b14ae47e17a943f"
+        );
+        assert_eq!(CollectChunk::decode(&m.encode()).unwrap(), m);
+        // Inconsistent counts and chunk indices are refused, typed.
+        for bad in [
+            CollectChunk { nx: 2, ..m.clone() },
+            CollectChunk {
+                u: vec![],
+                ..m.clone()
+            },
+            CollectChunk {
+                chunk: 3,
+                ..m.clone()
+            },
+        ] {
+            match CollectChunk::decode(&bad.encode()) {
+                Err(Error::Protocol { code, .. }) => assert_eq!(code, ErrorCode::BadRequest),
+                other => panic!("expected bad_request, got {other:?}"),
+            }
+        }
     }
 
     #[test]

@@ -1,5 +1,8 @@
-//! Lockstep data collection: windows of `T` steps from one or several simulators stepped
-//! concurrently, turned into `koopman::data::Dataset`s (bit-for-bit repeatable for a seed).
+//! Data collection: windows of `T` steps from one or several simulators stepped concurrently
+//! in lockstep, or run by the simulators themselves ([`blocks`], the `collect` request), turned
+//! into `koopman::data::Dataset`s (bit-for-bit repeatable for a seed).
+
+pub mod blocks;
 
 use koopman::data::{Dataset, DatasetMeta, Pairing};
 use koopman::rng::Rng;
@@ -29,6 +32,16 @@ pub fn window_seed(seed: u64, split: Split, sim: usize, i: usize) -> u64 {
     r.next_u64()
 }
 
+/// The `collect` seed of simulator `j` for `split` under a scenario's data `seed` (keeps the
+/// splits and simulators independent when they run their windows themselves).
+pub fn adapter_seed(seed: u64, split: Split, sim: usize) -> u64 {
+    let mut r = Rng::derive(
+        seed ^ 0xADA9_7E55_C011_EC70,
+        ((split as u64) << 56) ^ sim as u64,
+    );
+    r.next_u64()
+}
+
 /// What to collect.
 #[derive(Clone, Debug)]
 pub struct CollectJob<'a> {
@@ -46,7 +59,8 @@ pub struct CollectJob<'a> {
 
 /// Collects `job.windows` windows of `job.steps` transitions from every simulator in `sims`
 /// concurrently; returns one dataset per simulator. `progress(done, total)` is called after each
-/// window.
+/// window (after each block with `Policy::Adapter`, whose windows the simulators run
+/// themselves: [`blocks::collect_datasets`] with [`adapter_seed`]).
 pub fn collect(
     sims: &mut [SimClient],
     job: &CollectJob<'_>,
@@ -60,6 +74,14 @@ pub fn collect(
         seed,
         split,
     } = *job;
+    if let Policy::Adapter { inputs, block } = policy {
+        let seeds: Vec<u64> = (0..sims.len())
+            .map(|j| adapter_seed(seed, split, j))
+            .collect();
+        return blocks::collect_datasets(
+            sims, inputs, &seeds, windows, steps, *block, live, progress,
+        );
+    }
     let mut out: Vec<Dataset> = Vec::with_capacity(sims.len());
     for s in sims.iter() {
         let info = &s.info.sim;
@@ -91,6 +113,7 @@ pub fn collect(
                 policy: match policy {
                     Policy::Uniform => "uniform".into(),
                     Policy::Scripted { .. } => "scripted".into(),
+                    Policy::Adapter { .. } => "adapter".into(),
                 },
             },
         });
@@ -120,6 +143,7 @@ pub fn collect(
                         .map(|(&lo, &hi)| r.uniform(lo, hi))
                         .collect(),
                     Policy::Scripted { inputs } => inputs[(i * steps + t) % inputs.len()].clone(),
+                    Policy::Adapter { .. } => unreachable!("collected by the simulators above"),
                 })
                 .collect();
             let replies = step_all(sims, &inputs, live)?;

@@ -75,7 +75,7 @@ impl Keys {
         Ok(self.key(parts))
     }
 
-    /// `…/sim/{id}/{leaf}` where leaf is `info`, `reset`, `step`, `state` or `command`.
+    /// `…/sim/{id}/{leaf}` where leaf is `info`, `reset`, `step`, `state`, `command` or `collect`.
     pub fn sim(&self, id: &str, leaf: SimLeaf) -> Result<String> {
         self.checked("sim id", id, &["sim", id, leaf.as_str()])
     }
@@ -169,6 +169,8 @@ pub enum SimLeaf {
     State,
     /// `command` subscription (free-run).
     Command,
+    /// `collect` queryable (blocks of windows run in-process, replied in chunks).
+    Collect,
 }
 
 impl SimLeaf {
@@ -180,6 +182,7 @@ impl SimLeaf {
             SimLeaf::Step => "step",
             SimLeaf::State => "state",
             SimLeaf::Command => "command",
+            SimLeaf::Collect => "collect",
         }
     }
 }

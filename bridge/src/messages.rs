@@ -1,4 +1,4 @@
-//! JSON control-plane messages: simulator info, reset requests, adapter statistics.
+//! JSON control-plane messages: simulator info, reset and collect requests, adapter statistics.
 
 use serde::{Deserialize, Serialize};
 
@@ -17,9 +17,12 @@ pub struct SimInfo {
     pub state_names: Vec<String>,
     /// Names of the input components (`nu` of them).
     pub input_names: Vec<String>,
-    /// Lower input bounds (`nu`).
+    /// Lower input bounds (`nu`); `-inf` for an unbounded input, `null` on the wire (JSON has no
+    /// infinities).
+    #[serde(with = "lower_bounds")]
     pub u_min: Vec<f64>,
-    /// Upper input bounds (`nu`).
+    /// Upper input bounds (`nu`); `+inf` for an unbounded input, `null` on the wire.
+    #[serde(with = "upper_bounds")]
     pub u_max: Vec<f64>,
     /// Indices of angle components of the state (wrapped when measuring errors).
     #[serde(default)]
@@ -29,6 +32,53 @@ pub struct SimInfo {
     /// the built-in systems. Orchestrators pass it through and never depend on it.
     #[serde(default, skip_serializing_if = "serde_json::Map::is_empty")]
     pub extra: serde_json::Map<String, serde_json::Value>,
+}
+
+/// Input bounds on the wire: a finite value as a number, an infinite one as `null` (JSON has no
+/// infinities; serde_json would write `null` and then refuse to read it back). `null` reads back
+/// as the infinity of the side (`SIGN`: −1 for lower bounds, +1 for upper bounds); NaN is refused
+/// when writing, so it can never come back as an infinity.
+mod bounds {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(v: &[f64], s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::{Error, SerializeSeq};
+        let mut seq = s.serialize_seq(Some(v.len()))?;
+        for &b in v {
+            if b.is_nan() {
+                return Err(S::Error::custom("an input bound is NaN"));
+            }
+            if b.is_finite() {
+                seq.serialize_element(&b)?;
+            } else {
+                seq.serialize_element(&Option::<f64>::None)?;
+            }
+        }
+        seq.end()
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D, sign: f64) -> Result<Vec<f64>, D::Error> {
+        let v: Vec<Option<f64>> = Vec::deserialize(d)?;
+        Ok(v.into_iter()
+            .map(|b| b.unwrap_or(sign * f64::INFINITY))
+            .collect())
+    }
+}
+
+/// `u_min` on the wire (`null` = −∞).
+mod lower_bounds {
+    pub use super::bounds::serialize;
+    pub fn deserialize<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
+        super::bounds::deserialize(d, -1.0)
+    }
+}
+
+/// `u_max` on the wire (`null` = +∞).
+mod upper_bounds {
+    pub use super::bounds::serialize;
+    pub fn deserialize<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
+        super::bounds::deserialize(d, 1.0)
+    }
 }
 
 impl SimInfo {
@@ -85,6 +135,9 @@ pub struct AdapterStats {
     /// clipped to the bounds (the adapter is the last line of defence in front of the plant).
     #[serde(default)]
     pub clipped_commands: u64,
+    /// Windows run in-process for `collect` requests.
+    #[serde(default)]
+    pub collected_windows: u64,
 }
 
 /// The JSON reply of `…/sim/{id}/info`.
@@ -116,6 +169,88 @@ pub struct ResetRequest {
     /// Explicit initial state (`nx` values).
     #[serde(default)]
     pub x0: Option<Vec<f64>>,
+}
+
+/// A bound of a [`CollectPolicy`]: one value for every input, or one per input.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum InputBound {
+    /// The same bound for every input.
+    All(f64),
+    /// One bound per input (`nu` values).
+    Each(Vec<f64>),
+}
+
+impl InputBound {
+    /// The bound as `nu` values, or `None` if it has another length.
+    pub fn resolve(&self, nu: usize) -> Option<Vec<f64>> {
+        match self {
+            InputBound::All(v) => Some(vec![*v; nu]),
+            InputBound::Each(v) if v.len() == nu => Some(v.clone()),
+            InputBound::Each(_) => None,
+        }
+    }
+}
+
+/// How a simulator draws the inputs of the windows it collects itself (`collect` request).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum CollectPolicy {
+    /// A fresh `u ~ U(low, high)` every step; absent bounds are the simulator's
+    /// `u_min`/`u_max` (which must then be finite).
+    Uniform {
+        /// Lower bounds (default `info.u_min`).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        low: Option<InputBound>,
+        /// Upper bounds (default `info.u_max`).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        high: Option<InputBound>,
+    },
+}
+
+impl Default for CollectPolicy {
+    fn default() -> Self {
+        CollectPolicy::Uniform {
+            low: None,
+            high: None,
+        }
+    }
+}
+
+/// The JSON query of `…/sim/{id}/collect`: block `block` of a collection of windows that the
+/// simulator runs in its own process. The collection is cut into blocks of `block_windows`
+/// windows (block `b` holds windows `b·block_windows ..`); the reply holds the first `windows`
+/// (default all) of them, so that a collection's last block may be short. Window `i` depends
+/// only on `(policy, seed, i)`: the same request gives the same bytes, and a collection resumes
+/// at any block.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CollectRequest {
+    /// The input policy.
+    #[serde(default)]
+    pub policy: CollectPolicy,
+    /// The collection's seed.
+    pub seed: u64,
+    /// The block index.
+    pub block: u64,
+    /// Windows per block of the collection (≥ 1).
+    pub block_windows: u32,
+    /// Windows wanted from this block (1 ..= `block_windows`; absent = `block_windows`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub windows: Option<u32>,
+    /// Transitions per window T (≥ 1).
+    pub steps: u32,
+}
+
+impl CollectRequest {
+    /// The index of the block's first window (`None` if it overflows `u64`).
+    pub fn first_window(&self) -> Option<u64> {
+        self.block.checked_mul(u64::from(self.block_windows))
+    }
+    /// How many windows the reply holds.
+    pub fn window_count(&self) -> u32 {
+        self.windows.unwrap_or(self.block_windows)
+    }
 }
 
 #[cfg(test)]
@@ -151,5 +286,27 @@ mod tests {
         // A reply without the field (an older adapter) still decodes.
         let old: InfoReply = serde_json::from_value(plain).unwrap();
         assert!(old.sim.extra.is_empty());
+    }
+
+    #[test]
+    fn unbounded_inputs_travel_as_null_and_come_back_infinite() {
+        let sys = koopman::systems::by_name("damped-pendulum").unwrap();
+        let mut info = SimInfo::from_system(sys.as_ref());
+        info.u_min = vec![f64::NEG_INFINITY];
+        info.u_max = vec![f64::INFINITY];
+        let text = serde_json::to_string(&info).unwrap();
+        assert!(
+            text.contains(r#""u_min":[null]"#) && text.contains(r#""u_max":[null]"#),
+            "{text}"
+        );
+        let back: SimInfo = serde_json::from_str(&text).unwrap();
+        assert_eq!(back, info);
+        // Finite bounds are plain numbers, mixed with unbounded ones.
+        info.u_min = vec![-2.0];
+        let back: SimInfo = serde_json::from_str(&serde_json::to_string(&info).unwrap()).unwrap();
+        assert_eq!((back.u_min[0], back.u_max[0]), (-2.0, f64::INFINITY));
+        // NaN is not turned into an infinity.
+        info.u_max = vec![f64::NAN];
+        assert!(serde_json::to_string(&info).is_err());
     }
 }

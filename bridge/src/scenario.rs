@@ -114,9 +114,24 @@ pub enum Policy {
         /// The inputs.
         inputs: Vec<Vec<f64>>,
     },
+    /// Each simulator runs the windows itself, `block` windows per `collect` request
+    /// (PROTOCOL.md, "Collect"), drawing its inputs from `inputs` (default: uniform within its
+    /// bounds) with its own generator.
+    Adapter {
+        /// The input policy the simulators draw from.
+        #[serde(default)]
+        inputs: crate::messages::CollectPolicy,
+        /// Windows per request (default 500).
+        #[serde(default = "default_block")]
+        block: u32,
+    },
 }
 
-/// Data collection by lockstep stepping.
+fn default_block() -> u32 {
+    500
+}
+
+/// Data collection: by lockstep stepping, or by the simulators themselves (`Policy::Adapter`).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CollectSpec {
@@ -244,6 +259,11 @@ impl Scenario {
                     "a scripted policy needs at least one input".into(),
                 ));
             }
+        }
+        if matches!(c.policy, Policy::Adapter { block: 0, .. }) {
+            return Err(Error::Config(
+                "collect.policy.block must be at least 1".into(),
+            ));
         }
         if !self.control.is_empty() && self.train.is_none() {
             return Err(Error::Config(

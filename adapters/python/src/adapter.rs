@@ -10,7 +10,8 @@ use std::sync::{mpsc, Arc, Mutex};
 use std::time::Duration;
 
 use bridge::adapter::{
-    AdapterOptions, AdapterStats, FreeRunOptions, ResetRequest, SimBackend, SimError, SimInfo,
+    AdapterOptions, AdapterStats, CollectPlan, FreeRunOptions, ResetRequest, SimBackend, SimError,
+    SimInfo, Windows,
 };
 use bridge::session::open_session;
 use bridge::zenoh::Wait;
@@ -33,8 +34,13 @@ use crate::zenoh_args::zenoh_options;
 /// - ``step(self, u) -> array`` applying ``u`` (``nu`` values, held over one ``dt``) and
 ///   returning the next state.
 ///
+/// Optionally ``collect(policy, seed, n_windows, T, start)`` returning an object with arrays
+/// ``x`` ``(n_windows, T+1, nx)`` and ``u`` ``(n_windows, T, nu)`` (``koopbridge.collect.Windows``;
+/// ``policy`` is the request's JSON policy with explicit bounds) answers ``collect`` requests;
+/// without it they are run with ``reset`` and ``step``, window by window.
+///
 /// Then call ``serve(session=..., id=...)``: it blocks, answering the protocol's ``info``,
-/// ``reset`` and ``step`` queries (lockstep) or publishing states at a fixed rate (free-run)
+/// ``reset``, ``step`` and ``collect`` queries (lockstep) or publishing states at a fixed rate (free-run)
 /// until ``stop()`` is called from another thread, Ctrl-C, or the free-run step limit.
 /// Raise ``koopbridge.InvalidInput`` or ``koopbridge.Unsupported`` for a ``bad_request`` or
 /// ``unsupported`` reply; any other exception gives a ``sim_failure`` reply with its message,
@@ -304,6 +310,48 @@ impl SimBackend for PyBackend {
             r.map_err(|e| sim_error(py, e, "step"))
         })
     }
+
+    fn collect(&mut self, plan: &CollectPlan) -> Result<Windows, SimError> {
+        let own = Python::attach(|py| {
+            self.python_collect(py, plan)
+                .map(|r| r.map_err(|e| sim_error(py, e, "collect")))
+        });
+        // A plain `Adapter` subclass without `collect`: its reset and step, window by window.
+        own.unwrap_or_else(|| bridge::adapter::collect::run_windows(self, plan))
+    }
+}
+
+impl PyBackend {
+    /// The Python object's own `collect(policy, seed, n_windows, T, start)` (``SimulatorAdapter``
+    /// has one), if it has that method.
+    fn python_collect(&self, py: Python<'_>, plan: &CollectPlan) -> Option<PyResult<Windows>> {
+        let obj = self.obj.bind(py);
+        let method = obj.getattr(pyo3::intern!(py, "collect")).ok()?;
+        Some((|| {
+            let policy = to_py_json(py, &plan.policy())?;
+            let args = (policy, plan.seed, plan.windows, plan.steps, plan.first);
+            let w = method.call1(args)?;
+            let (n, t) = (plan.windows, plan.steps);
+            let (nx, nu) = (self.info.nx(), self.info.nu());
+            Ok(Windows {
+                x: flat(&w.getattr("x")?, &[n, t + 1, nx], "collect(): x")?,
+                u: flat(&w.getattr("u")?, &[n, t, nu], "collect(): u")?,
+            })
+        })())
+    }
+}
+
+/// The float64 values of array `obj`, which must have `shape`.
+fn flat(obj: &Bound<'_, PyAny>, shape: &[usize], what: &str) -> PyResult<Vec<f64>> {
+    let np = obj.py().import("numpy")?;
+    let a = np.call_method1("ascontiguousarray", (obj, "float64"))?;
+    let got: Vec<usize> = a.getattr("shape")?.extract()?;
+    if got != shape {
+        return Err(PyValueError::new_err(format!(
+            "{what} has shape {got:?}, expected {shape:?}"
+        )));
+    }
+    vec_f64(&a.call_method0("ravel")?, what)
 }
 
 /// A Python exception raised by a callback as the backend error the protocol reports.

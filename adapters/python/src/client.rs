@@ -8,11 +8,12 @@ use std::time::Duration;
 
 use bridge::client::{Client as Inner, Liveliness, SimClient};
 use bridge::codec::{SolveReply, SolveRequest, SolveStatus, StepReply, StepRequest};
+use bridge::collect::blocks::collect_block;
 use bridge::keyexpr::{Keys, SimLeaf};
-use bridge::messages::ResetRequest;
+use bridge::messages::{CollectRequest, ResetRequest};
 use bridge::session::open_session;
 use bridge::zenoh::Wait;
-use numpy::PyArray1;
+use numpy::{PyArray1, PyArray3, PyArrayMethods};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
@@ -142,6 +143,50 @@ impl Client {
             .map_err(bridge_err)?;
         let r = StepReply::decode(&bytes).map_err(bridge_err)?;
         Ok((r.k, r.t, array1(py, &r.x)))
+    }
+
+    /// Asks simulator ``id`` for block ``block`` of a collection of windows it runs in its own
+    /// process (the ``collect`` request, PROTOCOL.md): blocks of ``block_windows`` windows of
+    /// ``steps`` transitions, the first ``windows`` of them (default all), inputs drawn from
+    /// ``policy`` (a dict, default ``{"kind": "uniform"}`` within the simulator's bounds) with
+    /// ``seed``. Returns ``(x, u)`` of shapes ``(n, steps + 1, nx)`` and ``(n, steps, nu)``; the
+    /// same arguments give the same arrays, bit for bit. A refused request raises
+    /// ``RemoteError`` with its code (``bad_request``, ``dimension``, ``too_large``, ...).
+    #[pyo3(signature = (id, seed, block, block_windows, steps, windows=None, policy=None, timeout=600.0))]
+    #[allow(clippy::too_many_arguments, clippy::type_complexity)]
+    fn collect<'py>(
+        &self,
+        py: Python<'py>,
+        id: &str,
+        seed: u64,
+        block: u64,
+        block_windows: u32,
+        steps: u32,
+        windows: Option<u32>,
+        policy: Option<&Bound<'py, PyAny>>,
+        timeout: f64,
+    ) -> PyResult<(Bound<'py, PyArray3<f64>>, Bound<'py, PyArray3<f64>>)> {
+        let policy = match policy {
+            Some(p) => serde_json::from_value(from_py_json(p, "policy")?)
+                .map_err(|e| PyValueError::new_err(format!("policy: {e}")))?,
+            None => Default::default(),
+        };
+        let req = CollectRequest {
+            policy,
+            seed,
+            block,
+            block_windows,
+            windows,
+            steps,
+        };
+        let t = secs(timeout)?;
+        let live = &self.live;
+        let b = py
+            .detach(|| collect_block(&self.inner, id, &req, t, Some(live)))
+            .map_err(bridge_err)?;
+        let x = PyArray1::from_vec(py, b.x).reshape([b.windows, b.steps + 1, b.nx])?;
+        let u = PyArray1::from_vec(py, b.u).reshape([b.windows, b.steps, b.nu])?;
+        Ok((x, u))
     }
 
     /// Asks the MPC service ``mpc_id`` for a plan at state ``x`` towards ``reference`` (one

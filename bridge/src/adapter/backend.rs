@@ -4,6 +4,8 @@
 use crate::error::{ErrorCode, ErrorReply};
 use crate::messages::{ResetRequest, SimInfo};
 
+use super::collect::{run_windows, CollectPlan, Windows};
+
 /// A simulator as the adapter sees it: plain synchronous calls, one at a time, on one thread.
 pub trait SimBackend {
     /// What the simulator is (called once when serving starts).
@@ -12,6 +14,13 @@ pub trait SimBackend {
     fn reset(&mut self, req: &ResetRequest) -> std::result::Result<Vec<f64>, SimError>;
     /// Applies `u` (`nu` values, held over one `dt`) and returns the next state.
     fn step(&mut self, u: &[f64]) -> std::result::Result<Vec<f64>, SimError>;
+    /// Runs the windows of a checked `collect` request in-process and returns them (the
+    /// adapter checks their sizes and values). Default: [`run_windows`], reset and step one
+    /// window after the other; a backend with a faster path (or its own generator, as the
+    /// Python simulators have) overrides it. The simulator's state afterwards is arbitrary.
+    fn collect(&mut self, plan: &CollectPlan) -> std::result::Result<Windows, SimError> {
+        run_windows(self, plan)
+    }
 }
 
 /// A failure reported by a backend.

@@ -7,10 +7,11 @@ use std::collections::VecDeque;
 use crate::codec::{StepReply, StepRequest, PROTOCOL_VERSION};
 use crate::error::{Error, ErrorCode, ErrorReply, Result};
 use crate::keyexpr::SimLeaf;
-use crate::messages::{AdapterStats, InfoReply, ResetRequest, SimInfo};
+use crate::messages::{AdapterStats, CollectRequest, InfoReply, ResetRequest, SimInfo};
 use crate::services::Reply;
 
 use super::backend::SimBackend;
+use super::collect::CollectPlan;
 
 /// A step reply kept for retries: the step index, the input's bits and the reply bytes.
 struct Cached {
@@ -97,6 +98,30 @@ impl<'a> Lockstep<'a> {
         r
     }
 
+    /// Answers a `collect` query: the reply chunks of the requested block, run in-process by
+    /// the backend, or a typed error (counted in `stats.errors`). The backend is reset many
+    /// times, so the lockstep state is gone afterwards: the next `step` needs a `reset`.
+    pub fn answer_collect(&mut self, body: &[u8]) -> std::result::Result<Vec<Vec<u8>>, ErrorReply> {
+        let r = self.collect_inner(body);
+        if r.is_err() {
+            self.stats.errors += 1;
+        }
+        r
+    }
+
+    fn collect_inner(&mut self, body: &[u8]) -> std::result::Result<Vec<Vec<u8>>, ErrorReply> {
+        self.lockstep_only("collect")?;
+        let req: CollectRequest = crate::services::parse_json("collect request", body)?;
+        let plan = CollectPlan::new(&self.info, &req)?;
+        self.has_state = false;
+        self.k = 0;
+        self.cache.clear();
+        let w = self.backend.collect(&plan).map_err(|e| e.reply())?;
+        plan.check(&w)?;
+        self.stats.collected_windows += plan.windows as u64;
+        Ok(plan.chunks(&w))
+    }
+
     /// Counts and returns an error reply decided outside (e.g. a payload over the size limit).
     pub fn refuse(&mut self, e: ErrorReply) -> Reply {
         self.stats.errors += 1;
@@ -144,6 +169,10 @@ impl<'a> Lockstep<'a> {
             SimLeaf::State | SimLeaf::Command => {
                 Err(ErrorReply::new(ErrorCode::Unsupported, "not a queryable"))
             }
+            SimLeaf::Collect => Err(ErrorReply::new(
+                ErrorCode::Internal,
+                "collect is answered in chunks (Lockstep::answer_collect)",
+            )),
         }
     }
 
@@ -450,6 +479,47 @@ pub(crate) mod tests {
         assert_eq!(s.stats().errors, 13);
         drop(s);
         assert_eq!(b.steps, 1, "only the failing step reached the backend");
+    }
+
+    #[test]
+    fn collect_answers_chunks_and_leaves_no_lockstep_state() {
+        let mut b = Counter::default();
+        let mut s = Lockstep::new(&mut b, "c", 4).unwrap();
+        s.answer(SimLeaf::Reset, b"").unwrap();
+        step(&mut s, 0, &[1.0]).unwrap();
+        let req = br#"{"seed": 3, "block": 1, "block_windows": 4, "windows": 3, "steps": 2}"#;
+        let chunks = s.answer_collect(req).unwrap();
+        let c = crate::codec::CollectChunk::decode(&chunks[0]).unwrap();
+        assert_eq!(
+            (chunks.len(), c.first, c.windows, c.nx, c.nu),
+            (1, 4, 3, 2, 1)
+        );
+        // x_{k+1} = x_k + u_k from the Counter's reset state [0, 10].
+        for w in 0..3 {
+            let (x, u) = (&c.x[w * 6..w * 6 + 6], &c.u[w * 2..w * 2 + 2]);
+            assert_eq!(&x[..2], &[0.0, 10.0]);
+            assert_eq!(x[4], u[0] + u[1]);
+            assert!(u.iter().all(|v| v.abs() <= 2.0));
+        }
+        assert_eq!(
+            s.answer_collect(req).unwrap(),
+            chunks,
+            "same request, same bytes"
+        );
+        assert_eq!(s.stats().collected_windows, 6);
+        // The backend was reset for every window: stepping needs a reset first.
+        assert_eq!(
+            (s.k(), code(step(&mut s, 0, &[1.0]))),
+            (0, ErrorCode::OutOfOrder)
+        );
+        assert_eq!(
+            s.answer_collect(b"{").unwrap_err().code,
+            ErrorCode::BadRequest
+        );
+        assert_eq!(code(s.answer(SimLeaf::Collect, req)), ErrorCode::Internal);
+        s.set_free_run(true);
+        assert_eq!(s.answer_collect(req).unwrap_err().code, ErrorCode::Busy);
+        assert_eq!(s.stats().errors, 4);
     }
 
     #[test]

@@ -5,12 +5,14 @@
 //! - [`backend`]: the [`SimBackend`] trait and [`SystemBackend`];
 //! - [`lockstep`]: the protocol state machine, request bytes in, reply bytes out (no Zenoh);
 //! - [`free_run`]: the free-run clock, command clipping and counters (no Zenoh);
+//! - [`collect`]: `collect` requests checked, run in-process and cut into reply chunks;
 //! - [`serve`] (here): the Zenoh wiring around them.
 //!
 //! Zenoh callbacks only forward queries and samples into a channel; the backend is called on the
 //! thread that called [`serve`], never inside a Zenoh callback.
 
 pub mod backend;
+pub mod collect;
 pub mod free_run;
 pub mod lockstep;
 
@@ -28,6 +30,7 @@ use crate::services::{payload, respond, DEFAULT_MAX_PAYLOAD};
 
 pub use crate::messages::{AdapterStats, InfoReply, ResetRequest, SimInfo};
 pub use backend::{SimBackend, SimError, SystemBackend};
+pub use collect::{CollectPlan, Windows};
 pub use free_run::{FreeRun, FreeRunOptions};
 pub use lockstep::Lockstep;
 
@@ -85,7 +88,12 @@ pub fn serve(
     let keys = &opts.keys;
     let (tx, rx) = mpsc::channel::<Event>();
     let mut queryables = Vec::new();
-    for leaf in [SimLeaf::Info, SimLeaf::Reset, SimLeaf::Step] {
+    for leaf in [
+        SimLeaf::Info,
+        SimLeaf::Reset,
+        SimLeaf::Step,
+        SimLeaf::Collect,
+    ] {
         let tx = tx.clone();
         let q = session
             .declare_queryable(keys.sim(&opts.id, leaf)?)
@@ -150,6 +158,13 @@ pub fn serve(
             })
             .min(Duration::from_millis(100));
         match rx.recv_timeout(wait) {
+            Ok(Event::Query(SimLeaf::Collect, q)) => {
+                let result = match payload(&q, opts.max_payload) {
+                    Ok(body) => sim.answer_collect(&body),
+                    Err(e) => sim.refuse(e).map(|b| vec![b]),
+                };
+                respond_chunks(&q, result);
+            }
             Ok(Event::Query(leaf, q)) => {
                 let result = match payload(&q, opts.max_payload) {
                     Ok(body) => sim.answer(leaf, &body),
@@ -181,6 +196,21 @@ pub fn serve(
         }
     }
     Ok(sim.stats().clone())
+}
+
+/// Sends each chunk as one reply to `q` (a `collect` query), or the typed error.
+fn respond_chunks(q: &Query, result: std::result::Result<Vec<Vec<u8>>, crate::ErrorReply>) {
+    match result {
+        Ok(chunks) => {
+            for c in chunks {
+                if let Err(e) = q.reply(q.key_expr().clone(), c).wait() {
+                    tracing::warn!(key = %q.key_expr(), "could not send a collect chunk: {e}");
+                    return;
+                }
+            }
+        }
+        Err(e) => respond(q, Err(e)),
+    }
 }
 
 fn publish(p: &zenoh::pubsub::Publisher<'_>, sim: &mut Lockstep<'_>, s: &StateMsg) -> Result<()> {

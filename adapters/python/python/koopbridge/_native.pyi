@@ -161,6 +161,20 @@ class Client:
         """One step request for an explicit k, no retries; a repeated (k, u) is answered from
         the adapter's cache."""
         ...
+    def collect(
+        self,
+        id: str,
+        seed: int,
+        block: int,
+        block_windows: int,
+        steps: int,
+        windows: int | None = None,
+        policy: dict[str, Any] | None = None,
+        timeout: float = 600.0,
+    ) -> tuple[_Vector, _Vector]:
+        """Block ``block`` of a collection the simulator runs itself (``collect`` request);
+        returns ``(x, u)`` of shapes ``(n, steps + 1, nx)`` and ``(n, steps, nu)``."""
+        ...
     def solve(
         self,
         mpc_id: str,
