@@ -2,7 +2,8 @@
 //! constant unmodelled acceleration, so without the correction the closed loop settles beside
 //! the target, and with it (disturbance estimate or integral action) the offset goes to ~0. Also:
 //! the correction is off (plans bit-identical to the plain MPC's) outside its radius, the
-//! disturbance estimate converges to the true bias, and bad settings are typed errors.
+//! disturbance estimate converges to the true bias, the per-step (trajectory) correction is the
+//! τ-step prediction errors computed here, and bad settings are typed errors.
 
 use koopman::model::arch::Arch;
 use koopman::model::bilinear::BilinearModel;
@@ -59,7 +60,7 @@ fn mpc(model: &BilinearModel) -> BilinearMpc<'_> {
 /// the rate error would only integrate the angle's change).
 fn offset(mode: OffsetMode, gain: f64) -> OffsetFreeConfig {
     let gain = match mode {
-        OffsetMode::Disturbance => vec![gain, gain],
+        OffsetMode::Disturbance | OffsetMode::Trajectory => vec![gain, gain],
         OffsetMode::Integral => vec![gain, 0.0],
     };
     OffsetFreeConfig {
@@ -106,6 +107,7 @@ fn without_the_correction_the_bias_leaves_an_offset_and_with_it_the_offset_goes_
     let cases = [
         (OffsetMode::Disturbance, 0.3, 600),
         (OffsetMode::Integral, 0.05, 2000),
+        (OffsetMode::Trajectory, 0.5, 600),
     ];
     for (mode, gain, steps) in cases {
         let mut m = mpc(&model);
@@ -236,4 +238,43 @@ fn bad_offset_free_settings_are_typed_errors() {
         Err(Error::NonFinite(_))
     ));
     assert!(m.act(&[0.1, 0.0], &[0.0, 0.0], &[0.0, 0.0]).is_ok());
+}
+
+/// With α = 1 the trajectory correction is exactly the error of each τ-step prediction of the
+/// last H decisions, recomputed here by stepping the model's one-step prediction τ times from
+/// the state measured τ steps ago with the inputs applied since (the known model ignores its
+/// encoder, so a latent rollout and repeated one-step predictions agree).
+#[test]
+fn the_trajectory_correction_is_the_error_of_each_tau_step_prediction() {
+    let model = known_model();
+    let mut m = mpc(&model);
+    m.set_offset_free(Some(OffsetFreeConfig {
+        radius: f64::INFINITY,
+        ..offset(OffsetMode::Trajectory, 1.0)
+    }))
+    .unwrap();
+    let (xs, us) = closed_loop(&mut m, 30);
+    // The last `act` observed xs[29] (the state it acted on) with the decisions 19..28 recorded.
+    let k = 29;
+    let hz = m.horizon();
+    let e = m.offset_free().unwrap().estimate().to_vec();
+    assert_eq!(e.len(), hz * 2);
+    for tau in 1..=hz {
+        let mut x = xs[k - tau].clone();
+        for u in &us[k - tau..k] {
+            let mut next = vec![0.0; 2];
+            model.predict(&x, u, &mut next);
+            x = next;
+        }
+        for i in 0..2 {
+            let want = xs[k][i] - x[i];
+            let got = e[(tau - 1) * 2 + i];
+            assert!(
+                (got - want).abs() < 1e-12,
+                "tau {tau}, component {i}: {got} vs {want}"
+            );
+        }
+    }
+    // A bias of 0.05 per step on ω: the τ-step error grows with τ (it is not one constant).
+    assert!(e[(hz - 1) * 2 + 1].abs() > 2.0 * e[1].abs(), "{e:?}");
 }

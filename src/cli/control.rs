@@ -127,14 +127,18 @@ pub struct ControlArgs {
     /// Offset-free correction of the bilinear MPC near the target (--solver
     /// bilinear-offset-free; with --solver all, a row next to the plain bilinear MPC):
     /// `integral` shifts the reference by the integrated error, `disturbance` adds a low-pass
-    /// estimate of the one-step prediction error to the predictions.
+    /// estimate of the one-step prediction error to the predictions, `trajectory` adds the
+    /// filtered error of each τ-step prediction to horizon step τ (the one that regulates the
+    /// damped pendulum: use it with --r 0.1).
     #[arg(long, value_enum, value_name = "MODE")]
     pub offset_free: Option<OffsetArg>,
-    /// The correction is on while the wrapped error ‖x − r‖ is at most this.
-    #[arg(long, default_value_t = 0.3, value_name = "R")]
-    pub offset_radius: f64,
-    /// Per-state gains of the correction (nx values; integral: k per step, disturbance: the
-    /// filter constant in [0, 1]; default 0.1 on angles, 0 elsewhere).
+    /// The correction is on while the wrapped error ‖x − r‖ is at most this (default 1.0 for
+    /// trajectory, 0.3 otherwise).
+    #[arg(long, value_name = "R")]
+    pub offset_radius: Option<f64>,
+    /// Per-state gains of the correction (nx values; integral: k per step, disturbance and
+    /// trajectory: the filter constant in [0, 1]; default 0.5 everywhere for trajectory, else
+    /// 0.1 on angles and 0 elsewhere).
     #[arg(long, value_delimiter = ',', value_name = "G")]
     pub offset_gain: Option<Vec<f64>>,
     /// Fit an in-process stand-in model instead (least squares on random tanh features, this
@@ -190,6 +194,8 @@ pub enum OffsetArg {
     Integral,
     /// Constant disturbance estimate from the one-step prediction error.
     Disturbance,
+    /// The filtered error of each τ-step prediction added to horizon step τ.
+    Trajectory,
 }
 
 /// `--task` values.
@@ -492,19 +498,15 @@ fn offset_config(
     let mode = match mode {
         OffsetArg::Integral => OffsetMode::Integral,
         OffsetArg::Disturbance => OffsetMode::Disturbance,
+        OffsetArg::Trajectory => OffsetMode::Trajectory,
     };
-    let angles = system.angle_indices();
-    let gain = args.offset_gain.clone().unwrap_or_else(|| {
-        (0..system.nx())
-            .map(|i| if angles.contains(&i) { 0.1 } else { 0.0 })
-            .collect()
-    });
-    let cfg = OffsetFreeConfig {
-        mode,
-        radius: args.offset_radius,
-        gain,
-        angles,
-    };
+    let mut cfg = OffsetFreeConfig::defaults(mode, system.nx(), system.angle_indices());
+    if let Some(g) = &args.offset_gain {
+        cfg.gain = g.clone();
+    }
+    if let Some(r) = args.offset_radius {
+        cfg.radius = r;
+    }
     cfg.check(system.nx())?;
     Ok(cfg)
 }

@@ -242,7 +242,8 @@ impl<'m> BilinearMpc<'m> {
     ///
     /// Errors: settings that do not fit the model's state (see [`OffsetFreeConfig::check`]).
     pub fn set_offset_free(&mut self, cfg: Option<OffsetFreeConfig>) -> Result<()> {
-        self.offset = cfg.map(|c| OffsetFree::new(c, self.nx)).transpose()?;
+        let (nx, hz) = (self.nx, self.hz);
+        self.offset = cfg.map(|c| OffsetFree::new(c, nx, hz)).transpose()?;
         Ok(())
     }
 
@@ -259,10 +260,18 @@ impl<'m> BilinearMpc<'m> {
     pub fn observe(&mut self, x: &[f64], r: &[f64]) -> Result<()> {
         let model = self.model;
         if let Some(o) = &mut self.offset {
-            o.update(x, r, |xp, up| {
-                let mut next = vec![0.0; x.len()];
-                crate::mpc::OneStepModel::predict(model, xp, up, &mut next);
-                next
+            o.update(x, r, |start, inputs| {
+                // The state after inputs.len() / nu steps of the bilinear model from `start`.
+                let Ok(mut z) = model.try_lift(start) else {
+                    return Vec::new();
+                };
+                let mut next = vec![0.0; z.len()];
+                for u in inputs.chunks_exact(model.nu()) {
+                    model.step(&z, u, &mut next);
+                    std::mem::swap(&mut z, &mut next);
+                }
+                z.truncate(model.nx());
+                z
             })?;
         }
         Ok(())
@@ -573,6 +582,7 @@ impl Policy for BilinearMpc<'_> {
             Some(o) => match o.config().mode {
                 super::offset_free::OffsetMode::Disturbance => "bilinear-mpc+disturbance".into(),
                 super::offset_free::OffsetMode::Integral => "bilinear-mpc+integral".into(),
+                super::offset_free::OffsetMode::Trajectory => "bilinear-mpc+trajectory".into(),
             },
         }
     }

@@ -16,6 +16,16 @@
 //!   and the MPC plans towards `r − ξ` (|ξ_i| ≤ radius, anti-windup). Any closed-loop
 //!   equilibrium with the correction on has `x_i = r_i` for every component with `k_i > 0`,
 //!   whatever the model's bias there.
+//! - [`OffsetMode::Trajectory`]: a correction per horizon step, the filtered error of the
+//!   model's τ-step prediction, `e_τ ← (1 − α) e_τ + α (x_k − x̂_{k|k−τ})`, where `x̂_{k|k−τ}` is
+//!   the model rolled out from the state measured τ steps ago with the inputs applied since
+//!   (τ = 1..H); the MPC then sees `x̂_τ + e_τ` (its reference shifted by `−e_τ`). A model whose
+//!   error is not a constant per-step drift (a learnt lifting's first step "snaps" by a nearly
+//!   state-independent amount that later steps undo) is corrected where the constant
+//!   disturbance over-corrects it: at a closed-loop equilibrium every τ-step prediction of the
+//!   held plan is exact, so only the model's input sensitivity, not its bias, shapes the plan.
+
+use std::collections::VecDeque;
 
 use serde::{Deserialize, Serialize};
 
@@ -31,6 +41,9 @@ pub enum OffsetMode {
     Disturbance,
     /// Integral action: the reference is shifted by the integrated error (`gain` = k ≥ 0 per step).
     Integral,
+    /// The filtered error of each τ-step prediction (τ = 1..H) added to the prediction of
+    /// horizon step τ (`gain` = the filter constant α ∈ [0, 1]).
+    Trajectory,
 }
 
 /// Settings of the offset-free correction.
@@ -41,8 +54,9 @@ pub struct OffsetFreeConfig {
     pub mode: OffsetMode,
     /// On while the wrapped error `‖x − r‖₂` is at most this (> 0; may be ∞).
     pub radius: f64,
-    /// Per state component (nx values): α_i ∈ [0, 1] for [`OffsetMode::Disturbance`], k_i ≥ 0
-    /// for [`OffsetMode::Integral`]; 0 leaves the component uncorrected.
+    /// Per state component (nx values): α_i ∈ [0, 1] for [`OffsetMode::Disturbance`] and
+    /// [`OffsetMode::Trajectory`], k_i ≥ 0 for [`OffsetMode::Integral`]; 0 leaves the component
+    /// uncorrected.
     pub gain: Vec<f64>,
     /// State components that are angles (wrapped to (−π, π] in every error).
     #[serde(default)]
@@ -50,6 +64,27 @@ pub struct OffsetFreeConfig {
 }
 
 impl OffsetFreeConfig {
+    /// The settings that worked on the damped pendulum for `mode` (see BENCHMARKS.md, "Session
+    /// 6"): integral and disturbance: radius 0.3, gain 0.1 on the angles and 0 elsewhere;
+    /// trajectory: radius 1.0, α = 0.5 on every component.
+    pub fn defaults(mode: OffsetMode, nx: usize, angles: Vec<usize>) -> Self {
+        let (radius, gain) = match mode {
+            OffsetMode::Trajectory => (1.0, vec![0.5; nx]),
+            OffsetMode::Integral | OffsetMode::Disturbance => (
+                0.3,
+                (0..nx)
+                    .map(|i| if angles.contains(&i) { 0.1 } else { 0.0 })
+                    .collect(),
+            ),
+        };
+        OffsetFreeConfig {
+            mode,
+            radius,
+            gain,
+            angles,
+        }
+    }
+
     /// Checks the settings against the state dimension.
     pub fn check(&self, nx: usize) -> Result<()> {
         if self.gain.len() != nx {
@@ -62,7 +97,7 @@ impl OffsetFreeConfig {
             )));
         }
         let max = match self.mode {
-            OffsetMode::Disturbance => 1.0,
+            OffsetMode::Disturbance | OffsetMode::Trajectory => 1.0,
             OffsetMode::Integral => f64::INFINITY,
         };
         if self
@@ -84,25 +119,39 @@ impl OffsetFreeConfig {
     }
 }
 
-/// The correction's running state: the estimate, whether it is on, and the last decision (for
-/// the one-step prediction error).
+/// The correction's running state: the estimate, whether it is on, and the last decisions (for
+/// the prediction errors).
 #[derive(Clone, Debug, PartialEq)]
 pub struct OffsetFree {
     cfg: OffsetFreeConfig,
+    horizon: usize,
+    /// `d` or `ξ` (nx values); for [`OffsetMode::Trajectory`] `e_1..e_H` (H·nx values).
     estimate: Vec<f64>,
     active: bool,
-    last: Option<(Vec<f64>, Vec<f64>)>,
+    /// The last decisions `(x, u)`, newest first: one kept, or H for [`OffsetMode::Trajectory`].
+    history: VecDeque<(Vec<f64>, Vec<f64>)>,
 }
 
 impl OffsetFree {
-    /// A correction for states of dimension `nx` (errors: see [`OffsetFreeConfig::check`]).
-    pub fn new(cfg: OffsetFreeConfig, nx: usize) -> Result<Self> {
+    /// A correction for states of dimension `nx` and an MPC of horizon `horizon` (errors: see
+    /// [`OffsetFreeConfig::check`]; a zero horizon).
+    pub fn new(cfg: OffsetFreeConfig, nx: usize, horizon: usize) -> Result<Self> {
         cfg.check(nx)?;
+        if horizon == 0 {
+            return Err(Error::InvalidArgument(
+                "the offset-free correction needs a horizon of at least 1".into(),
+            ));
+        }
+        let len = match cfg.mode {
+            OffsetMode::Trajectory => horizon * nx,
+            _ => nx,
+        };
         Ok(OffsetFree {
-            estimate: vec![0.0; nx],
+            estimate: vec![0.0; len],
             cfg,
+            horizon,
             active: false,
-            last: None,
+            history: VecDeque::new(),
         })
     }
 
@@ -111,7 +160,8 @@ impl OffsetFree {
         &self.cfg
     }
 
-    /// The current estimate (`d` or `ξ`, nx values; zero while off).
+    /// The current estimate (`d` or `ξ`, nx values; `e_1..e_H`, H·nx values, for
+    /// [`OffsetMode::Trajectory`]; zero while off).
     pub fn estimate(&self) -> &[f64] {
         &self.estimate
     }
@@ -125,21 +175,22 @@ impl OffsetFree {
     pub fn reset(&mut self) {
         self.estimate.fill(0.0);
         self.active = false;
-        self.last = None;
+        self.history.clear();
     }
 
     /// Updates the estimate from the measured state `x` and the current reference `r`;
-    /// `predict(x_prev, u_prev)` is the model's one-step prediction of the state (used by
-    /// [`OffsetMode::Disturbance`]). Outside the radius the estimate is reset to zero.
+    /// `predict(x_start, inputs)` is the model's prediction of the state after `inputs.len() / nu`
+    /// steps from `x_start` (used by [`OffsetMode::Disturbance`], one step, and
+    /// [`OffsetMode::Trajectory`], 1..H steps). Outside the radius the estimate is reset to zero.
     ///
     /// Errors: wrong lengths or non-finite values (the estimate is left unchanged).
     pub fn update(
         &mut self,
         x: &[f64],
         r: &[f64],
-        predict: impl FnOnce(&[f64], &[f64]) -> Vec<f64>,
+        mut predict: impl FnMut(&[f64], &[f64]) -> Vec<f64>,
     ) -> Result<()> {
-        let nx = self.estimate.len();
+        let nx = self.cfg.gain.len();
         if x.len() != nx || r.len() != nx {
             return Err(Error::dimension(
                 "offset-free state / reference",
@@ -158,7 +209,7 @@ impl OffsetFree {
         }
         match self.cfg.mode {
             OffsetMode::Disturbance => {
-                if let (true, Some((xp, up))) = (self.active, &self.last) {
+                if let (true, Some((xp, up))) = (self.active, self.history.front()) {
                     let pred = predict(xp, up);
                     if pred.len() == nx && pred.iter().all(|v| v.is_finite()) {
                         let innov = wrapped_error(x, &pred, &self.cfg.angles);
@@ -174,14 +225,37 @@ impl OffsetFree {
                     *s = (*s + g * e).clamp(-cap, cap);
                 }
             }
+            OffsetMode::Trajectory => {
+                // Step τ: from the state τ decisions ago with the inputs applied since.
+                let mut inputs: Vec<f64> = Vec::new();
+                for (tau, (xs, us)) in self.history.iter().enumerate() {
+                    inputs.splice(0..0, us.iter().copied());
+                    let pred = predict(xs, &inputs);
+                    if pred.len() != nx || !pred.iter().all(|v| v.is_finite()) {
+                        continue;
+                    }
+                    let innov = wrapped_error(x, &pred, &self.cfg.angles);
+                    let e = &mut self.estimate[tau * nx..(tau + 1) * nx];
+                    for ((d, g), v) in e.iter_mut().zip(&self.cfg.gain).zip(innov) {
+                        *d = (1.0 - g) * *d + g * v;
+                    }
+                }
+            }
         }
         self.active = true;
         Ok(())
     }
 
-    /// Records the decision taken at `x` (its first input `u`), for the next one-step error.
+    /// Records the decision taken at `x` (its first input `u`), for the next prediction errors.
     pub fn record(&mut self, x: &[f64], u: &[f64]) {
-        self.last = Some((x.to_vec(), u.to_vec()));
+        let keep = match self.cfg.mode {
+            OffsetMode::Trajectory => self.horizon,
+            _ => 1,
+        };
+        if self.history.len() == keep {
+            self.history.pop_back();
+        }
+        self.history.push_front((x.to_vec(), u.to_vec()));
     }
 
     /// The state disturbance to add to every predicted step (zero unless
@@ -190,14 +264,26 @@ impl OffsetFree {
         (self.cfg.mode == OffsetMode::Disturbance && self.active).then_some(&self.estimate[..])
     }
 
-    /// Shifts the stacked reference (`H·nx` or `nx` values) by `−ξ` when
-    /// [`OffsetMode::Integral`] is on.
+    /// Shifts the stacked reference (`H·nx` values, or `nx` for [`OffsetMode::Integral`]) by
+    /// `−ξ` when [`OffsetMode::Integral`] is on, by `−e_τ` at step τ when
+    /// [`OffsetMode::Trajectory`] is.
     pub fn shift_reference(&self, reference: &mut [f64]) {
-        if self.cfg.mode == OffsetMode::Integral && self.active {
-            let nx = self.estimate.len();
-            for (k, v) in reference.iter_mut().enumerate() {
-                *v -= self.estimate[k % nx];
+        if !self.active {
+            return;
+        }
+        let n = self.estimate.len();
+        match self.cfg.mode {
+            OffsetMode::Integral => {
+                for (k, v) in reference.iter_mut().enumerate() {
+                    *v -= self.estimate[k % n];
+                }
             }
+            OffsetMode::Trajectory => {
+                for (v, e) in reference.iter_mut().zip(&self.estimate) {
+                    *v -= e;
+                }
+            }
+            OffsetMode::Disturbance => {}
         }
     }
 }
