@@ -5,8 +5,6 @@
 
 mod common;
 
-use std::process::Command;
-
 use koopman::data::Dataset;
 
 const TINY: &str = r#"
@@ -60,22 +58,7 @@ fn aggregation_retrains_on_the_recorded_rollouts_and_controls_again() {
     let sc = dir.join("agg.toml");
     std::fs::write(&sc, TINY).unwrap();
     let out = dir.join("out");
-    let o = Command::new(common::exe())
-        .args([
-            "run",
-            sc.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--aggregate",
-            "2",
-        ])
-        .output()
-        .unwrap();
-    assert!(
-        o.status.success(),
-        "koopbridge run failed:\n{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    common::run_scenario(&sc, &out, &["--aggregate", "2"]);
     let r: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
     let rounds = r["aggregation"].as_array().unwrap();

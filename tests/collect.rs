@@ -6,7 +6,6 @@
 
 mod common;
 
-use std::process::Command;
 use std::time::Duration;
 
 use bridge::adapter::collect::{run_windows, window_rng, CollectPlan};
@@ -214,15 +213,7 @@ seed = 3
     )
     .unwrap();
     let out = dir.join("out");
-    let o = Command::new(common::exe())
-        .args(["run", sc.to_str().unwrap(), "--out", out.to_str().unwrap()])
-        .output()
-        .unwrap();
-    assert!(
-        o.status.success(),
-        "koopbridge run failed:\n{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    common::run_scenario(&sc, &out, &[]);
     // The files hold what each system gives in this process for the seeds of its split.
     for (j, (id, env)) in [("pend", "damped-pendulum"), ("dbl", "double-pendulum")]
         .iter()

@@ -6,7 +6,6 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -27,19 +26,7 @@ fn python_ready() -> Result<(), String> {
 }
 
 fn run(scenario: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {
-    let mut args = vec![
-        "run",
-        scenario.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ];
-    args.extend_from_slice(extra);
-    let o = Command::new(common::exe()).args(&args).output().unwrap();
-    assert!(
-        o.status.success(),
-        "koopbridge run failed:\n{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    let o = common::run_scenario(scenario, out, extra);
     eprintln!("{}", String::from_utf8_lossy(&o.stdout));
     serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap()
 }

@@ -30,15 +30,7 @@ fn run_once(dir: &std::path::Path) -> serde_json::Value {
     let sc = dir.join("tiny.toml");
     std::fs::write(&sc, TINY).unwrap();
     let out = dir.join("out");
-    let o = Command::new(common::exe())
-        .args(["run", sc.to_str().unwrap(), "--out", out.to_str().unwrap()])
-        .output()
-        .unwrap();
-    assert!(
-        o.status.success(),
-        "koopbridge run failed:\n{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    let o = common::run_scenario(&sc, &out, &[]);
     assert_quiet_logs(
         &String::from_utf8_lossy(&o.stdout),
         &String::from_utf8_lossy(&o.stderr),

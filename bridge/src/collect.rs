@@ -95,28 +95,13 @@ pub fn collect(
                 )));
             }
         }
-        out.push(Dataset {
-            n: windows,
-            steps,
-            nx: info.nx(),
-            nu: info.nu(),
-            x: Vec::with_capacity(windows * (steps + 1) * info.nx()),
-            u: Vec::with_capacity(windows * steps * info.nu()),
-            meta: DatasetMeta {
-                env: info.env.clone(),
-                dt: info.dt,
-                state_names: info.state_names.clone(),
-                input_names: info.input_names.clone(),
-                pairing: Pairing::Aligned,
-                seed,
-                source: format!("zenoh:sim/{}", s.id),
-                policy: match policy {
-                    Policy::Uniform => "uniform".into(),
-                    Policy::Scripted { .. } => "scripted".into(),
-                    Policy::Adapter { .. } => "adapter".into(),
-                },
-            },
-        });
+        let kind = match policy {
+            Policy::Uniform => "uniform",
+            Policy::Scripted { .. } => "scripted",
+            Policy::Adapter { .. } => "adapter",
+        };
+        let source = format!("zenoh:sim/{}", s.id);
+        out.push(empty_dataset(info, windows, steps, seed, source, kind));
     }
     for i in 0..windows {
         let mut rngs = Vec::with_capacity(sims.len());
@@ -155,4 +140,34 @@ pub fn collect(
         progress(i + 1, windows);
     }
     Ok(out)
+}
+
+/// An empty aligned dataset for `windows` windows of `steps` transitions of the simulator `info`
+/// describes, with room for them reserved, and its metadata.
+pub(crate) fn empty_dataset(
+    info: &crate::messages::SimInfo,
+    windows: usize,
+    steps: usize,
+    seed: u64,
+    source: String,
+    policy: &str,
+) -> Dataset {
+    Dataset {
+        n: windows,
+        steps,
+        nx: info.nx(),
+        nu: info.nu(),
+        x: Vec::with_capacity(windows * (steps + 1) * info.nx()),
+        u: Vec::with_capacity(windows * steps * info.nu()),
+        meta: DatasetMeta {
+            env: info.env.clone(),
+            dt: info.dt,
+            state_names: info.state_names.clone(),
+            input_names: info.input_names.clone(),
+            pairing: Pairing::Aligned,
+            seed,
+            source,
+            policy: policy.into(),
+        },
+    }
 }

@@ -282,3 +282,28 @@ pub fn small_pendulum_dataset(dir: &std::path::Path, seed: u64) {
         .save(dir)
         .unwrap();
 }
+
+/// Runs `koopbridge run SCENARIO --out OUT EXTRA…` to the end and returns its output; fails the
+/// test with the run's stderr when it did not succeed.
+pub fn run_scenario(
+    scenario: &std::path::Path,
+    out: &std::path::Path,
+    extra: &[&str],
+) -> std::process::Output {
+    let o = std::process::Command::new(exe())
+        .args([
+            "run",
+            scenario.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .args(extra)
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success(),
+        "koopbridge run failed:\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    o
+}

@@ -6,7 +6,7 @@
 use std::sync::mpsc;
 use std::time::Duration;
 
-use koopman::data::{Dataset, DatasetMeta, Pairing};
+use koopman::data::Dataset;
 
 use crate::client::{Client, Liveliness, PendingQuery, SimClient};
 use crate::codec::CollectChunk;
@@ -315,25 +315,14 @@ pub fn collect_datasets(
 }
 
 fn empty_dataset(s: &SimClient, windows: usize, steps: usize, seed: u64) -> Dataset {
-    let info = &s.info.sim;
-    Dataset {
-        n: windows,
+    super::empty_dataset(
+        &s.info.sim,
+        windows,
         steps,
-        nx: info.nx(),
-        nu: info.nu(),
-        x: Vec::with_capacity(windows * (steps + 1) * info.nx()),
-        u: Vec::with_capacity(windows * steps * info.nu()),
-        meta: DatasetMeta {
-            env: info.env.clone(),
-            dt: info.dt,
-            state_names: info.state_names.clone(),
-            input_names: info.input_names.clone(),
-            pairing: Pairing::Aligned,
-            seed,
-            source: format!("zenoh:sim/{}/collect", s.id),
-            policy: "adapter-uniform".into(),
-        },
-    }
+        seed,
+        format!("zenoh:sim/{}/collect", s.id),
+        "adapter-uniform",
+    )
 }
 
 #[cfg(test)]
