@@ -2,62 +2,25 @@
 //! lockstep adapter, the trainer, the MPC service, the router between two client-mode peers —
 //! is detected and named within 1 s with a typed error (no hang), leaves no half-written file,
 //! and what should resume does; a slow adapter (a step 10× the client's timeout) is retried
-//! without being stepped twice; a scenario whose orchestrator is killed continues when run again
-//! into the same folder. Every detection time is printed (`-- --nocapture`).
+//! without being stepped twice. The router and orchestrator kills are in `tests/faults_restart.rs`.
+//! Every detection time is printed (`-- --nocapture`).
 
 mod common;
 
-use std::path::Path;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use bridge::adapter::{serve, AdapterOptions, SimBackend, SimError, SimInfo, SystemBackend};
-use bridge::client::{step_all, Client, Liveliness, SimClient};
+use bridge::client::{step_all, SimClient};
 use bridge::codec::{SolveReply, SolveRequest};
 use bridge::error::{Error, ErrorCode};
-use bridge::keyexpr::{fresh_session_id, Keys, Role};
+use bridge::keyexpr::{fresh_session_id, Role};
 use bridge::messages::ResetRequest;
 use bridge::orchestrator::{Cluster, SERVICES_ID};
-use bridge::procs::ChildProc;
 use bridge::services::mpc::{configure, ConfigureRequest};
 use bridge::services::trainer::{submit_and_wait, JobRecord, JobSpec, JobState};
-use bridge::session::{free_loopback_endpoint, open_session, ZenohOptions};
-
-/// What the issue asks of every detection.
-const DETECT: Duration = Duration::from_secs(1);
-
-/// Repeats `f` until it fails (at most `limit` after `since`), returning the error and the time
-/// from `since` to the failure.
-fn first_error<T>(
-    since: Instant,
-    limit: Duration,
-    mut f: impl FnMut() -> bridge::Result<T>,
-) -> (Error, Duration) {
-    loop {
-        match f() {
-            Ok(_) => assert!(
-                since.elapsed() < limit,
-                "still answering {limit:?} after the kill"
-            ),
-            Err(e) => return (e, since.elapsed()),
-        }
-    }
-}
-
-/// Simulator `id`'s state after `inputs` from `x0`, stepped here (the independent computation).
-fn local_states(x0: &[f64], inputs: &[f64]) -> Vec<Vec<f64>> {
-    let mut b = SystemBackend::new(koopman::systems::by_name("damped-pendulum").unwrap());
-    let mut xs = vec![b
-        .reset(&ResetRequest {
-            seed: None,
-            x0: Some(x0.to_vec()),
-        })
-        .unwrap()];
-    for u in inputs {
-        xs.push(b.step(&[*u]).unwrap());
-    }
-    xs
-}
+use bridge::session::{open_session, ZenohOptions};
+use common::faults::{first_error, local_states, nothing_half_written, DETECT};
 
 #[test]
 fn a_killed_lockstep_adapter_is_named_within_1s_and_a_restarted_one_steps_again() {
@@ -257,39 +220,6 @@ fn slow_job(r: &dyn Fn(&str) -> bridge::services::trainer::DatasetRef) -> JobSpe
     }
 }
 
-/// Every file the trainer and the model store keep under `out` is whole: job records parse,
-/// checkpoints load, models load with their metrics. Returns the number of leftover temporary
-/// files (hidden `.{name}.….tmp` names, never read as data).
-fn nothing_half_written(out: &Path) -> usize {
-    let mut temps = 0;
-    let jobs = out.join("state/trainer/jobs");
-    for e in std::fs::read_dir(&jobs).unwrap().flatten() {
-        let p = e.path();
-        let name = e.file_name().to_string_lossy().into_owned();
-        if name.starts_with('.') {
-            temps += 1;
-        } else if name.ends_with(".json") {
-            let r: JobRecord = serde_json::from_slice(&std::fs::read(&p).unwrap())
-                .unwrap_or_else(|e| panic!("{}: {e}", p.display()));
-            assert_eq!(format!("{}.json", r.job), name);
-        } else if name.ends_with(".ckpt") {
-            koopman::train::Checkpoint::load(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
-        }
-    }
-    if let Ok(d) = std::fs::read_dir(out.join("models")) {
-        for e in d.flatten() {
-            if e.file_name().to_string_lossy().starts_with('.') {
-                temps += 1;
-                continue;
-            }
-            koopman::model::load_lifted(&e.path()).unwrap();
-            let m = std::fs::read(e.path().join("metrics.json")).unwrap();
-            serde_json::from_slice::<serde_json::Value>(&m).unwrap();
-        }
-    }
-    temps
-}
-
 #[test]
 fn a_killed_trainer_is_named_within_1s_writes_nothing_half_and_resumes_its_job() {
     let (opts, _) = common::options("fault-trainer");
@@ -469,151 +399,4 @@ fn a_killed_mpc_service_fails_solves_within_1s_and_serves_again_once_configured(
     configure(&c.client, SERVICES_ID, &req, Duration::from_secs(60)).unwrap();
     let after = solve(&[0.4, 0.1]).unwrap();
     assert_eq!(after.u, before.u, "the restarted service plans differently");
-}
-
-#[test]
-fn a_killed_router_between_client_peers_is_detected_within_1s_and_they_reconnect() {
-    let dir = common::scratch("fault-router");
-    let session = fresh_session_id();
-    let ep = free_loopback_endpoint().unwrap();
-    let router = |n: u32| {
-        ChildProc::spawn(
-            "router",
-            &common::exe(),
-            &["router", "--listen", &ep, "--stdin-lifeline"].map(String::from),
-            &dir.join(format!("router-{n}.log")),
-        )
-        .unwrap()
-    };
-    let mut r1 = router(1);
-    let client = Client::new(common::connect_client(&ep), Keys::new(&session).unwrap());
-    let live = Liveliness::new(&client).unwrap();
-    let _sim = common::spawn_client_sim(&dir, "far", &session, &ep);
-    live.wait_for(&[(Role::Sim, "far".into())], common::READY)
-        .unwrap();
-    let mut sim = SimClient::connect(&client, "far", common::READY).unwrap();
-    sim.reset(&ResetRequest {
-        seed: None,
-        x0: Some(vec![0.2, 0.0]),
-    })
-    .unwrap();
-    let expect = local_states(&[0.2, 0.0], &[0.3; 6]);
-    for x in &expect[1..4] {
-        assert_eq!(&sim.step(&[0.3], Some(&live)).unwrap().x, x);
-    }
-    common::sigkill(r1.id());
-    let killed = Instant::now();
-    let (err, took) = first_error(killed, Duration::from_secs(10), || {
-        sim.step(&[0.3], Some(&live))
-    });
-    eprintln!("router killed: the step failed after {took:?}: {err}");
-    assert!(
-        matches!(&err, Error::Gone(w) if w.contains("'far'"))
-            || matches!(&err, Error::Timeout { who, .. } if who.contains("'far'")),
-        "{err}"
-    );
-    assert!(took < DETECT, "took {took:?} to notice the lost router");
-    r1.kill();
-
-    // The router again on the same endpoint: both clients reconnect on their own, and the
-    // simulator kept its state (k = 3), so the run continues where it stopped.
-    let _r2 = router(2);
-    let back = Instant::now();
-    live.wait_for(&[(Role::Sim, "far".into())], Duration::from_secs(60))
-        .unwrap();
-    let mut sim = SimClient::connect(&client, "far", common::READY).unwrap();
-    eprintln!(
-        "router restarted: the simulator was back after {:?}",
-        back.elapsed()
-    );
-    assert_eq!(sim.k, 3);
-    for x in &expect[4..] {
-        assert_eq!(&sim.step(&[0.3], Some(&live)).unwrap().x, x);
-    }
-}
-
-/// A tiny collect + train scenario whose training lasts seconds (killed in the middle).
-const SCENARIO: &str = r#"
-name = "killed"
-[[sims]]
-id = "pend"
-env = "damped-pendulum"
-[collect]
-policy = { kind = "uniform" }
-train_windows = 120
-val_windows = 20
-test_windows = 20
-steps = 15
-seed = 5
-[train]
-config = { iterations = 1500, hidden = [32, 32], n_mult = 4, batch = 64, validate_every = 100 }
-[control]
-x0 = [-1.0, 0.1]
-reference = [0.0, 0.0]
-steps = 5
-"#;
-
-#[test]
-fn a_scenario_whose_orchestrator_is_killed_continues_when_run_again() {
-    let dir = common::scratch("fault-run");
-    let sc = dir.join("killed.toml");
-    std::fs::write(&sc, SCENARIO).unwrap();
-    let out = dir.join("out");
-    let args = ["run", sc.to_str().unwrap(), "--out", out.to_str().unwrap()];
-    let mut run = std::process::Command::new(common::exe())
-        .args(args)
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let jobs = out.join("state/trainer/jobs");
-    let deadline = Instant::now() + common::READY;
-    while !std::fs::read_dir(&jobs).is_ok_and(|d| {
-        d.flatten()
-            .any(|e| e.path().extension().is_some_and(|x| x == "ckpt"))
-    }) {
-        assert!(run.try_wait().unwrap().is_none(), "the run ended early");
-        assert!(Instant::now() < deadline, "training never checkpointed");
-        std::thread::sleep(Duration::from_millis(5));
-    }
-    let children = common::children_of(run.id());
-    assert_eq!(children.len(), 2, "a simulator and the services");
-    common::sigkill(run.id());
-    run.wait().unwrap();
-    // Its children follow it (their lifeline closed); what it left is whole.
-    let t = Instant::now();
-    while children.iter().any(|&p| common::running(p)) {
-        assert!(
-            t.elapsed() < Duration::from_secs(10),
-            "the children outlived the run"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    nothing_half_written(&out);
-    let collected: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("data/collect.json")).unwrap()).unwrap();
-    for f in collected["report"]["files"].as_array().unwrap() {
-        koopman::data::Dataset::load_npz(Path::new(f.as_str().unwrap())).unwrap();
-    }
-    assert!(!out.join("report.json").exists());
-
-    // The same command again: collection reused, the job resumed, the run completes.
-    let o = std::process::Command::new(common::exe())
-        .args(args)
-        .output()
-        .unwrap();
-    assert!(
-        o.status.success(),
-        "the rerun failed:\n{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    let r: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
-    assert_eq!(r["collect"]["reused"], true, "{r}");
-    assert!(
-        r["train"][0]["metrics"]["resumed_from"].as_u64().unwrap() >= 100,
-        "{r}"
-    );
-    assert_eq!(r["control"]["x"].as_array().unwrap().len(), 6);
-    nothing_half_written(&out);
 }

@@ -10,6 +10,7 @@ use bridge::orchestrator::{Cluster, RunOptions};
 use bridge::procs::ChildProc;
 use bridge::session::ZenohOptions;
 
+pub mod faults;
 pub mod netns;
 
 /// Generous timeout for a loaded 2-core machine.
