@@ -346,6 +346,7 @@ fn a_killed_mpc_service_fails_solves_within_1s_and_serves_again_once_configured(
     let req = ConfigureRequest {
         model: "m".into(),
         mpc: None,
+        offset_free: None,
     };
     configure(&c.client, SERVICES_ID, &req, Duration::from_secs(60)).unwrap();
     let before = solve(&[0.4, 0.1]).unwrap();

@@ -84,15 +84,33 @@ fn bad_settings_fail_before_collection() {
             "reference = [0.0]",
             &["reference has 1 values"][..],
         ),
+        (
+            "offset_free on a linear model",
+            "mpc = { horizon = 10 }",
+            "mpc = { horizon = 10 }\noffset_free = { mode = \"trajectory\", radius = 1.0, gain = [0.5, 0.5] }",
+            &["offset_free", "needs a bilinear model"][..],
+        ),
+        (
+            "offset_free gains",
+            "config = { iterations = 20,",
+            "config = { bilinear = true, iterations = 20,",
+            &[][..],
+        ),
     ] {
         let d = dir.join(what.replace(' ', "-"));
         std::fs::create_dir_all(&d).unwrap();
-        let text = BASE.replace(from, to);
+        let mut text = BASE.replace(from, to);
         assert_ne!(text, BASE, "{what}: the replacement did not apply");
+        let mut expect = expect.to_vec();
+        if what == "offset_free gains" {
+            // A bilinear model, and a correction with one gain for two states.
+            text.push_str("offset_free = { mode = \"trajectory\", radius = 1.0, gain = [0.5] }\n");
+            expect = vec!["offset_free", "expected 2, got 1"];
+        }
         let o = run(&d, "chk", &text);
         let err = stderr(&o);
         assert!(!o.status.success(), "{what}: the run succeeded:\n{err}");
-        for e in expect {
+        for e in &expect {
             assert!(err.contains(e), "{what}: no {e:?} in:\n{err}");
         }
         assert!(

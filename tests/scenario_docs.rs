@@ -82,6 +82,7 @@ fn every_setting_has_a_row() {
         "reference_file",
         "phase",
         "role",
+        "offset_free",
     ] {
         assert!(row(key), "scenarios/README.md has no row for `{key}`");
     }

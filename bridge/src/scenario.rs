@@ -190,6 +190,11 @@ pub struct ControlSpec {
     /// Which simulator to control (default: the first).
     #[serde(default)]
     pub sim: Option<String>,
+    /// Offset-free correction of the MPC (a bilinear model's only: `[train] config = {
+    /// bilinear = true }`), `koopman::mpc::OffsetFreeConfig` fields: `mode` (`trajectory`,
+    /// `disturbance` or `integral`), `radius`, `gain` (nx values), `angles`.
+    #[serde(default)]
+    pub offset_free: Option<koopman::mpc::OffsetFreeConfig>,
 }
 
 /// Overrides for `--full`.

@@ -206,6 +206,7 @@ pub fn run(args: BenchBridgeArgs) -> anyhow::Result<()> {
     let configure = bridge::services::mpc::ConfigureRequest {
         model: model_name.into(),
         mpc: Some(koopman::mpc::MpcConfig::with_bounds(vec![-8.0], vec![8.0])),
+        offset_free: None,
     };
     bridge::services::mpc::configure(client, SERVICES_ID, &configure, Duration::from_secs(60))?;
     let key = client.keys.mpc_solve(SERVICES_ID)?;

@@ -38,20 +38,29 @@ pub fn fetch_model(inner: &Inner, name: &str, dest: &Path, timeout: Duration) ->
 }
 
 /// Configures MPC service `id` with `model` and the MPC settings `mpc` (JSON object of
-/// `MpcConfig` fields, checked here); returns the service's reply.
+/// `MpcConfig` fields, plus `offset_free` (an `OffsetFreeConfig` object) for a bilinear model,
+/// checked here); returns the service's reply.
 pub fn configure_mpc(
     inner: &Inner,
     id: &str,
     model: &str,
-    mpc: serde_json::Value,
+    mut mpc: serde_json::Value,
     timeout: Duration,
 ) -> Result<ConfigureReply> {
     validate_chunk("MPC id", id)?;
+    let offset_free = match mpc.as_object_mut().and_then(|o| o.remove("offset_free")) {
+        None | Some(serde_json::Value::Null) => None,
+        Some(v) => Some(
+            serde_json::from_value(v)
+                .map_err(|e| Error::Config(format!("MPC configuration: offset_free: {e}")))?,
+        ),
+    };
     let mpc: MpcConfig = serde_json::from_value(mpc)
         .map_err(|e| Error::Config(format!("MPC configuration: {e}")))?;
     let req = ConfigureRequest {
         model: model.to_string(),
         mpc: Some(mpc),
+        offset_free,
     };
     let who = format!("MPC service '{id}'");
     let key = inner.keys.under(&["mpc", id, "configure"]);

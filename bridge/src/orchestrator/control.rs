@@ -57,6 +57,7 @@ pub fn control_phase(
         let req = ConfigureRequest {
             model: model.clone(),
             mpc: Some(mpc),
+            offset_free: ctrl.offset_free.clone(),
         };
         configure(client, SERVICES_ID, &req, Duration::from_secs(60))?;
         prepared.push(Prepared {

@@ -46,9 +46,29 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
             ))
         })?;
     }
+    let bilinear = sc
+        .train
+        .as_ref()
+        .and_then(|t| t.config.get("bilinear"))
+        .and_then(|v| v.as_bool())
+        .unwrap_or(false);
     for ctrl in &sc.control {
         let j = controlled_sim(sc, ctrl);
         validate_control(ctrl, &sc.sims[j].id, infos[j])?;
+        if let Some(o) = &ctrl.offset_free {
+            let at = |m: String| {
+                Error::Config(format!(
+                    "[control].offset_free for simulator '{}': {m}",
+                    sc.sims[j].id
+                ))
+            };
+            if !bilinear {
+                return Err(at(
+                    "needs a bilinear model ([train] config = { bilinear = true })".into(),
+                ));
+            }
+            o.check(infos[j].nx()).map_err(|e| at(e.to_string()))?;
+        }
         if let Some(f) = ctrl
             .reference_file
             .as_deref()

@@ -1,6 +1,7 @@
-//! The trainer service's [`Trainer`] for the neural Koopman model of `koopman::train`: loads the
-//! job's datasets (files or recordings fetched over Zenoh), trains from scratch or from the job's
-//! checkpoint, checkpoints at every validation, saves the model.
+//! The trainer service's [`Trainer`] for the neural Koopman model of `koopman::train` (linear, or
+//! bilinear with `bilinear = true` in the job's config): loads the job's datasets (files or
+//! recordings fetched over Zenoh), trains from scratch or from the job's checkpoint,
+//! checkpoints at every validation, saves the model.
 
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
@@ -11,7 +12,7 @@ use std::time::Duration;
 use koopman::data::Dataset;
 use koopman::model::arch::Arch;
 use koopman::train::checkpoint::data_fingerprint;
-use koopman::train::{train_resumable, Checkpoint, TrainConfig};
+use koopman::train::{train_bilinear_resumable, train_resumable, Checkpoint, TrainConfig};
 use zenoh::Session;
 
 use super::trainer::{serve_with, DatasetRef, JobSpec, TrainProgress, Trainer};
@@ -90,7 +91,12 @@ fn usable_checkpoint(
         let ck = Checkpoint::load(path)?;
         let arch = Arch::new(tr.nx, tr.nu, &cfg.hidden, cfg.n_mult)?;
         let m = cfg.train_samples.unwrap_or(tr.n).min(tr.n);
-        ck.check_compatible(cfg, arch.num_params(), data_fingerprint(tr, m, va))?;
+        let extra = if cfg.bilinear {
+            koopman::train::bilinear::bilinear_len(&arch)
+        } else {
+            0
+        };
+        ck.check_compatible(cfg, arch.num_params() + extra, data_fingerprint(tr, m, va))?;
         Ok(ck)
     };
     match check() {
@@ -175,18 +181,34 @@ impl Trainer for KoopmanTrainer {
                 tracing::warn!("could not write checkpoint {}: {e}", checkpoint.display());
             }
         };
-        let outcome = train_resumable(
-            &cfg,
-            &tr,
-            &va,
-            te.as_ref(),
-            resume.as_ref(),
-            &mut obs,
-            &mut save,
-        )?;
-        outcome.model.save(out_dir)?;
+        // `bilinear = true` in the job's config trains (and stores) a bilinear model.
+        let trained = if cfg.bilinear {
+            let o = train_bilinear_resumable(
+                &cfg,
+                &tr,
+                &va,
+                te.as_ref(),
+                resume.as_ref(),
+                &mut obs,
+                &mut save,
+            )?;
+            o.model.save(out_dir)?;
+            o.metrics
+        } else {
+            let o = train_resumable(
+                &cfg,
+                &tr,
+                &va,
+                te.as_ref(),
+                resume.as_ref(),
+                &mut obs,
+                &mut save,
+            )?;
+            o.model.save(out_dir)?;
+            o.metrics
+        };
         let mut metrics =
-            serde_json::to_value(&outcome.metrics).map_err(|e| Error::Config(e.to_string()))?;
+            serde_json::to_value(&trained).map_err(|e| Error::Config(e.to_string()))?;
         if let Some(o) = metrics.as_object_mut() {
             o.insert("resumed_from".into(), resumed_from.into());
         }

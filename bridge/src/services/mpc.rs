@@ -2,25 +2,26 @@
 //! (state + reference → input plan) and `attach` (free-run control of a simulator's stream).
 
 mod attach;
+mod controller;
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use koopman::mpc::{MpcConfig, MpcController, SolveStatus as KStatus};
+use koopman::mpc::{MpcConfig, MpcController, OffsetFreeConfig, SolveStatus as KStatus};
 use serde::{Deserialize, Serialize};
 use zenoh::Session;
 
 use super::{parse_json, query_json, serve_queries, to_json, Inbox};
 use crate::client::Client;
 use crate::codec::{SolveReply, SolveRequest, SolveStatus};
-use crate::error::{Error, ErrorCode, ErrorReply, Result};
+use crate::error::{ErrorCode, ErrorReply, Result};
 use crate::keyexpr::{validate_chunk, Keys, Role};
 
 use attach::Attached;
 pub use attach::{clamp_bounds_to_sim, AttachStats};
+pub use controller::{LoadedModel, ServiceController, ServicePlan};
 
 /// `…/mpc/{id}/configure` request: build (or rebuild) the controller of a model.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -31,6 +32,10 @@ pub struct ConfigureRequest {
     /// MPC settings (SPEC defaults for absent fields).
     #[serde(default)]
     pub mpc: Option<MpcConfig>,
+    /// Offset-free correction of a bilinear model's MPC (refused for a lifted model). With it,
+    /// consecutive solves for this model are one closed loop (configure again to start anew).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub offset_free: Option<OffsetFreeConfig>,
 }
 
 /// `…/mpc/{id}/configure` reply.
@@ -129,24 +134,20 @@ fn model_dir(client: &Client, store: &Path, name: &str) -> Result<PathBuf> {
 }
 
 /// Loads model `name` (local store, else fetched from the model store).
-fn load_model(
-    client: &Client,
-    store: &Path,
-    name: &str,
-) -> Result<Arc<dyn koopman::model::LiftedModel>> {
+fn load_model(client: &Client, store: &Path, name: &str) -> Result<LoadedModel> {
     let dir = model_dir(client, store, name)?;
-    Ok(Arc::from(koopman::model::load_lifted(&dir)?))
+    LoadedModel::load(&dir)
 }
 
 fn build(
     client: &Client,
     store: &Path,
     req: &ConfigureRequest,
-) -> Result<(MpcController<'static>, ConfigureReply)> {
+) -> Result<(ServiceController, ConfigureReply)> {
     let t = Instant::now();
     let model = load_model(client, store, &req.model)?;
     let cfg = req.mpc.clone().unwrap_or_default();
-    let c = MpcController::from_shared(model, &cfg)?;
+    let c = model.controller(&cfg, req.offset_free.as_ref())?;
     let reply = ConfigureReply {
         model: req.model.clone(),
         nx: c.nx(),
@@ -171,7 +172,7 @@ pub fn serve(
     inbox.declare(session, &keys.mpc_solve(id)?, Op::Solve)?;
     inbox.declare(session, &keys.mpc_configure(id)?, Op::Configure)?;
     inbox.declare(session, &keys.mpc_attach(id)?, Op::Attach)?;
-    let mut controllers: HashMap<String, MpcController<'static>> = HashMap::new();
+    let mut controllers: HashMap<String, ServiceController> = HashMap::new();
     let mut configs: HashMap<String, ConfigureRequest> = HashMap::new();
     let mut default_model: Option<String> = None;
     let mut attached: HashMap<String, Attached> = HashMap::new();
@@ -199,6 +200,7 @@ pub fn serve(
                     let creq = ConfigureRequest {
                         model: name.clone(),
                         mpc: None,
+                        offset_free: None,
                     };
                     let (c, _) = build(&client, store, &creq).map_err(|e| e.to_reply())?;
                     controllers.insert(name.clone(), c);
@@ -207,11 +209,9 @@ pub fn serve(
                 let c = controllers
                     .get_mut(&name)
                     .ok_or_else(|| ErrorReply::new(ErrorCode::Internal, "controller vanished"))?;
-                let sol = c
-                    .solve(&req.x, &req.reference)
-                    .map_err(|e| Error::from(e).to_reply())?;
+                let sol = c.solve(&req.x, &req.reference).map_err(|e| e.to_reply())?;
                 Ok(SolveReply {
-                    status: wire_status(&sol.status),
+                    status: sol.status,
                     iterations: sol.iterations as u32,
                     solve_time_ns: sol.solve_time.as_nanos() as u64,
                     u: sol.u,
@@ -256,7 +256,20 @@ pub fn serve(
                     .unwrap_or_default();
                 // Loaded before attaching: the controller is then built in microseconds once
                 // the simulator's bounds are known, while its states already arrive.
-                let model = load_model(&client, store, &req.model).map_err(|e| e.to_reply())?;
+                let model = match load_model(&client, store, &req.model) {
+                    Ok(LoadedModel::Lifted(m)) => m,
+                    Ok(LoadedModel::Bilinear(_)) => {
+                        return Err(ErrorReply::new(
+                            ErrorCode::Unsupported,
+                            format!(
+                                "model '{}' is bilinear: free-run attach controls lifted-linear \
+                                 models only (use lockstep solves)",
+                                req.model
+                            ),
+                        ))
+                    }
+                    Err(e) => return Err(e.to_reply()),
+                };
                 let a = attach::start(&client, &req.sim, &req.reference, cfg, |cfg| {
                     Ok(MpcController::from_shared(model, cfg)?)
                 })?;

@@ -13,6 +13,7 @@
 //! from each measured state; it adds a constant disturbance to the predictions or shifts the
 //! reference.
 
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use faer::linalg::matmul::matmul;
@@ -79,10 +80,26 @@ impl Default for ScpOptions {
     }
 }
 
+/// The model a [`BilinearMpc`] plans with: borrowed, or shared with other owners (a service that
+/// keeps controllers beyond any borrow).
+enum ModelRef<'m> {
+    Borrowed(&'m BilinearModel),
+    Shared(Arc<BilinearModel>),
+}
+
+impl ModelRef<'_> {
+    fn get(&self) -> &BilinearModel {
+        match self {
+            ModelRef::Borrowed(m) => m,
+            ModelRef::Shared(m) => m,
+        }
+    }
+}
+
 /// Receding-horizon MPC on a [`BilinearModel`] by sequential convex programming. Every buffer
 /// is allocated in [`BilinearMpc::new`]; a solve costs `O(H²·N²·nu)` per linearisation.
 pub struct BilinearMpc<'m> {
-    model: &'m BilinearModel,
+    model: ModelRef<'m>,
     opts: ScpOptions,
     cfg: MpcConfig,
     nx: usize,
@@ -121,6 +138,20 @@ impl<'m> BilinearMpc<'m> {
     ///
     /// Errors: rate or state bounds (not supported here), bad weights or bounds.
     pub fn new(model: &'m BilinearModel, cfg: &MpcConfig, opts: ScpOptions) -> Result<Self> {
+        Self::with_model(ModelRef::Borrowed(model), cfg, opts)
+    }
+
+    /// [`BilinearMpc::new`] on a shared model: the controller owns a handle and borrows nothing.
+    pub fn from_shared(
+        model: Arc<BilinearModel>,
+        cfg: &MpcConfig,
+        opts: ScpOptions,
+    ) -> Result<BilinearMpc<'static>> {
+        BilinearMpc::with_model(ModelRef::Shared(model), cfg, opts)
+    }
+
+    fn with_model(handle: ModelRef<'m>, cfg: &MpcConfig, opts: ScpOptions) -> Result<Self> {
+        let model = handle.get();
         if cfg.has_general_constraints() {
             return Err(Error::InvalidArgument(
                 "bilinear MPC handles input bounds only (no rate or state bounds)".into(),
@@ -189,7 +220,7 @@ impl<'m> BilinearMpc<'m> {
         let eye = Mat::<f64>::identity(nv, nv);
         let solver = BoxQp::new(eye.as_ref(), &lo, &hi, cfg.max_iterations, cfg.time_limit)?;
         Ok(BilinearMpc {
-            model,
+            model: handle,
             opts,
             cfg: cfg.clone(),
             nx,
@@ -218,6 +249,11 @@ impl<'m> BilinearMpc<'m> {
             xfree: vec![0.0; hz * nx],
             q: vec![0.0; nv],
         })
+    }
+
+    /// State dimension nx.
+    pub fn nx(&self) -> usize {
+        self.nx
     }
 
     /// Input dimension nu.
@@ -258,7 +294,7 @@ impl<'m> BilinearMpc<'m> {
     ///
     /// Errors: wrong lengths or non-finite values.
     pub fn observe(&mut self, x: &[f64], r: &[f64]) -> Result<()> {
-        let model = self.model;
+        let model = self.model.get();
         if let Some(o) = &mut self.offset {
             o.update(x, r, |start, inputs| {
                 // The state after inputs.len() / nu steps of the bilinear model from `start`.
@@ -291,7 +327,7 @@ impl<'m> BilinearMpc<'m> {
     /// `cfg.fallback` is off.
     pub fn solve(&mut self, x: &[f64], reference: &[f64]) -> Result<BilinearSolution> {
         let start = Instant::now();
-        let z0 = self.model.try_lift(x)?;
+        let z0 = self.model.get().try_lift(x)?;
         ensure_finite("lifted state", &z0)?;
         self.set_reference(reference)?;
         let mut ubar = self.shifted_plan();
