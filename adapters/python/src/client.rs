@@ -246,7 +246,9 @@ impl Client {
     }
 
     /// Loads ``model`` into MPC service ``mpc_id`` and builds its controller once; ``mpc``
-    /// holds ``MpcConfig`` fields (``horizon``, ``u_min``, ...; an unknown one is refused here).
+    /// holds ``MpcConfig`` fields (``horizon``, ``u_min``, ...; an unknown one is refused here),
+    /// and for a bilinear model optionally ``offset_free={"mode": "trajectory", "radius": 1.0,
+    /// "gain": [...], "angles": [...]}`` (the service then keeps the correction across solves).
     /// Returns the service's reply (``model``, ``nx``, ``nu``, ``horizon``, ``build_ms``).
     #[pyo3(signature = (mpc_id, model, timeout=60.0, **mpc))]
     fn configure_mpc(

@@ -185,7 +185,8 @@ class Client:
         timeout: float = 10.0,
     ) -> dict[str, Any]: ...
     def configure_mpc(self, mpc_id: str, model: str, timeout: float = 60.0, **mpc: Any) -> dict[str, Any]:
-        """Loads a model into an MPC service with MpcConfig fields; returns its reply."""
+        """Loads a model into an MPC service with MpcConfig fields (and ``offset_free``, an
+        OffsetFreeConfig dict, for a bilinear model); returns its reply."""
         ...
     def submit_job(
         self,
