@@ -115,6 +115,7 @@ pub fn collect(
                     Policy::Scripted { .. } => "scripted".into(),
                     Policy::Adapter { .. } => "adapter".into(),
                 },
+                region: None,
             },
         });
     }

@@ -332,6 +332,7 @@ fn empty_dataset(s: &SimClient, windows: usize, steps: usize, seed: u64) -> Data
             seed,
             source: format!("zenoh:sim/{}/collect", s.id),
             policy: "adapter-uniform".into(),
+            region: None,
         },
     }
 }
