@@ -27,7 +27,7 @@ enum DataCommand {
         --out data/double-task   # the control task's region, recorded in the metadata\n\n\
         Pairing: 'aligned' stores u_t with x_{t+1} = f(x_t, u_t); 'reference' stores in row t the\n\
         input that drove x_{t-1} -> x_t (row 0's is never applied), as the public reference code.")]
-    Gen(GenArgs),
+    Gen(Box<GenArgs>),
     /// Print the shape, metadata and value ranges of a dataset file.
     Info(InfoArgs),
 }
@@ -131,7 +131,7 @@ impl From<PairingArg> for Pairing {
 /// Runs `koopbridge data`.
 pub fn run(args: DataArgs) -> anyhow::Result<()> {
     match args.what {
-        DataCommand::Gen(a) => gen(a),
+        DataCommand::Gen(a) => gen(*a),
         DataCommand::Info(a) => info(&a.file),
     }
 }
