@@ -168,6 +168,7 @@ pub(crate) fn empty_dataset(
             seed,
             source,
             policy: policy.into(),
+            region: None,
         },
     }
 }

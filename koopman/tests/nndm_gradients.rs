@@ -33,6 +33,7 @@ fn random_data(n: usize, steps: usize, nx: usize, nu: usize, rng: &mut Rng) -> D
             seed: 0,
             source: "test".into(),
             policy: "uniform".into(),
+            region: None,
         },
     }
 }

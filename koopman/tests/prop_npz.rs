@@ -40,6 +40,7 @@ fn dataset(n: usize, steps: usize, nx: usize, nu: usize, seed: u64) -> Dataset {
             seed,
             source: "prop_npz".into(),
             policy: "uniform".into(),
+            region: None,
         },
     }
 }

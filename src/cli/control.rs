@@ -18,6 +18,7 @@ use koopman::train::stand_in::{self, StandIn, StandInModel};
 
 use super::control_diagnostics::{diagnose, linearised_at};
 use super::control_plot::plot_trajectory;
+use super::control_table::{print_header, print_row};
 
 /// `--solver`: one controller of the library's factory, or every one the given models allow.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -107,7 +108,9 @@ model; --solver shooting is random-shooting MPC (1000 samples) on an NNDM (--mod
 koopbridge control --model models/damped --nndm models/damped-nndm --env damped-pendulum --solver all\n  \
 koopbridge control --model models/damped-nndm --env damped-pendulum --solver shooting\n  \
 koopbridge control --model models/damped-linear --bilinear models/damped-bilinear --edmd models/damped-edmd \
---env damped-pendulum --solver all --offset-free integral"
+--env damped-pendulum --solver all --offset-free integral\n  \
+koopbridge control --model models/double-task-linear --bilinear models/double-task-bilinear \
+--env double-pendulum --u-bound 40 --q 1,1,0.01,0.01 --solver all   # the ±40 N·m task"
 )]
 pub struct ControlArgs {
     /// Model directory (config.json with "kind": koopman | edmd | nndm). A lifted model
@@ -168,6 +171,10 @@ pub struct ControlArgs {
     /// Diagonal input weight R (SPEC: 0; LQR uses max(R, 1e-6)).
     #[arg(long, default_value_t = 0.0)]
     pub r: f64,
+    /// Diagonal state weight Q of every planner (nx values, comma separated; SPEC: identity),
+    /// e.g. `--q 1,1,0.01,0.01` to weigh the double pendulum's rates less than its angles.
+    #[arg(long, value_delimiter = ',', value_name = "Q")]
+    pub q: Option<Vec<f64>>,
     /// Initial state overriding the task's (comma separated, nx values), e.g. `-1.0,0.1`.
     #[arg(
         long,
@@ -355,6 +362,7 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
     let settings = ControllerSettings {
         horizon: args.horizon,
         r: args.r,
+        q: args.q.clone(),
         u_min: lo.clone(),
         u_max: hi.clone(),
         offset_free: match args.offset_free {
@@ -541,41 +549,6 @@ fn run_one(
     );
     bar.finish_and_clear();
     Ok(result?)
-}
-
-fn print_header() {
-    println!(
-        "{:<26} {:>9} {:>9} {:>8} {:>10} {:>10} {:>9} {:>9} {:>6} {:>5}",
-        "controller",
-        "final err",
-        "angle err",
-        "t_goal",
-        "track rms",
-        "frobenius",
-        "med ms",
-        "p99 ms",
-        "viol",
-        "fb"
-    );
-}
-
-fn print_row(m: &ClosedLoopMetrics) {
-    println!(
-        "{:<26} {:>9.4} {:>9.4} {:>8} {:>10.4} {:>10.3} {:>9.3} {:>9.3} {:>6} {:>5}{}",
-        m.controller,
-        m.final_error,
-        m.final_angle_error,
-        m.time_to_goal_s
-            .map(|s| format!("{s:.2}s"))
-            .unwrap_or_else(|| "never".into()),
-        m.tracking_rms,
-        m.tracking_frobenius,
-        m.solve_ms_median,
-        m.solve_ms_p99,
-        m.input_violations,
-        m.fallbacks,
-        if m.diverged { "  DIVERGED" } else { "" }
-    );
 }
 
 /// Writes JSON atomically (see [`koopman::fsutil::write_atomic`]).

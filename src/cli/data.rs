@@ -5,7 +5,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 use anyhow::Context;
-use koopman::data::{generate_splits_with_progress, Dataset, Pairing, SplitSpec};
+use koopman::data::{generate_splits_with_progress, DataRegion, Dataset, Pairing, SplitSpec};
 use koopman::systems::{by_name_with, SystemOptions};
 
 /// Arguments of `koopbridge data`.
@@ -22,10 +22,12 @@ enum DataCommand {
     #[command(after_help = "Examples:\n  \
         koopbridge data gen --env damped-pendulum                 # data/damped-pendulum-aligned\n  \
         koopbridge data gen --env damped --pairing reference      # reproduces the published numbers\n  \
-        koopbridge data gen --env polynomial --n-poly 10 --windows 9000\n\n\
+        koopbridge data gen --env polynomial --n-poly 10 --windows 9000\n  \
+        koopbridge data gen --env double --x0-low=-0.2,-1,-2,-2 --x0-high=1.4,0.2,2,2 --u-bound 40 \
+        --out data/double-task   # the control task's region, recorded in the metadata\n\n\
         Pairing: 'aligned' stores u_t with x_{t+1} = f(x_t, u_t); 'reference' stores in row t the\n\
         input that drove x_{t-1} -> x_t (row 0's is never applied), as the public reference code.")]
-    Gen(GenArgs),
+    Gen(Box<GenArgs>),
     /// Print the shape, metadata and value ranges of a dataset file.
     Info(InfoArgs),
 }
@@ -63,6 +65,42 @@ struct GenArgs {
     /// n_poly of the polynomial system (≥ 3).
     #[arg(long, default_value_t = koopman::systems::polynomial::DEFAULT_N_POLY)]
     n_poly: usize,
+    /// Lower bounds of the initial states (nx values, comma separated; with --x0-high),
+    /// replacing the system's SPEC distribution, e.g. `--x0-low=-0.2,-1,-2,-2`.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        allow_hyphen_values = true,
+        value_name = "X"
+    )]
+    x0_low: Option<Vec<f64>>,
+    /// Upper bounds of the initial states (nx values; with --x0-low).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        allow_hyphen_values = true,
+        value_name = "X"
+    )]
+    x0_high: Option<Vec<f64>>,
+    /// Lower bounds of the random inputs (nu values; with --u-high), replacing SPEC's.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        allow_hyphen_values = true,
+        value_name = "U"
+    )]
+    u_low: Option<Vec<f64>>,
+    /// Upper bounds of the random inputs (nu values; with --u-low).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        allow_hyphen_values = true,
+        value_name = "U"
+    )]
+    u_high: Option<Vec<f64>>,
+    /// Random inputs U(±B) on every input instead of SPEC's (instead of --u-low/--u-high).
+    #[arg(long, value_name = "B", conflicts_with_all = ["u_low", "u_high"])]
+    u_bound: Option<f64>,
     /// Print the summary as one JSON object on the last line.
     #[arg(long)]
     json: bool,
@@ -93,7 +131,7 @@ impl From<PairingArg> for Pairing {
 /// Runs `koopbridge data`.
 pub fn run(args: DataArgs) -> anyhow::Result<()> {
     match args.what {
-        DataCommand::Gen(a) => gen(a),
+        DataCommand::Gen(a) => gen(*a),
         DataCommand::Info(a) => info(&a.file),
     }
 }
@@ -119,6 +157,13 @@ fn gen(a: GenArgs) -> anyhow::Result<()> {
     let system = by_name_with(&a.env, &SystemOptions { n_poly: a.n_poly })?;
     let (train, val, test) = split_sizes(&a)?;
     let pairing: Pairing = a.pairing.into();
+    let region = DataRegion::from_parts(
+        system.as_ref(),
+        (a.x0_low.clone(), a.x0_high.clone()),
+        (a.u_low.clone(), a.u_high.clone()),
+        a.u_bound,
+    )
+    .context("--x0-low/--x0-high/--u-low/--u-high/--u-bound")?;
     let spec = SplitSpec {
         windows: a.windows,
         train,
@@ -127,6 +172,7 @@ fn gen(a: GenArgs) -> anyhow::Result<()> {
         seed: a.seed,
         pairing,
         steps: a.steps,
+        region: region.clone(),
     };
     let pairing_name = match pairing {
         Pairing::Aligned => "aligned",
@@ -184,6 +230,9 @@ fn gen(a: GenArgs) -> anyhow::Result<()> {
         a.windows as f64 / gen_s,
         koopman::data::worker_threads()
     );
+    if let Some(r) = &region {
+        println!("  region {}", serde_json::to_string(r)?);
+    }
     for name in ["train", "val", "test"] {
         let d = match name {
             "train" => &splits.train,
@@ -208,6 +257,7 @@ fn gen(a: GenArgs) -> anyhow::Result<()> {
             "generate_seconds": gen_s,
             "write_seconds": write_s,
             "threads": koopman::data::worker_threads(),
+            "region": region,
             "out": out,
         });
         println!("{summary}");

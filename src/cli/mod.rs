@@ -8,6 +8,7 @@ pub mod bench_train;
 pub mod control;
 pub mod control_diagnostics;
 pub mod control_plot;
+pub mod control_table;
 pub mod data;
 pub mod eval;
 pub mod learning_curve;

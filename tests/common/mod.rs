@@ -277,6 +277,7 @@ pub fn small_pendulum_dataset(dir: &std::path::Path, seed: u64) {
         seed,
         pairing: Pairing::Reference,
         steps: Some(15),
+        region: None,
     };
     generate_splits(sys.as_ref(), &spec)
         .unwrap()

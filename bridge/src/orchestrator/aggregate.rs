@@ -242,6 +242,7 @@ mod tests {
                 seed: 1,
                 source: "s".into(),
                 policy: "uniform".into(),
+                region: None,
             },
         }
     }

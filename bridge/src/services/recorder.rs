@@ -288,6 +288,7 @@ pub fn serve(
                                 seed: 0,
                                 source: format!("zenoh:sim/{} (free-run recording)", req.sim),
                                 policy: "recorded".into(),
+                                region: None,
                             },
                         };
                         if n > 0 {

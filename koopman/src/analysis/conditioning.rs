@@ -153,6 +153,7 @@ mod tests {
                 seed: 0,
                 source: "t".into(),
                 policy: "t".into(),
+                region: None,
             },
         };
         let m = Affine {

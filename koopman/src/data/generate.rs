@@ -107,6 +107,7 @@ pub fn generate_with_progress(
             p => format!("koopman::systems ({p})"),
         },
         policy: "uniform random input each step (zero-order hold)".to_string(),
+        region: None,
     };
     let data = Dataset {
         n: windows,

@@ -19,9 +19,11 @@
 pub mod generate;
 pub mod npy;
 pub mod npz;
+pub mod region;
 pub mod splits;
 
 pub use generate::{generate, generate_with_progress, worker_threads};
+pub use region::{DataRegion, InRegion};
 pub use splits::{generate_splits, generate_splits_with_progress, SplitSpec, Splits};
 
 use crate::{Error, Result};
@@ -57,6 +59,10 @@ pub struct DatasetMeta {
     pub source: String,
     /// How inputs were chosen (e.g. `uniform`).
     pub policy: String,
+    /// The region the windows were drawn from when it is not the system's SPEC distribution
+    /// (`koopbridge data gen --x0-low …`); absent from the JSON otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub region: Option<DataRegion>,
 }
 
 /// A set of windows. `x` is `[n, T+1, nx]` and `u` is `[n, T, nu]`, row-major, f64.
@@ -217,6 +223,7 @@ mod tests {
                 seed: 0,
                 source: "test".into(),
                 policy: "none".into(),
+                region: None,
             },
         }
     }

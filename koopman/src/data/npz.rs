@@ -120,6 +120,7 @@ impl Dataset {
                 seed: 0,
                 source: format!("{} (no metadata)", path.display()),
                 policy: "unknown".into(),
+                region: None,
             },
         };
         let data = Dataset {

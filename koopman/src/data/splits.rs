@@ -1,6 +1,7 @@
 //! The SPEC split: generate a pool of windows with one data seed, shuffle it, and cut it into
 //! train pool / validation / test (140,000 / 20,000 / 20,000 of 180,000 by default).
 
+use super::region::{DataRegion, InRegion};
 use super::{generate_with_progress, Dataset, Pairing};
 use crate::rng::Rng;
 use crate::systems::System;
@@ -25,6 +26,11 @@ pub struct SplitSpec {
     pub pairing: Pairing,
     /// Transitions per window; `None` = the system's own T (15, or 1 for the polynomial system).
     pub steps: Option<usize>,
+    /// Initial states and inputs of a region of one's choosing instead of the system's SPEC
+    /// distributions (`None`, the default: SPEC's data, bit for bit); recorded as `region` in
+    /// every split's metadata.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub region: Option<DataRegion>,
 }
 
 impl Default for SplitSpec {
@@ -38,6 +44,7 @@ impl Default for SplitSpec {
             seed: 42,
             pairing: Pairing::Aligned,
             steps: None,
+            region: None,
         }
     }
 }
@@ -83,14 +90,24 @@ pub fn generate_splits_with_progress(
         )));
     }
     let steps = spec.steps.unwrap_or_else(|| system.window_steps());
-    let all = generate_with_progress(
-        system,
+    let in_region = spec
+        .region
+        .clone()
+        .map(|r| InRegion::new(system, r))
+        .transpose()?;
+    let sampled: &dyn System = match &in_region {
+        Some(s) => s,
+        None => system,
+    };
+    let mut all = generate_with_progress(
+        sampled,
         spec.windows,
         steps,
         spec.seed,
         spec.pairing,
         progress,
     )?;
+    all.meta.region = spec.region.clone();
     let mut order: Vec<usize> = (0..spec.windows).collect();
     Rng::derive(spec.seed, SHUFFLE_STREAM).shuffle(&mut order);
     let (a, rest) = order.split_at(spec.train);

@@ -142,6 +142,9 @@ pub struct ControllerSettings {
     pub horizon: usize,
     /// Diagonal input weight R (the LQR uses at least [`LQR_MIN_R`]).
     pub r: f64,
+    /// Diagonal state weight Q (nx values) of every planner (MPC, LQR, random shooting);
+    /// `None` = identity (SPEC.md's default).
+    pub q: Option<Vec<f64>>,
     /// Lower input bounds (nu).
     pub u_min: Vec<f64>,
     /// Upper input bounds (nu).
@@ -158,7 +161,7 @@ pub struct Built<'m> {
     pub warning: Option<String>,
 }
 
-/// Makes the controller `kind` on `models` with `settings` (state weights 1).
+/// Makes the controller `kind` on `models` with `settings` (state weights `settings.q`, else 1).
 ///
 /// Errors: the model `kind` plans on is absent from `models`, or the controller refuses the
 /// model or the settings (the error of its own constructor).
@@ -180,8 +183,17 @@ pub fn build<'m>(
     };
     let (nx, nu) = (models.system.nx(), models.system.nu());
     let (lo, hi) = (&settings.u_min, &settings.u_max);
+    if let Some(q) = &settings.q {
+        if q.len() != nx || q.iter().any(|w| !(w.is_finite() && *w >= 0.0)) {
+            return Err(Error::InvalidArgument(format!(
+                "the state weight Q needs {nx} finite values ≥ 0, got {q:?}"
+            )));
+        }
+    }
+    let q = settings.q.clone().unwrap_or_else(|| vec![1.0; nx]);
     let mpc_config = MpcConfig {
         horizon: settings.horizon,
+        q: settings.q.clone(),
         r: Some(vec![settings.r; nu]),
         ..MpcConfig::with_bounds(lo.clone(), hi.clone())
     };
@@ -189,7 +201,7 @@ pub fn build<'m>(
         RandomShooting::new(
             SHOOTING_SAMPLES,
             settings.horizon,
-            vec![1.0; nx],
+            q.clone(),
             lo.clone(),
             hi.clone(),
             SHOOTING_SEED,
@@ -213,7 +225,7 @@ pub fn build<'m>(
             let model = lifted()?;
             let lqr = Lqr::new(
                 model,
-                &vec![1.0; nx],
+                &q,
                 &vec![settings.r.max(LQR_MIN_R); nu],
                 LQR_MAX_ITERATIONS,
                 LQR_TOLERANCE,
@@ -296,6 +308,7 @@ mod tests {
         ControllerSettings {
             horizon: h,
             r,
+            q: None,
             u_min: vec![lo],
             u_max: vec![hi],
             offset_free: None,
@@ -379,6 +392,50 @@ mod tests {
         let mut direct = MpcController::new(&model, &cfg).unwrap();
         let want = direct.solve(&x, &future).unwrap();
         assert_eq!(got, want.first(1).to_vec());
+    }
+
+    #[test]
+    fn the_state_weight_reaches_every_planner_and_bad_weights_are_refused() {
+        let system = by_name("damped-pendulum").unwrap();
+        let model = MatrixModel::random_stable(2, 8, 1, 0.95, 4).unwrap();
+        let on_model = models(system.as_ref(), Some(&model));
+        let x = [1.0, 0.2];
+        let future: Vec<f64> = (0..2 * 7).map(|i| 0.05 * i as f64).collect();
+        let weighted = ControllerSettings {
+            q: Some(vec![1.0, 0.01]),
+            ..settings(7, 0.01, -3.0, 3.0)
+        };
+        let first = |kind, s: &ControllerSettings| {
+            let mut built = build(kind, on_model, s).unwrap();
+            built.policy.act(&x, &[0.0, 0.0], &future).unwrap().u
+        };
+        let got = first(ControllerKind::Dedicated, &weighted);
+        let cfg = MpcConfig {
+            horizon: 7,
+            q: Some(vec![1.0, 0.01]),
+            r: Some(vec![0.01]),
+            solver: SolverKind::Dedicated,
+            ..MpcConfig::with_bounds(vec![-3.0], vec![3.0])
+        };
+        let mut direct = MpcController::new(&model, &cfg).unwrap();
+        assert_eq!(got, direct.solve(&x, &future).unwrap().first(1).to_vec());
+        // Q changes the plans of the MPC, the LQR and random shooting (an ignored Q would not).
+        let plain = settings(7, 0.01, -3.0, 3.0);
+        for kind in [
+            ControllerKind::Dedicated,
+            ControllerKind::Lqr,
+            ControllerKind::ShootingOracle,
+        ] {
+            let (a, b) = (first(kind, &weighted), first(kind, &plain));
+            assert!((a[0] - b[0]).abs() > 1e-6, "{kind:?}: {a:?} vs {b:?}");
+        }
+        for bad in [vec![1.0], vec![1.0, -0.1], vec![1.0, f64::NAN]] {
+            let s = ControllerSettings {
+                q: Some(bad),
+                ..plain.clone()
+            };
+            assert!(build(ControllerKind::Dedicated, on_model, &s).is_err());
+        }
     }
 
     #[test]
