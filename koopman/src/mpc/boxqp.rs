@@ -1,6 +1,7 @@
 //! The dedicated dense solver for `min ½uᵀHu + qᵀu` s.t. `lo ≤ u ≤ hi`: a dual active-set
 //! method on the explicit inverse of H, whose working-set factor grows and shrinks one bound at a
-//! time, warm-started from the bounds the caller's initial point sits on.
+//! time, warm-started from the bounds the caller's initial point sits on or from the previous
+//! solve's working set ([`WarmStart`]).
 
 use std::time::{Duration, Instant};
 
@@ -23,6 +24,22 @@ enum Side {
 
 const NONE: usize = usize::MAX;
 
+/// Where a solve takes its first working set from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum WarmStart {
+    /// The bounds the caller's initial point sits on (the default).
+    #[default]
+    Point,
+    /// The final working set of the previous solve, kept with its factor (DAQP's warm start).
+    /// The caller's point is used only when there is none (first solve, after
+    /// [`QpSolver::reset`] or a numerical failure).
+    Previous,
+    /// The previous solve's working set shifted by this many variables, as a receding horizon
+    /// shifts its plan by one stage (variable `i + s` → `i`, the last `s` kept); the factor is
+    /// computed afresh.
+    Shifted(usize),
+}
+
 /// Dual active set (Goldfarb–Idnani; the box case of DAQP, Arnström et al. 2022) for a strictly
 /// convex box-constrained QP.
 ///
@@ -34,9 +51,10 @@ const NONE: usize = usize::MAX;
 /// it steps towards it until a multiplier reaches zero and drops that bound; otherwise it adds the
 /// most violated bound of the primal point, and stops when there is none. Once the right working
 /// set is found the answer is exact to rounding. A warm start names the working set: the bounds
-/// the initial point sits on (the shifted previous plan of a receding-horizon loop); the factor of
-/// the previous solve is reused and edited when the two sets differ in few bounds. Nothing is
-/// allocated on the hot path once the solver is built.
+/// the initial point sits on ([`WarmStart::Point`], the default), or the working set the previous
+/// solve ended with, as is or shifted ([`WarmStart::Previous`], [`WarmStart::Shifted`]); the
+/// factor of the previous solve is reused and edited when the two sets differ in few bounds.
+/// Nothing is allocated on the hot path once the solver is built.
 pub struct BoxQp {
     n: usize,
     h: Mat<f64>,
@@ -48,6 +66,9 @@ pub struct BoxQp {
     hi: Vec<f64>,
     max_iterations: usize,
     time_limit: Option<Duration>,
+    warm_start: WarmStart,
+    /// True when `side` holds the working set a previous solve ended with.
+    has_previous: bool,
     /// 1 + the largest finite bound: the scale of the primal tolerance.
     bscale: f64,
     /// Edits of the factor since it was last computed afresh (bounds rounding drift).
@@ -107,6 +128,8 @@ impl BoxQp {
             hi: hi.to_vec(),
             max_iterations,
             time_limit: time_limit.map(Duration::from_secs_f64),
+            warm_start: WarmStart::Point,
+            has_previous: false,
             bscale: 1.0
                 + lo.iter()
                     .chain(hi)
@@ -138,6 +161,34 @@ impl BoxQp {
     /// Number of variables.
     pub fn n(&self) -> usize {
         self.n
+    }
+
+    /// Chooses where the next solves take their first working set from.
+    pub fn set_warm_start(&mut self, warm_start: WarmStart) {
+        self.warm_start = warm_start;
+    }
+
+    /// The working set of the last solve as `(variable, at upper bound)` pairs in factor order
+    /// (fixed variables, `lo == hi`, report `false`).
+    pub fn working_set(&self) -> impl Iterator<Item = (usize, bool)> + '_ {
+        self.ws.iter().map(|&i| (i, self.side[i] == Side::Upper))
+    }
+
+    /// `want` from the previous solve's working set, shifted by `shift` variables.
+    fn previous_working_set(&mut self, shift: usize) {
+        let n = self.n;
+        for i in 0..n {
+            let src = if i + shift < n { i + shift } else { i };
+            self.want[i] = if self.lo[i] == self.hi[i] {
+                Side::Fixed
+            } else {
+                match self.side[src] {
+                    Side::Upper if self.hi[i].is_finite() => Side::Upper,
+                    Side::Lower if self.lo[i].is_finite() => Side::Lower,
+                    _ => Side::Free,
+                }
+            };
+        }
     }
 
     /// Replaces the Hessian (same size) for the next solves, as a time-varying QP needs; if it is
@@ -323,6 +374,10 @@ impl QpSolver for BoxQp {
         "dedicated"
     }
 
+    fn reset(&mut self) {
+        self.has_previous = false;
+    }
+
     // Index loops over several parallel arrays (u, bounds, sides) read best here.
     #[allow(clippy::needless_range_loop)]
     fn solve(&mut self, q: &[f64], _h: &[f64], u: &mut [f64]) -> QpOutcome {
@@ -353,6 +408,19 @@ impl QpSolver for BoxQp {
             };
             warm |= matches!(self.want[i], Side::Upper | Side::Lower);
         }
+        let shift = match self.warm_start {
+            WarmStart::Point => None,
+            WarmStart::Previous => Some(0),
+            WarmStart::Shifted(s) => Some(s),
+        };
+        if let (Some(shift), true) = (shift, self.has_previous) {
+            self.previous_working_set(shift);
+            warm = self
+                .want
+                .iter()
+                .any(|s| matches!(s, Side::Upper | Side::Lower));
+        }
+        self.has_previous = false;
         // u* = −H⁻¹ q.
         self.ustar.fill(0.0);
         for (j, &qj) in q.iter().enumerate() {
@@ -378,7 +446,24 @@ impl QpSolver for BoxQp {
         if !self.set_working_set() {
             return outcome(QpStatus::Numerical, 0, false);
         }
+        let out = self.iterate(q, u, start);
+        // Every end but a numerical failure leaves a usable working set for the next solve.
+        self.has_previous = out.status != QpStatus::Numerical;
+        out
+    }
+}
 
+impl BoxQp {
+    /// The dual active-set iteration from the working set in place.
+    // Index loops over several parallel arrays (u, bounds, sides) read best here.
+    #[allow(clippy::needless_range_loop)]
+    fn iterate(&mut self, q: &[f64], u: &mut [f64], start: Option<Instant>) -> QpOutcome {
+        let n = self.n;
+        let outcome = |status, iterations, feasible_iterate| QpOutcome {
+            status,
+            iterations,
+            feasible_iterate,
+        };
         let bscale = self.bscale;
         let tol = 1e-12 * bscale;
         let (mut its, mut last_added, mut tabu) = (0usize, NONE, NONE);

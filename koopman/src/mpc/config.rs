@@ -6,8 +6,9 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "kebab-case")]
 pub enum SolverKind {
-    /// The dedicated dense box-constrained QP solver (projected Newton with a cached Cholesky
-    /// factorisation, warm-started from the shifted previous plan). Input bounds only.
+    /// The dedicated dense box-constrained QP solver ([`crate::mpc::boxqp::BoxQp`], a dual
+    /// active-set method warm-started from the previous solve's working set). Input bounds
+    /// only.
     #[default]
     Dedicated,
     /// Clarabel (interior point), for every constraint type: input, input-rate and state bounds.

@@ -1,12 +1,13 @@
 //! The receding-horizon Koopman MPC controller: lifts the state, forms `q = M1 z_0 + M2 r`,
-//! solves the QP warm-started from the shifted previous plan, and falls back safely on failure.
+//! solves the QP warm-started from the shifted previous plan (the dedicated solver: from its
+//! previous working set), and falls back safely on failure.
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use serde::{Deserialize, Serialize};
 
-use super::boxqp::BoxQp;
+use super::boxqp::{BoxQp, WarmStart};
 use super::clarabel_qp::ClarabelQp;
 use super::closed_form::ClampedClosedForm;
 use super::condensed::{Condensed, Weights};
@@ -159,13 +160,16 @@ impl<'m> MpcController<'m> {
                         "the dedicated solver handles input bounds only; use the clarabel solver for input-rate or state bounds".into(),
                     ));
                 }
-                let s = BoxQp::new(
+                let mut s = BoxQp::new(
                     condensed.hessian.as_ref(),
                     &lo,
                     &hi,
                     cfg.max_iterations,
                     cfg.time_limit,
                 )?;
+                // The previous solve's working set is a far better first guess than the bounds
+                // the shifted plan touches on chattering loops (notes/h6-qp.md).
+                s.set_warm_start(WarmStart::Previous);
                 (Box::new(s), None)
             }
             SolverKind::Clarabel => {
@@ -235,6 +239,7 @@ impl<'m> MpcController<'m> {
     pub fn reset(&mut self) {
         self.plan = None;
         self.u_prev.fill(0.0);
+        self.solver.reset();
     }
 
     /// Sets the input applied at the previous step (`u_{−1}` of the rate bounds). `solve` sets
