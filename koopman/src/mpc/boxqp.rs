@@ -10,6 +10,7 @@ use faer::{Mat, MatRef};
 use super::condensed::gemv_acc;
 use super::qp::{QpOutcome, QpSolver, QpStatus};
 use crate::error::{Error, Result};
+use crate::linalg::kernels::{dot, gather_gemv, gemv};
 use crate::linalg::SmallCholesky;
 
 /// Where a variable is held: free, or on a bound of the working set.
@@ -83,6 +84,8 @@ pub struct BoxQp {
     // Workspace.
     want: Vec<Side>,
     ustar: Vec<f64>,
+    /// `L⁻¹(u*_W − b_W)`, kept current through the edits of one solve.
+    y: Vec<f64>,
     mu: Vec<f64>,
     mustar: Vec<f64>,
     row: Vec<f64>,
@@ -143,6 +146,7 @@ impl BoxQp {
             chol_valid: false,
             want: vec![Side::Free; n],
             ustar: vec![0.0; n],
+            y: Vec::with_capacity(n),
             mu: Vec::with_capacity(n),
             mustar: vec![0.0; n],
             row: vec![0.0; n],
@@ -175,6 +179,7 @@ impl BoxQp {
     }
 
     /// `want` from the previous solve's working set, shifted by `shift` variables.
+    #[inline(always)]
     fn previous_working_set(&mut self, shift: usize) {
         let n = self.n;
         for i in 0..n {
@@ -224,10 +229,13 @@ impl BoxQp {
         self.valid
     }
 
-    fn hinv_col(&self, j: usize) -> &[f64] {
-        &self.hinv[j * self.n..(j + 1) * self.n]
+    /// H⁻¹ (n × n, column-major and exactly symmetric) of the current Hessian; meaningless
+    /// after a Hessian that is not positive definite.
+    pub fn hessian_inverse(&self) -> &[f64] {
+        &self.hinv
     }
 
+    #[inline(always)]
     fn bound(&self, i: usize) -> f64 {
         match self.side[i] {
             Side::Upper => self.hi[i],
@@ -236,6 +244,7 @@ impl BoxQp {
     }
 
     /// Appends variable `j` on `side` to the working set (and a zero multiplier).
+    #[inline(always)]
     fn add(&mut self, j: usize, side: Side) -> bool {
         let m = self.ws.len();
         let col = &self.hinv[j * self.n..(j + 1) * self.n];
@@ -253,11 +262,13 @@ impl BoxQp {
         true
     }
 
-    /// Drops position `k` of the working set (and its multiplier).
+    /// Drops position `k` of the working set (and its multiplier), keeping `y` current.
+    #[inline(always)]
     fn drop_at(&mut self, k: usize) {
         let i = self.ws.remove(k);
         self.mu.remove(k);
-        self.chol.delete(k);
+        self.chol.delete_rotating(k, &mut self.y);
+        self.y.pop();
         self.edits += 1;
         self.pos[i] = NONE;
         self.side[i] = Side::Free;
@@ -268,6 +279,7 @@ impl BoxQp {
 
     /// Makes the working set `want`, editing the cached factor when few bounds differ and
     /// refactorising otherwise; multipliers start at zero.
+    #[inline(always)]
     fn set_working_set(&mut self) -> bool {
         let n = self.n;
         let target = self.want.iter().filter(|s| **s != Side::Free).count();
@@ -326,16 +338,14 @@ impl BoxQp {
     }
 
     /// `u = u* − H⁻¹[:, W] μ` with the working set exactly on its bounds.
-    fn primal(&self, u: &mut [f64]) {
+    #[inline(always)]
+    fn primal(&mut self, u: &mut [f64]) {
         u.copy_from_slice(&self.ustar);
-        for (k, &i) in self.ws.iter().enumerate() {
-            let m = self.mu[k];
-            if m != 0.0 {
-                for (ui, hi) in u.iter_mut().zip(self.hinv_col(i)) {
-                    *ui -= m * hi;
-                }
-            }
+        let m = self.ws.len();
+        for (r, mu) in self.row.iter_mut().zip(&self.mu) {
+            *r = -mu;
         }
+        gather_gemv(&self.hinv, &self.ws, &self.row[..m], u);
         for &i in &self.ws {
             u[i] = self.bound(i);
         }
@@ -343,17 +353,21 @@ impl BoxQp {
 
     /// At an iteration or time limit: the best point on the segment from the warm start `u0` to
     /// the current iterate clamped to the box (feasible, and no worse than the warm start).
-    fn stopped_early(&mut self, q: &[f64], u: &mut [f64]) {
+    fn stopped_early(&mut self, u: &mut [f64]) {
         self.primal(u);
         for (i, v) in u.iter_mut().enumerate() {
             *v = v.clamp(self.lo[i], self.hi[i]);
         }
-        // d = c − u0 (in u); f(u0 + t d) = f(u0) + t gᵀd + ½ t² dᵀHd, g = H u0 + q.
+        // d = c − u0 (in u); f(u0 + t d) = f(u0) + t gᵀd + ½ t² dᵀHd, g = H u0 + q
+        // = H (u0 − u*).
         for (ui, u0) in u.iter_mut().zip(&self.u0) {
             *ui -= u0;
         }
-        self.g.copy_from_slice(q);
-        gemv_acc(self.h.as_ref(), &self.u0, &mut self.g);
+        for ((d, u0), s) in self.mustar.iter_mut().zip(&self.u0).zip(&self.ustar) {
+            *d = u0 - s;
+        }
+        self.g.fill(0.0);
+        gemv_acc(self.h.as_ref(), &self.mustar, &mut self.g);
         self.hd.fill(0.0);
         gemv_acc(self.h.as_ref(), u, &mut self.hd);
         let gd: f64 = self.g.iter().zip(u.iter()).map(|(a, b)| a * b).sum();
@@ -369,6 +383,34 @@ impl BoxQp {
     }
 }
 
+/// One solve as a [`pulp::WithSimd`] operation: everything it calls is inlined into code
+/// compiled for the vector extension [`pulp::Arch`] finds at run time.
+struct Run<'a> {
+    qp: &'a mut BoxQp,
+    /// The linear term, when `u*` is still to be formed from it.
+    q: Option<&'a [f64]>,
+    u: &'a mut [f64],
+    start: Option<Instant>,
+}
+
+impl pulp::WithSimd for Run<'_> {
+    type Output = QpOutcome;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) -> QpOutcome {
+        let qp = self.qp;
+        if let Some(q) = self.q {
+            // u* = −H⁻¹ q (H⁻¹ is symmetric: its columns are its rows).
+            qp.ustar.fill(0.0);
+            gemv(&qp.hinv, q, &mut qp.ustar);
+            for v in &mut qp.ustar {
+                *v = -*v;
+            }
+        }
+        qp.run(self.u, self.start)
+    }
+}
+
 impl QpSolver for BoxQp {
     fn name(&self) -> &'static str {
         "dedicated"
@@ -378,8 +420,6 @@ impl QpSolver for BoxQp {
         self.has_previous = false;
     }
 
-    // Index loops over several parallel arrays (u, bounds, sides) read best here.
-    #[allow(clippy::needless_range_loop)]
     fn solve(&mut self, q: &[f64], _h: &[f64], u: &mut [f64]) -> QpOutcome {
         let start = self.time_limit.map(|_| Instant::now());
         let n = self.n;
@@ -390,6 +430,73 @@ impl QpSolver for BoxQp {
         };
         if q.len() != n || u.len() != n || !self.valid || q.iter().any(|v| !v.is_finite()) {
             return outcome(QpStatus::Numerical, 0, false);
+        }
+        // The whole solve is compiled for the CPU's vector extension (AVX2 where there is
+        // one): wider vectors, and VEX-encoded instructions, which do not stall when other code
+        // has left the upper halves of the vector registers dirty (legacy SSE code ran the
+        // same solve 2.4× slower inside the bench binary, notes/h6-qp.md).
+        pulp::Arch::new().dispatch(Run {
+            qp: self,
+            q: Some(q),
+            u,
+            start,
+        })
+    }
+}
+
+impl BoxQp {
+    /// Solves the QP whose unconstrained optimum `u* = −H⁻¹q` the caller has formed (e.g. with
+    /// the linear term, in one product from the MPC's state and reference): the same answer
+    /// as [`QpSolver::solve`] with that `q`, without its O(n²) product. On entry `u` holds the
+    /// warm start; on exit, the solution.
+    pub fn solve_unconstrained(&mut self, ustar: &[f64], u: &mut [f64]) -> QpOutcome {
+        let start = self.time_limit.map(|_| Instant::now());
+        let n = self.n;
+        if ustar.len() != n || u.len() != n || !self.valid || ustar.iter().any(|v| !v.is_finite()) {
+            return QpOutcome {
+                status: QpStatus::Numerical,
+                iterations: 0,
+                feasible_iterate: false,
+            };
+        }
+        self.ustar.copy_from_slice(ustar);
+        // Compiled for the CPU's vector extension, as in `solve`.
+        pulp::Arch::new().dispatch(Run {
+            qp: self,
+            q: None,
+            u,
+            start,
+        })
+    }
+
+    /// The solve from `u*` in place: the first working set, then the iteration.
+    // Index loops over several parallel arrays (u, bounds, sides) read best here.
+    #[allow(clippy::needless_range_loop)]
+    #[inline(always)]
+    fn run(&mut self, u: &mut [f64], start: Option<Instant>) -> QpOutcome {
+        let n = self.n;
+        let outcome = |status, iterations, feasible_iterate| QpOutcome {
+            status,
+            iterations,
+            feasible_iterate,
+        };
+        if self.warm_start == WarmStart::Previous
+            && self.has_previous
+            && self.chol_valid
+            && self.edits <= 4 * n
+        {
+            // The working set and its factor are where the last solve left them.
+            for i in 0..n {
+                let v = if u[i].is_finite() { u[i] } else { 0.0 };
+                u[i] = v.clamp(self.lo[i], self.hi[i]);
+                self.u0[i] = u[i];
+            }
+            self.mu.clear();
+            self.mu.resize(self.ws.len(), 0.0);
+            self.has_previous = false;
+            let out = self.iterate(u, start);
+            self.has_previous = out.status != QpStatus::Numerical;
+            return out;
         }
         // Warm start: feasible, and the bounds it sits on are the first working set.
         let mut warm = false;
@@ -421,16 +528,6 @@ impl QpSolver for BoxQp {
                 .any(|s| matches!(s, Side::Upper | Side::Lower));
         }
         self.has_previous = false;
-        // u* = −H⁻¹ q.
-        self.ustar.fill(0.0);
-        for (j, &qj) in q.iter().enumerate() {
-            if qj != 0.0 {
-                let col = &self.hinv[j * n..(j + 1) * n];
-                for (s, c) in self.ustar.iter_mut().zip(col) {
-                    *s -= qj * c;
-                }
-            }
-        }
         if !warm {
             // Cold: the bounds the unconstrained optimum violates.
             for i in 0..n {
@@ -446,18 +543,17 @@ impl QpSolver for BoxQp {
         if !self.set_working_set() {
             return outcome(QpStatus::Numerical, 0, false);
         }
-        let out = self.iterate(q, u, start);
+        let out = self.iterate(u, start);
         // Every end but a numerical failure leaves a usable working set for the next solve.
         self.has_previous = out.status != QpStatus::Numerical;
         out
     }
-}
 
-impl BoxQp {
     /// The dual active-set iteration from the working set in place.
     // Index loops over several parallel arrays (u, bounds, sides) read best here.
     #[allow(clippy::needless_range_loop)]
-    fn iterate(&mut self, q: &[f64], u: &mut [f64], start: Option<Instant>) -> QpOutcome {
+    #[inline(always)]
+    fn iterate(&mut self, u: &mut [f64], start: Option<Instant>) -> QpOutcome {
         let n = self.n;
         let outcome = |status, iterations, feasible_iterate| QpOutcome {
             status,
@@ -467,6 +563,13 @@ impl BoxQp {
         let bscale = self.bscale;
         let tol = 1e-12 * bscale;
         let (mut its, mut last_added, mut tabu) = (0usize, NONE, NONE);
+        // y = L⁻¹(u*_W − b_W) once; the edits below keep it current.
+        self.y.clear();
+        for k in 0..self.ws.len() {
+            let i = self.ws[k];
+            self.y.push(self.ustar[i] - self.bound(i));
+        }
+        self.chol.forward_in_place(&mut self.y);
         loop {
             let limit = if its >= self.max_iterations {
                 Some(QpStatus::MaxIterations)
@@ -475,13 +578,10 @@ impl BoxQp {
             } else {
                 None
             };
-            // μ* of the working set.
+            // μ* = L⁻ᵀ y of the working set.
             let m = self.ws.len();
-            for k in 0..m {
-                let i = self.ws[k];
-                self.mustar[k] = self.ustar[i] - self.bound(i);
-            }
-            self.chol.solve_in_place(&mut self.mustar[..m]);
+            self.mustar[..m].copy_from_slice(&self.y);
+            self.chol.backward_in_place(&mut self.mustar[..m]);
             if self.mustar[..m].iter().any(|v| !v.is_finite()) {
                 return outcome(QpStatus::Numerical, its, false);
             }
@@ -505,7 +605,7 @@ impl BoxQp {
             }
             if block != NONE {
                 if let Some(status) = limit {
-                    self.stopped_early(q, u);
+                    self.stopped_early(u);
                     return outcome(status, its, true);
                 }
                 for k in 0..m {
@@ -548,13 +648,17 @@ impl BoxQp {
                 return outcome(status, its, true);
             }
             if let Some(status) = limit {
-                self.stopped_early(q, u);
+                self.stopped_early(u);
                 return outcome(status, its, true);
             }
             if !self.add(j, side) {
                 self.chol_valid = false;
                 return outcome(QpStatus::Numerical, its, false);
             }
+            // The new entry of y from the new row [r d] of L: (c_j − r·y) / d.
+            let row = self.chol.row(m);
+            let yj = (self.ustar[j] - self.bound(j) - dot(&row[..m], &self.y)) / row[m];
+            self.y.push(yj);
             if j != tabu {
                 tabu = NONE;
             }
