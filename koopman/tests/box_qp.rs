@@ -463,6 +463,28 @@ fn hessian_changes_limits_and_bad_input() {
     qn[3] = f64::NAN;
     let mut u2 = vec![0.0; n];
     assert_eq!(s.solve(&qn, &[], &mut u2).status, QpStatus::Numerical);
+    // From the unconstrained optimum u* = −H⁻¹q instead of q: the same plan; bad u* is
+    // Numerical.
+    let hinv = s.hessian_inverse().to_vec();
+    let ustar: Vec<f64> = (0..n)
+        .map(|i| -(0..n).map(|j| hinv[j * n + i] * q[j]).sum::<f64>())
+        .collect();
+    let mut u4 = vec![0.0; n];
+    assert_eq!(
+        s.solve_unconstrained(&ustar, &mut u4).status,
+        QpStatus::Solved
+    );
+    assert!(max_diff(&u4, &certified(&h1, &q, &lo, &hi)) <= 1e-9);
+    let mut bad_star = ustar.clone();
+    bad_star[0] = f64::INFINITY;
+    assert_eq!(
+        s.solve_unconstrained(&bad_star, &mut u4).status,
+        QpStatus::Numerical
+    );
+    assert_eq!(
+        s.solve_unconstrained(&ustar[1..], &mut u4).status,
+        QpStatus::Numerical
+    );
     // One working-set change allowed: a feasible point no worse than the warm start.
     let mut one = BoxQp::new(h1.as_ref(), &lo, &hi, 1, None).unwrap();
     let mut u3 = vec![0.0; n];
