@@ -90,7 +90,7 @@ impl ModelRef<'_> {
 /// optimum `u*`, which the controller forms in one product; the others from `q`.
 enum Backend {
     Dedicated {
-        qp: BoxQp,
+        qp: Box<BoxQp>,
         /// `G = −H⁻¹ [M1 M2]` (column-major, n × (N + H·nx)): `u* = G [z_0; r]`.
         g: Vec<f64>,
     },
@@ -189,7 +189,7 @@ impl<'m> MpcController<'m> {
                 // the shifted plan touches on chattering loops (notes/h6-qp.md).
                 s.set_warm_start(WarmStart::Previous);
                 let g = ustar_map(&condensed, s.hessian_inverse());
-                (Backend::Dedicated { qp: s, g }, None)
+                (Backend::Dedicated { qp: Box::new(s), g }, None)
             }
             SolverKind::Clarabel => {
                 let c = LinearConstraints::build(cfg, &condensed)?;
