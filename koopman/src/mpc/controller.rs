@@ -58,7 +58,9 @@ pub struct MpcSolution {
     pub status: SolveStatus,
     /// Wall time of the solve (lifting, linear term and QP).
     pub solve_time: Duration,
-    /// Wall time of the QP alone (within `solve_time`).
+    /// Wall time of the QP alone (within `solve_time`). For the dedicated solver it starts from
+    /// `u* = −H⁻¹q`, which the step forms in its one product in place of `q` (as DAQP's solve
+    /// time starts from its transformed linear term).
     pub qp_time: Duration,
     /// Solver iterations.
     pub iterations: usize,
