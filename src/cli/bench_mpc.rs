@@ -8,7 +8,8 @@ use std::time::Instant;
 use anyhow::Context;
 use koopman::model::matrix::MatrixModel;
 use koopman::model::LiftedModel;
-use koopman::mpc::{MpcConfig, MpcController, SolveStatus, SolverKind};
+use koopman::mpc::boxqp::{BoxQp, WarmStart};
+use koopman::mpc::{MpcConfig, MpcController, QpSolver, QpStatus, SolveStatus, SolverKind};
 use serde::Serialize;
 
 /// Arguments of `koopbridge bench mpc`.
@@ -63,6 +64,18 @@ struct CaseResult {
     /// The QP alone (dedicated solver's line only).
     #[serde(skip_serializing_if = "Option::is_none")]
     qp_median_ms: Option<f64>,
+    /// The same QP sequence (`P`, `q` per step) replayed through a fresh dedicated solver
+    /// after the loop, warm-started from its previous working set, five passes: timed as an
+    /// external anchor times its solver (no lift or linear term in between), `u*` included.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    qp_replay_median_ms: Option<f64>,
+    /// Largest |Δu| between the replayed plans and the loop's.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    replay_max_abs_diff: Option<f64>,
+    /// Replayed solves (all passes) that did not end `Solved` (e.g. the iteration limit on the
+    /// first, cold solve; the loop's own count is `not_solved`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    replay_not_solved: Option<usize>,
     mean_iterations: f64,
     /// Largest |u_dedicated − u_clarabel| over all steps and plan entries.
     max_abs_input_diff: f64,
@@ -178,6 +191,34 @@ impl QpRecord {
     }
 }
 
+/// Replays a recorded QP sequence through fresh dedicated solvers (five passes, warm-started
+/// as the controller's is): the median solve time in ms, the largest |Δu| to the loop's plans and
+/// the number of solves that did not end `Solved`.
+fn replay(r: &QpRecord, ctl: &MpcController<'_>) -> anyhow::Result<(f64, f64, usize)> {
+    let (n, cfg) = (r.n, ctl.config());
+    let h = ctl.condensed().hessian.as_ref();
+    let (lo, hi) = (vec![-r.bound; n], vec![r.bound; n]);
+    let (mut times, mut diff, mut bad) = (Vec::new(), 0.0f64, 0);
+    let mut u = vec![0.0; n];
+    for _ in 0..5 {
+        // As the controller's first solve: from the zero plan, no previous working set.
+        u.fill(0.0);
+        let mut s = BoxQp::new(h, &lo, &hi, cfg.max_iterations, cfg.time_limit)?;
+        s.set_warm_start(WarmStart::Previous);
+        for (q, want) in r.q.chunks_exact(n).zip(r.u.chunks_exact(n)) {
+            let t = Instant::now();
+            let out = s.solve(q, &[], &mut u);
+            times.push(t.elapsed().as_secs_f64());
+            bad += usize::from(out.status != QpStatus::Solved);
+            diff = u
+                .iter()
+                .zip(want)
+                .fold(diff, |m, (a, b)| m.max((a - b).abs()));
+        }
+    }
+    Ok((quantile_ms(&mut times, 0.5), diff, bad))
+}
+
 /// Runs one case: both controllers see the same sequence of states (the closed loop driven
 /// by the dedicated solver's first input on the model itself, tracking a moving reference).
 fn bench_case(
@@ -219,7 +260,8 @@ fn bench_case(
         )?)
     };
     let nv = horizon * nu;
-    let mut record = args.dump_qps.as_ref().map(|_| {
+    // The QP sequence, kept for the replay (and written with --dump-qps).
+    let mut record = {
         let h = &ded.condensed().hessian;
         QpRecord {
             n: nv,
@@ -230,7 +272,7 @@ fn bench_case(
             time_ns: Vec::with_capacity(args.steps),
             step_ns: Vec::with_capacity(args.steps),
         }
-    });
+    };
     let phases: Vec<f64> = (0..nx)
         .map(|_| rng.uniform(0.0, std::f64::consts::TAU))
         .collect();
@@ -251,12 +293,10 @@ fn bench_case(
         let sd = ded.solve(&x, &reference)?;
         t_ded.push(t0.elapsed().as_secs_f64());
         t_qp.push(sd.qp_time.as_secs_f64());
-        if let Some(r) = record.as_mut() {
-            r.q.extend_from_slice(ded.linear_term());
-            r.u.extend_from_slice(&sd.u);
-            r.time_ns.push(sd.qp_time.as_secs_f64() * 1e9);
-            r.step_ns.push(sd.solve_time.as_secs_f64() * 1e9);
-        }
+        record.q.extend_from_slice(ded.linear_term());
+        record.u.extend_from_slice(&sd.u);
+        record.time_ns.push(sd.qp_time.as_secs_f64() * 1e9);
+        record.step_ns.push(sd.solve_time.as_secs_f64() * 1e9);
         it_ded += sd.iterations;
         bad_d += usize::from(sd.status != SolveStatus::Solved);
         if let Some(cla) = cla.as_mut() {
@@ -285,11 +325,13 @@ fn bench_case(
             })
             .collect();
     }
-    if let (Some(r), Some(dir)) = (&record, &args.dump_qps) {
+    if let Some(dir) = &args.dump_qps {
         let path = dir.join(format!("qp_N{latent}_nu{nu}_H{horizon}.npz"));
-        r.write(&path)
+        record
+            .write(&path)
             .with_context(|| format!("writing {}", path.display()))?;
     }
+    let (replay_ms, replay_diff, replay_bad) = replay(&record, &ded)?;
     let n = args.steps.max(1) as f64;
     let md = quantile_ms(&mut t_ded, 0.5);
     let mc = (!t_cla.is_empty()).then(|| quantile_ms(&mut t_cla, 0.5));
@@ -304,6 +346,9 @@ fn bench_case(
         median_ms: median,
         p99_ms: quantile_ms(times, 0.99),
         qp_median_ms: qp,
+        qp_replay_median_ms: qp.map(|_| replay_ms),
+        replay_max_abs_diff: qp.map(|_| replay_diff),
+        replay_not_solved: qp.map(|_| replay_bad),
         mean_iterations: iters as f64 / n,
         max_abs_input_diff: diff,
         active_fraction: active as f64 / (n * nv as f64),

@@ -1,6 +1,8 @@
 //! A dense Cholesky factor `A = L Lᵀ` on a contiguous row-major buffer: factorise, solve,
 //! invert, and grow or shrink it by one row and column in O(n²) (append, delete).
 
+use super::kernels::{axpy, dot};
+
 /// `A = L Lᵀ` with L lower triangular, stored row-major with row stride `stride ≥ n` (the upper
 /// part is unused), so that rows can be appended without moving the others.
 #[derive(Clone, Debug, Default)]
@@ -8,6 +10,8 @@ pub struct SmallCholesky {
     n: usize,
     stride: usize,
     l: Vec<f64>,
+    /// `1 / L_ii`, for the solves that multiply instead of dividing.
+    inv_diag: Vec<f64>,
 }
 
 impl SmallCholesky {
@@ -21,6 +25,7 @@ impl SmallCholesky {
             }
             self.l = l;
             self.stride = cap;
+            self.inv_diag.resize(cap, 0.0);
         }
     }
 
@@ -52,6 +57,7 @@ impl SmallCholesky {
                         return false;
                     }
                     self.l[i * s + i] = v.sqrt();
+                    self.inv_diag[i] = 1.0 / self.l[i * s + i];
                 } else {
                     self.l[i * s + j] = v / self.l[j * s + j];
                 }
@@ -87,6 +93,37 @@ impl SmallCholesky {
         }
     }
 
+    /// `b ← L⁻¹ b` (the first half of a solve), with vectorised dot products: the same result
+    /// as [`SmallCholesky::solve_in_place`]'s first half up to the order of rounding.
+    #[inline(always)]
+    pub fn forward_in_place(&self, b: &mut [f64]) {
+        let (n, s) = (self.n, self.stride);
+        debug_assert_eq!(b.len(), n);
+        for i in 0..n {
+            let v = b[i] - dot(&self.l[i * s..i * s + i], &b[..i]);
+            b[i] = v * self.inv_diag[i];
+        }
+    }
+
+    /// `b ← L⁻ᵀ b` (the second half of a solve), row by row with contiguous axpy updates.
+    #[inline(always)]
+    pub fn backward_in_place(&self, b: &mut [f64]) {
+        let (n, s) = (self.n, self.stride);
+        debug_assert_eq!(b.len(), n);
+        for i in (0..n).rev() {
+            let x = b[i] * self.inv_diag[i];
+            b[i] = x;
+            axpy(-x, &self.l[i * s..i * s + i], &mut b[..i]);
+        }
+    }
+
+    /// Row `i` of L up to and including the diagonal (`i + 1` values).
+    #[inline(always)]
+    pub fn row(&self, i: usize) -> &[f64] {
+        debug_assert!(i < self.n);
+        &self.l[i * self.stride..i * self.stride + i + 1]
+    }
+
     /// Writes `A⁻¹` (row-major, n × n) into `inv`, column by column.
     pub fn inverse_into(&self, inv: &mut [f64]) {
         let n = self.n;
@@ -103,6 +140,7 @@ impl SmallCholesky {
 
     /// Grows the factor of `A` to that of `[A r; rᵀ d]` (`r.len() == n`). Returns false, leaving
     /// the factor unchanged, if the result is not numerically positive definite.
+    #[inline(always)]
     pub fn append(&mut self, r: &[f64], d: f64) -> bool {
         let n = self.n;
         debug_assert_eq!(r.len(), n);
@@ -110,54 +148,79 @@ impl SmallCholesky {
             self.reserve((2 * self.stride).max(n + 1));
         }
         let s = self.stride;
-        let mut sq = 0.0;
+        let (done, new) = self.l.split_at_mut(n * s);
+        let new = &mut new[..n];
         for (i, &ri) in r.iter().enumerate().take(n) {
-            let mut v = ri;
-            for k in 0..i {
-                v -= self.l[i * s + k] * self.l[n * s + k];
-            }
-            let y = v / self.l[i * s + i];
-            self.l[n * s + i] = y;
-            sq += y * y;
+            let v = ri - dot(&done[i * s..i * s + i], &new[..i]);
+            new[i] = v * self.inv_diag[i];
         }
-        let p = d - sq;
+        let p = d - dot(new, new);
         if !(p > 0.0 && p.is_finite()) {
             return false;
         }
         self.l[n * s + n] = p.sqrt();
+        self.inv_diag[n] = 1.0 / self.l[n * s + n];
         self.n = n + 1;
         true
     }
 
     /// Shrinks the factor of `A` to that of `A` without row and column `p` (a rank-one update
-    /// of the trailing block by Givens-style rotations, O((n − p)·n)).
+    /// of the trailing block by Givens rotations, O((n − p)·n)).
     pub fn delete(&mut self, p: usize) {
+        self.delete_rotating(p, &mut []);
+    }
+
+    /// Like [`SmallCholesky::delete`], and keeps `y = L⁻¹ c` current for a right-hand side `c`
+    /// that loses its entry `p`: `y` (n values, or empty for none) becomes the n − 1 values of
+    /// the new `L⁻¹ c` (the same rotations applied to it).
+    #[inline(always)]
+    pub fn delete_rotating(&mut self, p: usize, y: &mut [f64]) {
         let (n, s) = (self.n, self.stride);
         debug_assert!(p < n);
+        debug_assert!(y.is_empty() || y.len() == n);
         // x = the dropped column below the diagonal; rows after p move up, columns left.
         let l = &mut self.l;
+        // (Element loops, not `copy_within`: the rows are short, and a library call per row
+        // cost more than the copy.)
         for i in p + 1..n {
             let x = l[i * s + p];
             let (dst, src) = ((i - 1) * s, i * s);
-            l.copy_within(src..src + p, dst);
-            l.copy_within(src + p + 1..src + i + 1, dst + p);
+            for k in 0..p {
+                l[dst + k] = l[src + k];
+            }
+            for k in p..i {
+                l[dst + k] = l[src + k + 1];
+            }
             // Keep x where the rotation below reads it: in the slot just past the new row.
             l[dst + i] = x;
         }
-        // Trailing block rows/cols p..n−1 (new indexing): L₂₂L₂₂ᵀ + x xᵀ.
+        let mut yx = 0.0;
+        if !y.is_empty() {
+            yx = y[p];
+            for k in p..n - 1 {
+                y[k] = y[k + 1];
+            }
+        }
+        // Trailing block rows/cols p..n−1 (new indexing): L₂₂L₂₂ᵀ + x xᵀ; the rotation k
+        // mixes column k with x so that x's entry k vanishes.
         let m = n - 1;
         for k in p..m {
             let lkk = l[k * s + k];
             let xk = l[k * s + k + 1];
-            let r = lkk.hypot(xk);
-            let (c, sn) = (r / lkk, xk / lkk);
+            let r = (lkk * lkk + xk * xk).sqrt();
+            let ir = 1.0 / r;
+            let (c, sn) = (lkk * ir, xk * ir);
             l[k * s + k] = r;
+            self.inv_diag[k] = ir;
             for i in k + 1..m {
-                let lik = l[i * s + k];
-                let xi = l[i * s + i + 1];
-                let nl = (lik + sn * xi) / c;
-                l[i * s + k] = nl;
-                l[i * s + i + 1] = c * xi - sn * nl;
+                let (lik, xi) = (l[i * s + k], l[i * s + i + 1]);
+                l[i * s + k] = c * lik + sn * xi;
+                l[i * s + i + 1] = c * xi - sn * lik;
+            }
+            if !y.is_empty() {
+                let yk = y[k];
+                y[k] = c * yk + sn * yx;
+                yx = c * yx - sn * yk;
             }
         }
         self.n = m;
@@ -236,6 +299,40 @@ mod tests {
         // Rank one: the second pivot is at rounding level, below the 1e-13 floor.
         assert!(spd_inverse(&[1.0, 1.0, 1.0, 1.0 + 1e-15], 2).is_none());
         assert!(spd_inverse(&[f64::NAN], 1).is_none());
+    }
+
+    #[test]
+    fn forward_backward_and_rotated_right_hand_sides_match_fresh_solves() {
+        let mut rng = Rng::new(13);
+        let n = 15;
+        let a = random_spd(&mut rng, n);
+        let c: Vec<f64> = (0..n).map(|_| rng.normal()).collect();
+        let mut cur: Vec<usize> = (0..n).collect();
+        let mut f = SmallCholesky::default();
+        assert!(f.factor(n, |i, j| a[i * n + j]));
+        let mut y: Vec<f64> = c.clone();
+        f.forward_in_place(&mut y);
+        for p in [4usize, 0, 11, 3, 9, 0] {
+            f.delete_rotating(p, &mut y);
+            cur.remove(p);
+            y.truncate(cur.len());
+            let m = cur.len();
+            let mut g = SmallCholesky::default();
+            assert!(g.factor(m, |i, j| a[cur[i] * n + cur[j]]));
+            let mut want: Vec<f64> = cur.iter().map(|&i| c[i]).collect();
+            g.forward_in_place(&mut want);
+            for (p, q) in y.iter().zip(&want) {
+                assert!((p - q).abs() < 1e-10 * (1.0 + q.abs()), "{p} vs {q}");
+            }
+            // forward + backward is the solve.
+            let mut x = y.clone();
+            f.backward_in_place(&mut x);
+            let mut x2: Vec<f64> = cur.iter().map(|&i| c[i]).collect();
+            g.solve_in_place(&mut x2);
+            for (p, q) in x.iter().zip(&x2) {
+                assert!((p - q).abs() < 1e-9 * (1.0 + q.abs()), "{p} vs {q}");
+            }
+        }
     }
 
     #[test]

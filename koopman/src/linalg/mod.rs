@@ -3,5 +3,6 @@
 //! at most, where a threaded library call costs more in synchronisation than the arithmetic.
 
 pub mod cholesky;
+pub mod kernels;
 
 pub use cholesky::{spd_inverse, SmallCholesky};

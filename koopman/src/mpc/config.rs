@@ -6,8 +6,9 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "kebab-case")]
 pub enum SolverKind {
-    /// The dedicated dense box-constrained QP solver (projected Newton with a cached Cholesky
-    /// factorisation, warm-started from the shifted previous plan). Input bounds only.
+    /// The dedicated dense box-constrained QP solver ([`crate::mpc::boxqp::BoxQp`], a dual
+    /// active-set method warm-started from the previous solve's working set). Input bounds
+    /// only.
     #[default]
     Dedicated,
     /// Clarabel (interior point), for every constraint type: input, input-rate and state bounds.
@@ -66,7 +67,9 @@ pub struct MpcConfig {
     /// for small inputs along the directions the cost does not see.
     pub regularization: f64,
     /// Iteration limit of the solver: Clarabel's interior-point iterations; for the dedicated
-    /// box solver, working-set changes (one bound added or dropped) per solve.
+    /// box solver, working-set changes (one bound added or dropped) per solve. Default 1000
+    /// (DAQP's): a cold start of the box solver with 230 inputs, 97% of them on a bound, needs
+    /// ~470 changes (the limit was 100 until session 6); warm-started solves need a few.
     pub max_iterations: usize,
     /// Time limit per solve in seconds (`None` = none).
     pub time_limit: Option<f64>,
@@ -90,7 +93,7 @@ impl Default for MpcConfig {
             x_max: None,
             solver: SolverKind::Dedicated,
             regularization: 1e-9,
-            max_iterations: 100,
+            max_iterations: 1000,
             time_limit: None,
             fallback: true,
         }

@@ -1,12 +1,13 @@
 //! The receding-horizon Koopman MPC controller: lifts the state, forms `q = M1 z_0 + M2 r`,
-//! solves the QP warm-started from the shifted previous plan, and falls back safely on failure.
+//! solves the QP warm-started from the shifted previous plan (the dedicated solver: from its
+//! previous working set), and falls back safely on failure.
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use serde::{Deserialize, Serialize};
 
-use super::boxqp::BoxQp;
+use super::boxqp::{BoxQp, WarmStart};
 use super::clarabel_qp::ClarabelQp;
 use super::closed_form::ClampedClosedForm;
 use super::condensed::{Condensed, Weights};
@@ -14,6 +15,7 @@ use super::config::{MpcConfig, SolverKind};
 use super::constraints::{input_box, LinearConstraints};
 use super::qp::{QpSolver, QpStatus};
 use crate::error::{ensure_finite, Error, Result};
+use crate::linalg::kernels::gemv_simd;
 use crate::model::LiftedModel;
 
 /// Why the controller returned its fallback plan instead of a solver's answer.
@@ -56,7 +58,9 @@ pub struct MpcSolution {
     pub status: SolveStatus,
     /// Wall time of the solve (lifting, linear term and QP).
     pub solve_time: Duration,
-    /// Wall time of the QP alone (within `solve_time`).
+    /// Wall time of the QP alone (within `solve_time`). For the dedicated solver it starts from
+    /// `u* = −H⁻¹q`, which the step forms in its one product in place of `q` (as DAQP's solve
+    /// time starts from its transformed linear term).
     pub qp_time: Duration,
     /// Solver iterations.
     pub iterations: usize,
@@ -84,15 +88,27 @@ impl ModelRef<'_> {
     }
 }
 
+/// The QP solver of a controller: the dedicated box solver is called from the unconstrained
+/// optimum `u*`, which the controller forms in one product; the others from `q`.
+enum Backend {
+    Dedicated {
+        qp: Box<BoxQp>,
+        /// `G = −H⁻¹ [M1 M2]` (column-major, n × (N + H·nx)): `u* = G [z_0; r]`.
+        g: Vec<f64>,
+    },
+    Other(Box<dyn QpSolver>),
+}
+
 /// Linear MPC on a lifted model (SPEC.md, "Control"). Every matrix that depends on the model
 /// alone is built once in [`MpcController::new`]; each [`MpcController::solve`] costs one lift,
-/// one product `q = M1 z_0 + M2 r` and the QP.
+/// one product (the dedicated solver's `u* = −H⁻¹q = G [z_0; r]`, the other solvers'
+/// `q = M1 z_0 + M2 r`) and the QP.
 pub struct MpcController<'m> {
     model: ModelRef<'m>,
     cfg: MpcConfig,
     condensed: Condensed,
     constraints: Option<LinearConstraints>,
-    solver: Box<dyn QpSolver>,
+    solver: Backend,
     lo: Vec<f64>,
     hi: Vec<f64>,
     plan: Option<Vec<f64>>,
@@ -100,6 +116,12 @@ pub struct MpcController<'m> {
     // Workspace.
     r: Vec<f64>,
     q: Vec<f64>,
+    /// False when `q` has not been formed for the last solve (the dedicated solver needs `u*`
+    /// only); `linear_term` forms it from `zr`.
+    q_current: bool,
+    /// `[z_0; r]` of the last solve.
+    zr: Vec<f64>,
+    ustar: Vec<f64>,
     h: Vec<f64>,
 }
 
@@ -151,22 +173,25 @@ impl<'m> MpcController<'m> {
                 )));
             }
         }
-        let (solver, constraints): (Box<dyn QpSolver>, Option<LinearConstraints>) = match cfg.solver
-        {
+        let (solver, constraints): (Backend, Option<LinearConstraints>) = match cfg.solver {
             SolverKind::Dedicated => {
                 if cfg.has_general_constraints() {
                     return Err(Error::InvalidArgument(
                         "the dedicated solver handles input bounds only; use the clarabel solver for input-rate or state bounds".into(),
                     ));
                 }
-                let s = BoxQp::new(
+                let mut s = BoxQp::new(
                     condensed.hessian.as_ref(),
                     &lo,
                     &hi,
                     cfg.max_iterations,
                     cfg.time_limit,
                 )?;
-                (Box::new(s), None)
+                // The previous solve's working set is a far better first guess than the bounds
+                // the shifted plan touches on chattering loops (notes/h6-qp.md).
+                s.set_warm_start(WarmStart::Previous);
+                let g = ustar_map(&condensed, s.hessian_inverse());
+                (Backend::Dedicated { qp: Box::new(s), g }, None)
             }
             SolverKind::Clarabel => {
                 let c = LinearConstraints::build(cfg, &condensed)?;
@@ -176,11 +201,11 @@ impl<'m> MpcController<'m> {
                     cfg.max_iterations,
                     cfg.time_limit,
                 )?;
-                (Box::new(s), Some(c))
+                (Backend::Other(Box::new(s)), Some(c))
             }
             SolverKind::ClosedForm => {
                 let s = ClampedClosedForm::new(condensed.hessian.as_ref(), &lo, &hi)?;
-                (Box::new(s), None)
+                (Backend::Other(Box::new(s)), None)
             }
         };
         let n = condensed.n_vars();
@@ -195,6 +220,9 @@ impl<'m> MpcController<'m> {
             u_prev: vec![0.0; nu],
             r: vec![0.0; cfg.horizon * nx],
             q: vec![0.0; n],
+            q_current: true,
+            zr: vec![0.0; condensed.latent + cfg.horizon * nx],
+            ustar: vec![0.0; n],
             h: Vec::new(),
             condensed,
         })
@@ -226,8 +254,15 @@ impl<'m> MpcController<'m> {
     }
 
     /// The linear term `q` of the last solve's QP (`min ½UᵀHU + qᵀU`, H·nu values; zeros
-    /// before the first solve), e.g. to record the QP sequence of a closed loop.
-    pub fn linear_term(&self) -> &[f64] {
+    /// before the first solve), e.g. to record the QP sequence of a closed loop. With the
+    /// dedicated solver a solve forms `u* = −H⁻¹q` instead, and `q` is formed here.
+    pub fn linear_term(&mut self) -> &[f64] {
+        if !self.q_current {
+            let latent = self.condensed.latent;
+            let (z0, r) = self.zr.split_at(latent);
+            self.condensed.linear_term(z0, r, &mut self.q);
+            self.q_current = true;
+        }
         &self.q
     }
 
@@ -235,6 +270,10 @@ impl<'m> MpcController<'m> {
     pub fn reset(&mut self) {
         self.plan = None;
         self.u_prev.fill(0.0);
+        match &mut self.solver {
+            Backend::Dedicated { qp, .. } => qp.reset(),
+            Backend::Other(s) => s.reset(),
+        }
     }
 
     /// Sets the input applied at the previous step (`u_{−1}` of the rate bounds). `solve` sets
@@ -298,7 +337,18 @@ impl<'m> MpcController<'m> {
         reference: &[f64],
     ) -> Result<MpcSolution> {
         self.set_reference(reference)?;
-        self.condensed.linear_term(z0, &self.r, &mut self.q);
+        let latent = self.condensed.latent;
+        self.zr[..latent].copy_from_slice(z0);
+        self.zr[latent..].copy_from_slice(&self.r);
+        self.q_current = matches!(self.solver, Backend::Other(_));
+        match &self.solver {
+            Backend::Dedicated { g, .. } => {
+                // u* = −H⁻¹q = G [z_0; r]: one product, and the QP skips its own.
+                self.ustar.fill(0.0);
+                gemv_simd(g, &self.zr, &mut self.ustar);
+            }
+            Backend::Other(_) => self.condensed.linear_term(z0, &self.r, &mut self.q),
+        }
         if let Some(c) = &self.constraints {
             let mut free = vec![0.0; self.condensed.horizon * self.condensed.nx];
             super::condensed::gemv_acc(self.condensed.phi.as_ref(), z0, &mut free);
@@ -306,7 +356,10 @@ impl<'m> MpcController<'m> {
         }
         let mut u = self.shifted_plan();
         let qp_start = Instant::now();
-        let outcome = self.solver.solve(&self.q, &self.h, &mut u);
+        let outcome = match &mut self.solver {
+            Backend::Dedicated { qp, .. } => qp.solve_unconstrained(&self.ustar, &mut u),
+            Backend::Other(s) => s.solve(&self.q, &self.h, &mut u),
+        };
         let qp_time = qp_start.elapsed();
         let finite = u.iter().all(|v| v.is_finite());
         let status = match outcome.status {
@@ -324,7 +377,10 @@ impl<'m> MpcController<'m> {
             if !self.cfg.fallback {
                 return Err(Error::Numerical(format!(
                     "{} solver failed ({reason:?}) and fallback is off",
-                    self.solver.name()
+                    match &self.solver {
+                        Backend::Dedicated { qp, .. } => qp.name(),
+                        Backend::Other(s) => s.name(),
+                    }
                 )));
             }
             u = self.shifted_plan();
@@ -355,6 +411,25 @@ impl<'m> MpcController<'m> {
         }
         u
     }
+}
+
+/// `G = −H⁻¹ [M1 M2]` (column-major, n × (N + H·nx)) from H⁻¹ (column-major, symmetric).
+fn ustar_map(c: &Condensed, hinv: &[f64]) -> Vec<f64> {
+    let n = c.n_vars();
+    let hinv = faer::MatRef::from_column_major_slice(hinv, n, n);
+    let m = faer::Mat::from_fn(n, c.m1.ncols() + c.m2.ncols(), |i, j| {
+        if j < c.m1.ncols() {
+            c.m1[(i, j)]
+        } else {
+            c.m2[(i, j - c.m1.ncols())]
+        }
+    });
+    let g = -(hinv * m);
+    let mut out = Vec::with_capacity(g.nrows() * g.ncols());
+    for j in 0..g.ncols() {
+        out.extend((0..n).map(|i| g[(i, j)]));
+    }
+    out
 }
 
 /// Writes into `r` (H·nx values) a reference of nx values held over the horizon `hz`, or of

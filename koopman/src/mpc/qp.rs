@@ -37,4 +37,6 @@ pub trait QpSolver: Send {
     /// Solves for the linear term `q` and right-hand side `h` (ignored by solvers whose
     /// constraints are fixed). On entry `u` holds the warm start; on exit, the solution.
     fn solve(&mut self, q: &[f64], h: &[f64], u: &mut [f64]) -> QpOutcome;
+    /// Forgets what earlier solves left for warm starts (a new episode); a no-op by default.
+    fn reset(&mut self) {}
 }
