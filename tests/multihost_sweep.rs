@@ -120,7 +120,7 @@ fn a_sweep_from_a_fourth_host_survives_a_trainer_host_killed_midway() {
             "--seeds",
             "1,2",
             "--iterations",
-            "3000",
+            "10000",
             "--set",
             "hidden=[32,32]",
             "--set",
@@ -145,11 +145,24 @@ fn a_sweep_from_a_fourth_host_survives_a_trainer_host_killed_midway() {
         .spawn()
         .unwrap();
 
-    // Kill t1's host process while it trains a point (a second after the sweep gave it one).
+    // Kill t1's host process while it trains a point: as soon as its first checkpoint exists
+    // (a fixed sleep after the submission raced the training on a quiet machine, where a point
+    // of 3000 iterations took 1 s and was done before the kill).
     wait_until("a point submitted to t1", common::READY, &sweep_log, || {
         std::fs::read_to_string(&sweep_log).is_ok_and(|l| l.contains("-> trainer 't1'"))
     });
-    std::thread::sleep(Duration::from_secs(1));
+    let jobs = dir.join("t1-host/state/trainer/jobs");
+    wait_until(
+        "t1 checkpoints its point",
+        common::READY,
+        &sweep_log,
+        || {
+            std::fs::read_dir(&jobs).is_ok_and(|d| {
+                d.flatten()
+                    .any(|e| e.path().extension().is_some_and(|x| x == "ckpt"))
+            })
+        },
+    );
     if let Some(m) = t1.exited() {
         panic!("t1 ended before the kill: {m}");
     }
