@@ -438,13 +438,19 @@ impl SimClient {
                     self.k = r.k;
                     return Ok(r);
                 }
-                Err(Error::Timeout { .. }) if attempt < self.retries => {
+                Err(Error::Timeout { after_ms, .. }) if attempt < self.retries => {
                     attempt += 1;
                     tracing::warn!(
                         "{} did not answer step {}; retry {attempt}",
                         self.who(),
                         self.k
                     );
+                    // A query that ended at once with no reply found no route to the queryable
+                    // (a router between the peers briefly without it, seen under load through a
+                    // TLS router): resending at once meets the same gap, so wait a little.
+                    if after_ms < 50 {
+                        std::thread::sleep(Duration::from_millis(25 * attempt as u64));
+                    }
                     pending = self.start_step(u)?;
                 }
                 Err(e) => return Err(e),
