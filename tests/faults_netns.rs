@@ -81,7 +81,15 @@ fn helper_observer() {
         common::READY,
     )
     .unwrap();
-    record_start(&client, "main", "far", Some(10), Duration::from_secs(30)).unwrap();
+    record_start(
+        &client,
+        "main",
+        "far",
+        Some(10),
+        None,
+        Duration::from_secs(30),
+    )
+    .unwrap();
     let seen = Arc::new(Mutex::new(Seen::default()));
     let s2 = seen.clone();
     let _sub = client

@@ -167,6 +167,7 @@ fn ten_simulators_at_1khz_are_recorded_without_gaps() {
                 SERVICES_ID,
                 id,
                 Some(15),
+                None,
                 Duration::from_secs(30),
             )
             .unwrap();

@@ -19,7 +19,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 
 use crate::control;
-use crate::convert::{array1, array2, from_py_json, to_py_json, vec_f64};
+use crate::convert::{array1, array2, check_finite, from_py_json, rows_f64, to_py_json, vec_f64};
 use crate::errors::{bridge_err, KoopbridgeError};
 use crate::zenoh_args::zenoh_options;
 
@@ -410,19 +410,37 @@ impl Client {
     }
 
     /// Asks recorder ``recorder_id`` to record the state stream of free-running simulator
-    /// ``sim`` in windows of ``window_steps`` transitions (default 15).
-    #[pyo3(signature = (recorder_id, sim, window_steps=None, timeout=10.0))]
+    /// ``sim`` in windows of ``window_steps`` transitions (default 15). ``reference`` (``nx``
+    /// values, or an array of rows of ``nx``: row ``k`` at step ``k``) goes to the MCAP file's
+    /// ``reference`` channel.
+    #[pyo3(signature = (recorder_id, sim, window_steps=None, reference=None, timeout=10.0))]
     fn record_start(
         &self,
         py: Python<'_>,
         recorder_id: &str,
         sim: &str,
         window_steps: Option<usize>,
+        reference: Option<&Bound<'_, PyAny>>,
         timeout: f64,
     ) -> PyResult<()> {
         let t = secs(timeout)?;
+        let reference = match reference {
+            None => None,
+            Some(r) => {
+                let (_, _, v) = rows_f64(r, "reference")?;
+                check_finite(&v, "reference")?;
+                Some(v)
+            }
+        };
         py.detach(|| {
-            bridge::services::recorder::record_start(&self.inner, recorder_id, sim, window_steps, t)
+            bridge::services::recorder::record_start(
+                &self.inner,
+                recorder_id,
+                sim,
+                window_steps,
+                reference,
+                t,
+            )
         })
         .map_err(bridge_err)
     }

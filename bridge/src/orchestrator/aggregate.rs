@@ -66,7 +66,8 @@ pub fn model_name(sc: &Scenario, sim: &str, round: usize) -> String {
     }
 }
 
-/// Starts recording every controlled simulator's state stream (windows of the scenario's T).
+/// Starts recording every controlled simulator's state stream (windows of the scenario's T;
+/// a fixed `reference` goes to the MCAP file's reference channel).
 pub fn start_recording(sc: &Scenario, cluster: &Cluster) -> Result<()> {
     for ctrl in &sc.control {
         let sim = sc.controlled_id(ctrl);
@@ -75,6 +76,7 @@ pub fn start_recording(sc: &Scenario, cluster: &Cluster) -> Result<()> {
             SERVICES_ID,
             sim,
             Some(sc.collect.steps),
+            ctrl.reference.clone(),
             Duration::from_secs(30),
         )?;
     }

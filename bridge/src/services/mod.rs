@@ -5,6 +5,7 @@ pub mod koopman_trainer;
 pub mod models;
 pub mod mpc;
 pub mod recorder;
+pub mod recording_mcap;
 mod service;
 pub mod trainer;
 

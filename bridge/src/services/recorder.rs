@@ -1,5 +1,6 @@
 //! The recorder: turns a free-running simulator's `state` stream into a dataset file (windows of
-//! T transitions, exact input pairing from the state messages), detecting gaps by sequence
+//! T transitions, exact input pairing from the state messages) and an MCAP file of the whole
+//! stream (states, inputs, reference; [`super::recording_mcap`]), detecting gaps by sequence
 //! number, and serves recorded datasets at `…/data/{name}`.
 
 use std::collections::HashMap;
@@ -12,6 +13,7 @@ use koopman::data::{Dataset, DatasetMeta, Pairing};
 use serde::{Deserialize, Serialize};
 use zenoh::{Session, Wait};
 
+use super::recording_mcap::{check_reference, mcap_bytes, McapRecording};
 use super::{key_tail, parse_json, query_json, serve_queries, to_json, Inbox};
 use crate::codec::StateMsg;
 use crate::error::{Error, ErrorCode, ErrorReply, Result};
@@ -32,6 +34,11 @@ pub struct RecordRequest {
     /// Transitions per window (default 15).
     #[serde(default)]
     pub window_steps: Option<usize>,
+    /// `start` only: the reference the simulator is driven towards, for the MCAP file's
+    /// `reference` channel: `nx` values, or rows of `nx` (row `k` at step `k`, the last one
+    /// repeated past the end). Checked at `stop` against the simulator's `nx`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference: Option<Vec<f64>>,
 }
 
 /// `stop` reply: what was recorded.
@@ -47,15 +54,22 @@ pub struct RecordSummary {
     pub out_of_order: u64,
     /// Windows written.
     pub windows: usize,
+    /// The MCAP file written beside the dataset (`{name}.mcap`, every received state), if any
+    /// state was received.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mcap: Option<String>,
 }
 
 /// Asks recorder `id` to start recording simulator `sim`'s state stream in windows of
-/// `window_steps` transitions (None: 15).
+/// `window_steps` transitions (None: 15). `reference` (`nx` values, or rows of `nx` with row
+/// `k` at step `k`) is what the simulator is driven towards, written to the MCAP file's
+/// `reference` channel; `None`: no reference channel.
 pub fn record_start(
     client: &crate::client::Client,
     id: &str,
     sim: &str,
     window_steps: Option<usize>,
+    reference: Option<Vec<f64>>,
     timeout: Duration,
 ) -> Result<()> {
     let req = RecordRequest {
@@ -63,6 +77,7 @@ pub fn record_start(
         sim: sim.into(),
         name: String::new(),
         window_steps,
+        reference,
     };
     let key = client.keys.recorder(id)?;
     let _: serde_json::Value =
@@ -84,6 +99,7 @@ pub fn record_stop(
         sim: sim.into(),
         name: name.into(),
         window_steps: None,
+        reference: None,
     };
     let key = client.keys.recorder(id)?;
     query_json(client, &key, &req, timeout, &format!("recorder '{id}'"))
@@ -153,15 +169,15 @@ enum Op {
     Data,
 }
 
-/// A recording in progress: what was received, the subscriber, transitions per window.
-/// A recording in progress: its states, the subscription, the window length, and the
-/// simulator's `info` (read at `start`, while the simulator is surely there).
-type Active = (
-    Arc<Mutex<Recording>>,
-    zenoh::pubsub::Subscriber<()>,
-    usize,
-    Option<InfoReply>,
-);
+/// A recording in progress: its states, the subscription, the window length, the
+/// simulator's `info` (read at `start`, while the simulator is surely there) and the reference.
+struct Active {
+    rec: Arc<Mutex<Recording>>,
+    sub: zenoh::pubsub::Subscriber<()>,
+    steps: usize,
+    info: Option<InfoReply>,
+    reference: Option<Vec<f64>>,
+}
 
 /// The `info` of simulator `sim`; one that does not answer is `not_found` (its dimensions,
 /// which a recording needs, are unknown).
@@ -230,12 +246,16 @@ pub fn serve(
                                 format!("already recording '{}'", req.sim),
                             ));
                         }
-                        // The simulator's dimensions are read now if it answers: a
-                        // free-running simulator may have finished (and gone) by the time the
-                        // recording stops. One that is not there yet is asked again at `stop`.
-                        let info = sim_info(&client, keys, &req.sim).ok();
+                        if let Some(r) = &req.reference {
+                            // Whole rows of some nx, finite; against the simulator's nx below
+                            // when it answers (else at stop, when the MCAP file is written).
+                            check_reference(r, r.len()).map_err(|e| e.to_reply())?;
+                        }
                         let rec = Arc::new(Mutex::new(Recording::default()));
                         let r2 = rec.clone();
+                        // Subscribed before `info` is asked: a free-running adapter that waits
+                        // for a subscriber (`--wait-subscriber`) answers queries only once it
+                        // runs.
                         let sub = session
                             .declare_subscriber(
                                 keys.sim(&req.sim, SimLeaf::State)
@@ -250,15 +270,34 @@ pub fn serve(
                             })
                             .wait()
                             .map_err(|e| Error::zenoh(e).to_reply())?;
+                        // The simulator's dimensions are read now if it answers: a
+                        // free-running simulator may have finished (and gone) by the time the
+                        // recording stops. One that is not there yet is asked again at `stop`.
+                        let info = sim_info(&client, keys, &req.sim).ok();
+                        if let (Some(r), Some(i)) = (&req.reference, &info) {
+                            check_reference(r, i.sim.nx()).map_err(|e| e.to_reply())?;
+                        }
                         active.insert(
                             req.sim.clone(),
-                            (rec, sub, req.window_steps.unwrap_or(15), info),
+                            Active {
+                                rec,
+                                sub,
+                                steps: req.window_steps.unwrap_or(15),
+                                info,
+                                reference: req.reference.clone(),
+                            },
                         );
                         to_json(&serde_json::json!({"recording": req.sim}))
                     }
                     "stop" => {
                         validate_chunk("dataset name", &req.name).map_err(|e| e.to_reply())?;
-                        let (rec, sub, steps, info) = active.remove(&req.sim).ok_or_else(|| {
+                        let Active {
+                            rec,
+                            sub,
+                            steps,
+                            info,
+                            reference,
+                        } = active.remove(&req.sim).ok_or_else(|| {
                             ErrorReply::new(
                                 ErrorCode::NotFound,
                                 format!("not recording '{}'", req.sim),
@@ -295,12 +334,28 @@ pub fn serve(
                             d.save_npz(&data_dir.join(format!("{}.npz", req.name)))
                                 .map_err(|e| Error::from(e).to_reply())?;
                         }
+                        let mcap = if rec.states.is_empty() {
+                            None
+                        } else {
+                            let file = format!("{}.mcap", req.name);
+                            let bytes = mcap_bytes(&McapRecording {
+                                sim: &req.sim,
+                                info: &info.sim,
+                                states: &rec.states,
+                                reference: reference.as_deref(),
+                            })
+                            .map_err(|e| e.to_reply())?;
+                            koopman::fsutil::write_atomic(&data_dir.join(&file), &bytes)
+                                .map_err(|e| Error::from(e).to_reply())?;
+                            Some(file)
+                        };
                         to_json(&RecordSummary {
                             name: req.name.clone(),
                             states: rec.states.len() as u64,
                             gaps,
                             out_of_order: ooo,
                             windows: n,
+                            mcap,
                         })
                     }
                     other => Err(ErrorReply::new(
