@@ -103,3 +103,73 @@ fn remote_solve_equals_local_solve_and_errors_are_typed() {
         ErrorCode::NotFound
     );
 }
+
+/// Three models' closed loops solved at once from three threads (each model has its own solver
+/// thread in the service): every reply is its own model's plan, equal to a local controller fed
+/// the same sequence of states, and a model configured again mid-way plans with its new
+/// settings from the next solve on while the others go on.
+#[test]
+fn several_models_are_solved_side_by_side_each_with_its_own_plan() {
+    let (opts, session) = common::options("mpc-many");
+    let dims = [(2usize, 1usize, 3u64), (4, 2, 5), (3, 1, 9)];
+    for (i, &(nx, nu, seed)) in dims.iter().enumerate() {
+        let m = KoopmanModel::init(Arch::new(nx, nu, &[16, 16], 2).unwrap(), seed).unwrap();
+        m.save(&opts.out_dir.join("models").join(format!("m{i}")))
+            .unwrap();
+    }
+    let c = bridge::orchestrator::Cluster::start(&opts, &session, &[], &["mpc", "models"]).unwrap();
+    let configure_key = c.client.keys.under(&["mpc", SERVICES_ID, "configure"]);
+    let configure = |model: &str, cfg: &MpcConfig| {
+        let body = serde_json::to_vec(&serde_json::json!({"model": model, "mpc": cfg})).unwrap();
+        c.client
+            .query(&configure_key, body, Duration::from_secs(60), "mpc")
+            .unwrap();
+    };
+    let cfgs: Vec<MpcConfig> = dims
+        .iter()
+        .map(|&(_, nu, _)| MpcConfig::with_bounds(vec![-1.0; nu], vec![1.0; nu]))
+        .collect();
+    for (i, cfg) in cfgs.iter().enumerate() {
+        configure(&format!("m{i}"), cfg);
+    }
+    let key = c.client.keys.mpc_solve(SERVICES_ID).unwrap();
+    let solves = 40;
+    std::thread::scope(|s| {
+        for (i, &(nx, nu, seed)) in dims.iter().enumerate() {
+            let (key, client, cfg) = (&key, &c.client, &cfgs[i]);
+            let configure = &configure;
+            s.spawn(move || {
+                let model =
+                    KoopmanModel::init(Arch::new(nx, nu, &[16, 16], 2).unwrap(), seed).unwrap();
+                let mut local = MpcController::new(&model, cfg).unwrap();
+                let mut rng = koopman::rng::Rng::new(100 + seed);
+                for k in 0..solves {
+                    if i == 0 && k == solves / 2 {
+                        // Model m0 again, with a shorter horizon: later plans have 5 steps.
+                        let short = MpcConfig {
+                            horizon: 5,
+                            ..cfg.clone()
+                        };
+                        configure("m0", &short);
+                        local = MpcController::new(&model, &short).unwrap();
+                    }
+                    let x: Vec<f64> = (0..nx).map(|_| rng.uniform(-1.0, 1.0)).collect();
+                    let req = SolveRequest {
+                        model: format!("m{i}"),
+                        x: x.clone(),
+                        reference: vec![0.0; nx],
+                    };
+                    let b = client
+                        .query(key, req.encode(), Duration::from_secs(30), "mpc")
+                        .unwrap();
+                    let remote = SolveReply::decode(&b).unwrap();
+                    let mine = local.solve(&x, &vec![0.0; nx]).unwrap();
+                    assert_eq!(remote.u.len(), mine.u.len(), "m{i}, solve {k}");
+                    for (a, b) in remote.u.iter().zip(&mine.u) {
+                        assert!((a - b).abs() < 1e-9, "m{i}, solve {k}: remote {a} vs {b}");
+                    }
+                }
+            });
+        }
+    });
+}

@@ -151,6 +151,23 @@ pub fn serve_queries<T: Copy + Send + Sync + 'static>(
     stop: &AtomicBool,
     mut handle: impl FnMut(T, &Query, Vec<u8>) -> Reply,
 ) -> Result<()> {
+    serve_queries_handing_on(session, keys, role, id, inbox, stop, |tag, q, body| {
+        Some(handle(tag, q, body))
+    })
+}
+
+/// [`serve_queries`] whose handler may hand a query on instead of answering it: `None` means
+/// it gave a clone of the query to another thread, which answers it (Zenoh ends a query when
+/// its last clone is dropped).
+pub fn serve_queries_handing_on<T: Copy + Send + Sync + 'static>(
+    session: &Session,
+    keys: &Keys,
+    role: Role,
+    id: &str,
+    inbox: &Inbox<T>,
+    stop: &AtomicBool,
+    mut handle: impl FnMut(T, &Query, Vec<u8>) -> Option<Reply>,
+) -> Result<()> {
     let _token = session
         .liveliness()
         .declare_token(keys.alive(role, id)?)
@@ -161,8 +178,13 @@ pub fn serve_queries<T: Copy + Send + Sync + 'static>(
         let Some((tag, q)) = inbox.next(Duration::from_millis(100)) else {
             continue;
         };
-        let result = payload(&q, DEFAULT_MAX_PAYLOAD).and_then(|body| handle(tag, &q, body));
-        respond(&q, result);
+        let result = match payload(&q, DEFAULT_MAX_PAYLOAD) {
+            Ok(body) => handle(tag, &q, body),
+            Err(e) => Some(Err(e)),
+        };
+        if let Some(result) = result {
+            respond(&q, result);
+        }
     }
     Ok(())
 }

@@ -3,6 +3,7 @@
 
 mod attach;
 mod controller;
+mod workers;
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -13,15 +14,16 @@ use koopman::mpc::{MpcConfig, MpcController, OffsetFreeConfig, SolveStatus as KS
 use serde::{Deserialize, Serialize};
 use zenoh::Session;
 
-use super::{parse_json, query_json, serve_queries, to_json, Inbox};
+use super::{parse_json, query_json, serve_queries_handing_on, to_json, Inbox};
 use crate::client::Client;
-use crate::codec::{SolveReply, SolveRequest, SolveStatus};
+use crate::codec::{SolveRequest, SolveStatus};
 use crate::error::{ErrorCode, ErrorReply, Result};
 use crate::keyexpr::{validate_chunk, Keys, Role};
 
 use attach::Attached;
 pub use attach::{clamp_bounds_to_sim, AttachStats};
 pub use controller::{LoadedModel, ServiceController, ServicePlan};
+use workers::SolveWorkers;
 
 /// `…/mpc/{id}/configure` request: build (or rebuild) the controller of a model.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -158,8 +160,10 @@ fn build(
     Ok((c, reply))
 }
 
-/// Serves the MPC service `id` until `stop` is set. Controllers are built and used on this
-/// thread only; attachments run on their own threads with their own controller.
+/// Serves the MPC service `id` until `stop` is set. Queries arrive on this thread, which loads
+/// models and builds controllers; each model's solves run on that model's own thread
+/// ([`workers`]), so the closed loops of several simulators are solved side by side;
+/// attachments run on their own threads with their own controller.
 pub fn serve(
     session: &Session,
     keys: &Keys,
@@ -172,61 +176,54 @@ pub fn serve(
     inbox.declare(session, &keys.mpc_solve(id)?, Op::Solve)?;
     inbox.declare(session, &keys.mpc_configure(id)?, Op::Configure)?;
     inbox.declare(session, &keys.mpc_attach(id)?, Op::Attach)?;
-    let mut controllers: HashMap<String, ServiceController> = HashMap::new();
+    let mut solvers = SolveWorkers::default();
     let mut configs: HashMap<String, ConfigureRequest> = HashMap::new();
     let mut default_model: Option<String> = None;
     let mut attached: HashMap<String, Attached> = HashMap::new();
-    serve_queries(
+    serve_queries_handing_on(
         session,
         keys,
         Role::Mpc,
         id,
         &inbox,
         stop,
-        |op, _q, body| match op {
+        |op, q, body| match op {
             Op::Solve => {
-                let req = SolveRequest::decode(&body).map_err(|e| e.to_reply())?;
-                let name = if req.model.is_empty() {
-                    default_model.clone().ok_or_else(|| {
-                        ErrorReply::new(
-                            ErrorCode::NotFound,
-                            "no model configured; send `configure` first",
-                        )
-                    })?
-                } else {
-                    req.model.clone()
-                };
-                if !controllers.contains_key(&name) {
-                    let creq = ConfigureRequest {
-                        model: name.clone(),
-                        mpc: None,
-                        offset_free: None,
+                let handed_on = (|| {
+                    let req = SolveRequest::decode(&body).map_err(|e| e.to_reply())?;
+                    let name = if req.model.is_empty() {
+                        default_model.clone().ok_or_else(|| {
+                            ErrorReply::new(
+                                ErrorCode::NotFound,
+                                "no model configured; send `configure` first",
+                            )
+                        })?
+                    } else {
+                        req.model.clone()
                     };
-                    let (c, _) = build(&client, store, &creq).map_err(|e| e.to_reply())?;
-                    controllers.insert(name.clone(), c);
-                    configs.insert(name.clone(), creq);
-                }
-                let c = controllers
-                    .get_mut(&name)
-                    .ok_or_else(|| ErrorReply::new(ErrorCode::Internal, "controller vanished"))?;
-                let sol = c.solve(&req.x, &req.reference).map_err(|e| e.to_reply())?;
-                Ok(SolveReply {
-                    status: sol.status,
-                    iterations: sol.iterations as u32,
-                    solve_time_ns: sol.solve_time.as_nanos() as u64,
-                    u: sol.u,
-                }
-                .encode())
+                    if !solvers.has(&name) {
+                        let creq = ConfigureRequest {
+                            model: name.clone(),
+                            mpc: None,
+                            offset_free: None,
+                        };
+                        let (c, _) = build(&client, store, &creq).map_err(|e| e.to_reply())?;
+                        solvers.install(&name, c)?;
+                        configs.insert(name.clone(), creq);
+                    }
+                    solvers.solve(&name, q.clone(), req)
+                })();
+                handed_on.err().map(Err)
             }
-            Op::Configure => {
+            Op::Configure => Some((|| {
                 let req: ConfigureRequest = parse_json("configure", &body)?;
                 let (c, reply) = build(&client, store, &req).map_err(|e| e.to_reply())?;
-                controllers.insert(req.model.clone(), c);
+                solvers.install(&req.model, c)?;
                 configs.insert(req.model.clone(), req.clone());
                 default_model = Some(req.model.clone());
                 to_json(&reply)
-            }
-            Op::Attach => {
+            })()),
+            Op::Attach => Some((|| {
                 let req: AttachRequest = parse_json("attach", &body)?;
                 validate_chunk("sim id", &req.sim).map_err(|e| e.to_reply())?;
                 if req.detach {
@@ -275,9 +272,10 @@ pub fn serve(
                 })?;
                 attached.insert(req.sim.clone(), a);
                 to_json(&serde_json::json!({"attached": req.sim}))
-            }
+            })()),
         },
     )?;
+    solvers.shut_down();
     for (_, a) in attached {
         a.stop.store(true, Ordering::Relaxed);
         let _ = a.thread.join();
