@@ -232,22 +232,56 @@ fn assert_no_reply<T: std::fmt::Debug>(what: &str, r: bridge::Result<T>) {
     }
 }
 
-#[test]
-fn tls_router_refuses_plain_tcp_and_clients_without_a_certificate() {
-    let dir = common::scratch("tls");
+/// A TLS-only router (`router-tls.json5`, a model store) and the operator's client of it.
+struct TlsRouter {
+    dir: PathBuf,
+    pki: PathBuf,
+    session: String,
+    endpoint: String,
+    client: Client,
+    _router: ChildProc,
+}
+
+/// Starts a [`TlsRouter`] in a scratch folder named `tag`; `None` (with a SKIPPED line) when
+/// the `openssl` CLI is not installed.
+fn tls_router(tag: &str) -> Option<TlsRouter> {
+    let dir = common::scratch(tag);
     let Some(pki) = make_pki(&dir) else {
         eprintln!("SKIPPED: the openssl CLI is not installed (needed to make test certificates)");
-        return;
+        return None;
     };
     let session = fresh_session_id();
-    let ep = tls_endpoint();
+    let endpoint = tls_endpoint();
     let router_cfg = config("router-tls.json5", &pki, "router", &[], &dir);
-    let _router = router(&dir, &session, &ep, &["models"], Some(&router_cfg));
+    let router = router(&dir, &session, &endpoint, &["models"], Some(&router_cfg));
     let op_cfg = config("client-tls.json5", &pki, "operator", &[], &dir);
     let client = Client::new(
-        open_retrying(&client_opts(&ep, Some(&op_cfg))),
+        open_retrying(&client_opts(&endpoint, Some(&op_cfg))),
         Keys::new(&session).unwrap(),
     );
+    Some(TlsRouter {
+        dir,
+        pki,
+        session,
+        endpoint,
+        client,
+        _router: router,
+    })
+}
+
+#[test]
+fn tls_router_refuses_plain_tcp_and_clients_without_a_certificate() {
+    let Some(TlsRouter {
+        dir,
+        pki,
+        session,
+        endpoint: ep,
+        client,
+        _router,
+    }) = tls_router("tls")
+    else {
+        return;
+    };
 
     eprintln!("tls: the operator has a session");
     // Plain TCP to the same port: the TCP connection opens, the Zenoh session does not.
@@ -308,20 +342,17 @@ fn steps_exactly(sim: &mut SimClient, n: u64) {
 #[test]
 #[ignore]
 fn tls_round_trip_cost_against_tcp() {
-    let dir = common::scratch("tls-timing");
-    let Some(pki) = make_pki(&dir) else {
-        eprintln!("SKIPPED: the openssl CLI is not installed (needed to make test certificates)");
+    let Some(TlsRouter {
+        dir,
+        pki,
+        session,
+        endpoint: ep,
+        client,
+        _router,
+    }) = tls_router("tls-timing")
+    else {
         return;
     };
-    let session = fresh_session_id();
-    let ep = tls_endpoint();
-    let router_cfg = config("router-tls.json5", &pki, "router", &[], &dir);
-    let _router = router(&dir, &session, &ep, &["models"], Some(&router_cfg));
-    let op_cfg = config("client-tls.json5", &pki, "operator", &[], &dir);
-    let client = Client::new(
-        open_retrying(&client_opts(&ep, Some(&op_cfg))),
-        Keys::new(&session).unwrap(),
-    );
     let host_cfg = config("client-tls.json5", &pki, "sim-host", &[], &dir);
     let _sim = sim(&dir, &session, "pend", &ep, Some(&host_cfg));
     let mut s = SimClient::connect(&client, "pend", common::READY).unwrap();
