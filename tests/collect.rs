@@ -146,6 +146,16 @@ fn bad_requests_get_typed_errors_and_the_adapter_keeps_serving() {
         raw(&format!(r#"{{{ok}, "extra": 1}}"#)),
         ErrorCode::BadRequest
     );
+    assert_eq!(
+        raw(&format!(
+            r#"{{{ok}, "policy": {{"kind": "planned", "windows_per_plan": 0}}}}"#
+        )),
+        ErrorCode::BadRequest
+    );
+    assert_eq!(
+        raw(&format!(r#"{{{ok}, "policy": {{"kind": "planned"}}}}"#)),
+        ErrorCode::Unsupported
+    );
     let code = |req: CollectRequest| match collect_block(&c.client, "pend", &req, T, None) {
         Err(Error::Remote { reply, .. }) => reply.code,
         other => panic!("expected an error reply, got {other:?}"),
@@ -169,6 +179,14 @@ fn bad_requests_get_typed_errors_and_the_adapter_keeps_serving() {
         )),
         ErrorCode::Dimension
     );
+    // A planned policy: known on the wire, but the built-in systems have no planner.
+    let planned = CollectRequest {
+        policy: CollectPolicy::Planned {
+            windows_per_plan: Some(5),
+        },
+        ..base.clone()
+    };
+    assert_eq!(code(planned), ErrorCode::Unsupported);
     let too_many = CollectRequest {
         block_windows: 4_000_000,
         ..base.clone()

@@ -206,6 +206,35 @@ pub enum CollectPolicy {
         #[serde(default, skip_serializing_if = "Option::is_none")]
         high: Option<InputBound>,
     },
+    /// Windows cut from trajectories the simulator plans itself (SPEC's "constrained,
+    /// expert-guided" Kinova data, issue 11): window `i` belongs to plan
+    /// `i / windows_per_plan`, whose start and goal the simulator draws from `(seed, plan)`;
+    /// each window resets to a planned state and executes the next `steps` planned commands.
+    /// Only a simulator with a planner runs it (the Drake Gen3 adapter); every other one answers
+    /// `unsupported`.
+    Planned {
+        /// Windows cut from each plan, evenly spaced along it (≥ 1; absent = the simulator's
+        /// default, 20 for the Drake Gen3 adapter).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        windows_per_plan: Option<u32>,
+    },
+}
+
+impl CollectPolicy {
+    /// The policy's name in dataset metadata: `adapter-uniform`, or for a planned policy
+    /// `adapter-planned` with its settings (`windows_per_plan=K`, absent = the simulator's
+    /// default).
+    pub fn describe(&self) -> String {
+        match self {
+            CollectPolicy::Uniform { .. } => "adapter-uniform".into(),
+            CollectPolicy::Planned {
+                windows_per_plan: Some(k),
+            } => format!("adapter-planned windows_per_plan={k}"),
+            CollectPolicy::Planned {
+                windows_per_plan: None,
+            } => "adapter-planned windows_per_plan=default".into(),
+        }
+    }
 }
 
 impl Default for CollectPolicy {
@@ -286,6 +315,51 @@ mod tests {
         // A reply without the field (an older adapter) still decodes.
         let old: InfoReply = serde_json::from_value(plain).unwrap();
         assert!(old.sim.extra.is_empty());
+    }
+
+    #[test]
+    fn collect_policies_have_one_json_form_each() {
+        let req: CollectRequest = serde_json::from_str(
+            r#"{"policy":{"kind":"planned","windows_per_plan":20},"seed":42,"block":3,"block_windows":500,"steps":15}"#,
+        )
+        .unwrap();
+        let planned = CollectPolicy::Planned {
+            windows_per_plan: Some(20),
+        };
+        assert_eq!(req.policy, planned);
+        assert_eq!(
+            serde_json::to_string(&planned).unwrap(),
+            r#"{"kind":"planned","windows_per_plan":20}"#
+        );
+        let default: CollectPolicy = serde_json::from_str(r#"{"kind":"planned"}"#).unwrap();
+        assert_eq!(
+            default,
+            CollectPolicy::Planned {
+                windows_per_plan: None
+            }
+        );
+        assert_eq!(
+            serde_json::to_string(&default).unwrap(),
+            r#"{"kind":"planned"}"#
+        );
+        let uniform = CollectPolicy::Uniform {
+            low: Some(InputBound::All(-0.12)),
+            high: Some(InputBound::Each(vec![0.1, 0.2])),
+        };
+        assert_eq!(
+            serde_json::to_string(&uniform).unwrap(),
+            r#"{"kind":"uniform","low":-0.12,"high":[0.1,0.2]}"#
+        );
+        for bad in [
+            r#"{"kind":"planned","goals":3}"#,
+            r#"{"kind":"planned","windows_per_plan":-1}"#,
+            r#"{"kind":"planned","low":0.1}"#,
+            r#"{"kind":"scripted"}"#,
+        ] {
+            assert!(serde_json::from_str::<CollectPolicy>(bad).is_err(), "{bad}");
+        }
+        assert_eq!(uniform.describe(), "adapter-uniform");
+        assert_eq!(planned.describe(), "adapter-planned windows_per_plan=20");
     }
 
     #[test]

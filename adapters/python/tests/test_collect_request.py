@@ -55,6 +55,8 @@ def test_the_mujoco_adapter_serves_collect(tmp_path, session_id):
         assert remote_code(lambda: c.collect("arm", 1, 0, 4, 15, policy={"kind": "uniform", "low": 1, "high": 0})) == "bad_request"
         assert remote_code(lambda: c.collect("arm", 1, 0, 1_000_000, 15)) == "too_large"
         assert remote_code(lambda: c.collect("arm", 1, 0, 4, 0)) == "bad_request"
+        # The planned policy is known on the wire, but the MuJoCo simulator plans nothing.
+        assert remote_code(lambda: c.collect("arm", 1, 0, 4, 15, policy={"kind": "planned", "windows_per_plan": 2})) == "unsupported"
         x3, _ = c.collect("arm", seed=42, block=1, block_windows=6, steps=15, policy=SPEC)
         np.testing.assert_array_equal(x3, x)
         # Lockstep goes on after a reset.
@@ -77,6 +79,7 @@ def test_the_fmu_adapter_serves_collect(damped_fmu, session_id, serve_in_thread)
         with koopbridge.Client(session=session_id, connect=[ep]) as c:
             c.connect_sim("fmu", timeout=20)
             x, u = c.collect("fmu", seed=5, block=1, block_windows=3, steps=10, policy={"kind": "uniform", "low": -8, "high": 8})
+            assert remote_code(lambda: c.collect("fmu", 5, 0, 3, 10, policy={"kind": "planned"})) == "unsupported"
     assert s.error is None
     np.testing.assert_array_equal(x, ref.x)
     np.testing.assert_array_equal(u, ref.u)
@@ -104,6 +107,7 @@ def test_a_plain_adapter_is_collected_with_its_reset_and_step(session_id, serve_
             c.connect_sim("d", timeout=20)
             x, u = c.collect("d", seed=1, block=0, block_windows=5, steps=4)
             again, _ = c.collect("d", seed=1, block=0, block_windows=5, steps=4)
+            assert remote_code(lambda: c.collect("d", 1, 0, 5, 4, policy={"kind": "planned"})) == "unsupported"
     assert s.error is None
     assert x.tobytes() == again.tobytes()
     assert np.all(np.abs(u) <= 1.0) and np.abs(u).max() > 0.1

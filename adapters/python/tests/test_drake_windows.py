@@ -1,15 +1,20 @@
 """Planned-trajectory windows of the Drake simulator (``collect`` with the planned policy):
 the same seed gives the same bytes, a block collected alone equals the same windows of a longer
-run (resumable), each window starts at a planned state and applies the planned velocities."""
+run (resumable), each window starts at a planned state and applies the planned velocities; the
+policy travels over Zenoh (``collect`` request) and other simulators refuse it as unsupported."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from koopbridge import InvalidInput
+import koopbridge
+from conftest import free_endpoint
+from koopbridge import InvalidInput, SimulatorAdapter, Unsupported
 from koopbridge.adapters.drake_sim import DrakeGen3Sim
 from koopbridge.adapters.drake_windows import PlannedPolicy, plan_for
+from koopbridge.collect import PlannedPolicy as SdkPlannedPolicy
+from koopbridge.collect import collect_windows, policy_from_json
 
 
 @pytest.fixture(scope="module")
@@ -42,3 +47,29 @@ def test_planned_policy_json_is_checked(sim):
         with pytest.raises(InvalidInput):
             sim.collect(bad, 1, 1, 15)
     assert PlannedPolicy.from_json(PlannedPolicy(4).to_json()) == PlannedPolicy(4)
+
+
+def test_planned_policy_is_one_sdk_type_and_unsupported_without_a_planner(sim):
+    assert PlannedPolicy is SdkPlannedPolicy
+    assert policy_from_json({"kind": "planned"}) == PlannedPolicy(20)
+    assert policy_from_json({"kind": "planned", "windows_per_plan": 7}).to_json() == {"kind": "planned", "windows_per_plan": 7}
+    with pytest.raises(InvalidInput, match="planned"):
+        policy_from_json({"kind": "sine"})
+    # The generic per-window collection (what the FMU and MuJoCo adapters use) cannot plan.
+    with pytest.raises(Unsupported):
+        collect_windows(sim, PlannedPolicy(2), 1, 1, 15)
+
+
+def test_the_drake_adapter_serves_the_planned_policy_over_zenoh(sim, session_id, serve_in_thread):
+    local = sim.collect(PlannedPolicy(2), 11, 3, 15, start=2)
+    ep = free_endpoint()
+    with serve_in_thread(SimulatorAdapter(DrakeGen3Sim()), session=session_id, id="gen3", listen=[ep]) as s:
+        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+            c.connect_sim("gen3", timeout=30)
+            x, u = c.collect("gen3", seed=11, block=1, block_windows=2, windows=2, steps=15, policy={"kind": "planned", "windows_per_plan": 2})
+            x1, _ = c.collect("gen3", seed=11, block=2, block_windows=2, windows=1, steps=15, policy={"kind": "planned", "windows_per_plan": 2})
+    assert s.error is None
+    assert x.tobytes() == local.x[:2].tobytes() and u.tobytes() == local.u[:2].tobytes()
+    assert x1.tobytes() == local.x[2:3].tobytes()
+    # Windows 2, 3 are plan 1, window 4 plan 2: each starts on its plan at a planned state.
+    assert local.reset_seeds.tolist() == [1, 1, 2]

@@ -107,4 +107,7 @@ def test_report_scores_the_closed_loop_against_feed_forward_and_lqr(tmp_path, pl
     err = np.array(xs)[:, :7] - ref["x"][:, :7]
     assert c["feed-forward"]["rms_rad"] == pytest.approx(np.sqrt(np.mean(err**2)), rel=1e-12)
     assert np.isfinite(c["feed-forward+lqr"]["rms_rad"]) and rep["steps"] == len(ref["ff"])
+    held = ref["x"][:, :7] - ref["x"][0, :7]
+    assert rep["hold_still"]["rms_rad"] == pytest.approx(np.sqrt(np.mean(held**2)), rel=1e-12)
+    assert rep["hold_still"]["final_rad"] == pytest.approx(np.max(np.abs(held[-1])), rel=1e-12) and rep["hold_still"]["final_rad"] > 0.1
     assert (tmp_path / "kinova.png").read_bytes()[:4] == b"\x89PNG"

@@ -66,7 +66,7 @@ def test_policies_from_json_and_bad_requests(sim):
     assert np.array_equal(sim.collect(p, 3, 2, 4).u, sim.collect(SPEC_POLICY, 3, 2, 4).u)
     # Default bounds: the simulator's own (±0.3).
     assert np.abs(sim.collect(policy_from_json({"kind": "uniform"}), 3, 4, 15).u).max() > 0.2
-    with pytest.raises(InvalidInput, match="only 'uniform' is known"):
+    with pytest.raises(InvalidInput, match="only 'uniform' and 'planned' are known"):
         policy_from_json({"kind": "sine"})
     with pytest.raises(InvalidInput, match="unknown fields"):
         policy_from_json({"kind": "uniform", "amp": 1})

@@ -12,6 +12,7 @@ import subprocess
 import time
 
 import numpy as np
+import pytest
 
 from conftest import ROOT, koopbridge_binary_or_skip
 
@@ -64,11 +65,15 @@ def test_kinova_drake_scenario_tracks_held_out_plans(tmp_path, repo_tmp):
     ref = np.load(out / "kinova-reference.npy")
     ref = np.concatenate([ref, np.tile(ref[-1], (max(0, 2501 - len(ref)), 1))])[:2501]
     zero = float(np.sqrt(np.mean(ref[:, :7] ** 2)))  # the arm held at x0 = 0
-    # The pipeline is checked here, not the controller: at this budget the Koopman MPC does not
-    # yet beat holding still (RMS 0.93 rad against 0.79 at 400 windows / 150 iterations, 1.25 at
-    # 1000 / 600: notes/h5-robots.md, issue 11), so only a finite result is asserted for it.
-    assert np.isfinite(k["koopman-mpc"]["rms_rad"]) and np.isfinite(k["koopman-mpc"]["final_rad"]), k
+    # Planned-trajectory data (the simulator's own planner, `collect` request) at this budget
+    # already tracks: MPC joint RMS 0.153 rad against 0.792 held still (notes/h7-kinova.md). With
+    # the uniform random-command data it replaced the MPC was worse than holding still (0.93).
+    seen = k["koopman-mpc"], rep["kinova"]["hold_still"]
+    assert rep["kinova"]["hold_still"]["rms_rad"] == pytest.approx(zero, rel=1e-9)
+    assert k["koopman-mpc"]["rms_rad"] < 0.5 * zero and k["koopman-mpc"]["final_rad"] < rep["kinova"]["hold_still"]["final_rad"], seen
     assert k["feed-forward"]["rms_rad"] < zero and k["feed-forward+lqr"]["rms_rad"] < np.inf
+    meta = json.loads((out / "data" / "gen3" / "train.json").read_text())
+    assert meta["policy"].startswith("adapter-planned windows_per_plan=20;") and "SNOPT" in meta["policy"], meta["policy"]
     plans = json.loads((out / "kinova-plans.json").read_text())["plans"]
     assert plans and all("error" not in p for p in plans)
     assert (out / "kinova.png").read_bytes()[:4] == b"\x89PNG"

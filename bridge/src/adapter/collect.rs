@@ -27,8 +27,26 @@ pub struct Windows {
     pub u: Vec<f64>,
 }
 
-/// A `collect` request checked against the simulator: which windows, how long, the policy's
-/// bounds resolved to `nu` values each.
+/// How the windows of a checked request choose their inputs.
+#[derive(Clone, Debug, PartialEq)]
+pub enum PlanInputs {
+    /// `u ~ U(low, high)` every step, the bounds resolved to `nu` values each.
+    Uniform {
+        /// Lower input bounds.
+        low: Vec<f64>,
+        /// Upper input bounds.
+        high: Vec<f64>,
+    },
+    /// Windows of trajectories the simulator plans itself ([`CollectPolicy::Planned`]): only a
+    /// backend with a planner runs them; [`run_windows`] answers `unsupported`.
+    Planned {
+        /// Windows per plan (≥ 1; `None` = the simulator's default).
+        windows_per_plan: Option<u32>,
+    },
+}
+
+/// A `collect` request checked against the simulator: which windows, how long, the policy
+/// (a uniform policy's bounds resolved to `nu` values each).
 #[derive(Clone, Debug, PartialEq)]
 pub struct CollectPlan {
     /// The collection's seed.
@@ -41,10 +59,8 @@ pub struct CollectPlan {
     pub windows: usize,
     /// Transitions per window.
     pub steps: usize,
-    /// Lower input bounds of the uniform policy.
-    pub low: Vec<f64>,
-    /// Upper input bounds of the uniform policy.
-    pub high: Vec<f64>,
+    /// How the inputs are chosen.
+    pub inputs: PlanInputs,
     nx: usize,
     nu: usize,
 }
@@ -57,7 +73,8 @@ impl CollectPlan {
     /// Checks `req` against `info`: `steps`, `block_windows` and `windows` at least 1 and
     /// `windows ≤ block_windows` (`bad_request`), a block no larger than [`MAX_BLOCK_VALUES`]
     /// (`too_large`), bounds of `nu` values (`dimension`), finite with `low ≤ high`
-    /// (`bad_request`; absent bounds are the simulator's, which must then be finite).
+    /// (`bad_request`; absent bounds are the simulator's, which must then be finite); a
+    /// planned policy's `windows_per_plan` at least 1 (`bad_request`).
     pub fn new(info: &SimInfo, req: &CollectRequest) -> Result<Self, ErrorReply> {
         let (nx, nu) = (info.nx(), info.nu());
         let windows = req.window_count();
@@ -97,7 +114,29 @@ impl CollectPlan {
                 ),
             ));
         }
-        let CollectPolicy::Uniform { low, high } = &req.policy;
+        let (low, high) = match &req.policy {
+            CollectPolicy::Uniform { low, high } => (low, high),
+            CollectPolicy::Planned { windows_per_plan } => {
+                if *windows_per_plan == Some(0) {
+                    return Err(refuse(
+                        ErrorCode::BadRequest,
+                        "planned policy: windows_per_plan must be at least 1",
+                    ));
+                }
+                return Ok(CollectPlan {
+                    seed: req.seed,
+                    block: req.block,
+                    first,
+                    windows: n,
+                    steps: t,
+                    inputs: PlanInputs::Planned {
+                        windows_per_plan: *windows_per_plan,
+                    },
+                    nx,
+                    nu,
+                });
+            }
+        };
         let bound = |b: &Option<crate::messages::InputBound>, default: &[f64], what: &str| {
             let v = match b {
                 Some(b) => b.resolve(nu).ok_or_else(|| {
@@ -136,8 +175,7 @@ impl CollectPlan {
             first,
             windows: n,
             steps: t,
-            low,
-            high,
+            inputs: PlanInputs::Uniform { low, high },
             nx,
             nu,
         })
@@ -146,9 +184,14 @@ impl CollectPlan {
     /// The policy with its bounds made explicit (what a backend of another language reads).
     pub fn policy(&self) -> CollectPolicy {
         use crate::messages::InputBound::Each;
-        CollectPolicy::Uniform {
-            low: Some(Each(self.low.clone())),
-            high: Some(Each(self.high.clone())),
+        match &self.inputs {
+            PlanInputs::Uniform { low, high } => CollectPolicy::Uniform {
+                low: Some(Each(low.clone())),
+                high: Some(Each(high.clone())),
+            },
+            PlanInputs::Planned { windows_per_plan } => CollectPolicy::Planned {
+                windows_per_plan: *windows_per_plan,
+            },
         }
     }
 
@@ -215,11 +258,19 @@ pub fn window_rng(seed: u64, i: u64) -> Rng {
 
 /// Runs the plan's windows on `backend`, one after the other: window `i` resets with the first
 /// draw of [`window_rng`]`(seed, i)` and steps with `u ~ U(low, high)` drawn from it. The
-/// default `collect` of every [`SimBackend`].
+/// default `collect` of every [`SimBackend`]; a planned policy is `unsupported` here (the
+/// backend has no planner).
 pub fn run_windows<B: SimBackend + ?Sized>(
     backend: &mut B,
     plan: &CollectPlan,
 ) -> Result<Windows, SimError> {
+    let PlanInputs::Uniform { low, high } = &plan.inputs else {
+        return Err(SimError::Unsupported(
+            "the planned collect policy needs a simulator that plans its own trajectories (the \
+             Drake Gen3 adapter); this one collects with uniform inputs only"
+                .into(),
+        ));
+    };
     let (n, t) = (plan.windows, plan.steps);
     let mut w = Windows {
         x: Vec::with_capacity(n * (t + 1) * plan.nx),
@@ -234,7 +285,7 @@ pub fn run_windows<B: SimBackend + ?Sized>(
         };
         w.x.extend_from_slice(&backend.reset(&reset)?);
         for _ in 0..t {
-            for (v, (lo, hi)) in u.iter_mut().zip(plan.low.iter().zip(&plan.high)) {
+            for (v, (lo, hi)) in u.iter_mut().zip(low.iter().zip(high)) {
                 *v = rng.uniform(*lo, *hi);
             }
             w.x.extend_from_slice(&backend.step(&u)?);
@@ -361,7 +412,13 @@ mod tests {
             ErrorCode::BadRequest
         );
         let ok = CollectPlan::new(&info, &policy(All(-0.5), Each(vec![0.5]))).unwrap();
-        assert_eq!((ok.low, ok.high), (vec![-0.5], vec![0.5]));
+        assert_eq!(
+            ok.inputs,
+            PlanInputs::Uniform {
+                low: vec![-0.5],
+                high: vec![0.5]
+            }
+        );
         // A simulator without finite bounds needs explicit ones.
         let open = SimInfo {
             u_max: vec![f64::INFINITY],
@@ -381,5 +438,36 @@ mod tests {
         let mut w = pendulum().collect(&plan).unwrap();
         w.x[3] = f64::NAN;
         assert_eq!(plan.check(&w).unwrap_err().code, ErrorCode::SimFailure);
+    }
+
+    #[test]
+    fn a_planned_policy_is_checked_and_unsupported_without_a_planner() {
+        let mut b = pendulum();
+        let info = b.info();
+        let planned = |k: Option<u32>| CollectRequest {
+            policy: CollectPolicy::Planned {
+                windows_per_plan: k,
+            },
+            ..request(0, None)
+        };
+        let zero = CollectPlan::new(&info, &planned(Some(0))).unwrap_err();
+        assert_eq!(zero.code, ErrorCode::BadRequest);
+        assert!(
+            zero.message.contains("windows_per_plan"),
+            "{}",
+            zero.message
+        );
+        let plan = CollectPlan::new(&info, &planned(Some(20))).unwrap();
+        // What a Python backend is handed: the policy as asked.
+        assert_eq!(plan.policy(), planned(Some(20)).policy);
+        let err = b.collect(&plan).unwrap_err();
+        assert!(matches!(err, SimError::Unsupported(_)), "{err:?}");
+        assert_eq!(err.reply().code, ErrorCode::Unsupported);
+        // Bounds play no part: a simulator without finite bounds accepts the request too.
+        let open = SimInfo {
+            u_max: vec![f64::INFINITY],
+            ..info
+        };
+        assert!(CollectPlan::new(&open, &planned(None)).is_ok());
     }
 }

@@ -274,7 +274,7 @@ pub fn collect_datasets(
                 };
                 scope.spawn(move || -> Result<Dataset> {
                     let info = &s.info.sim;
-                    let mut ds = empty_dataset(s, windows, steps, seed);
+                    let mut ds = empty_dataset(s, windows, steps, seed, policy);
                     collect_blocks(s.client(), &s.id, &job, 0, BLOCK_TIMEOUT, live, &mut |b| {
                         if (b.nx, b.nu) != (info.nx(), info.nu()) {
                             return Err(Error::protocol(
@@ -314,14 +314,35 @@ pub fn collect_datasets(
     })
 }
 
-fn empty_dataset(s: &SimClient, windows: usize, steps: usize, seed: u64) -> Dataset {
+/// The dataset of simulator `s`, empty; its `policy` names the collect policy and, for a planned
+/// one, how the simulator plans (the string its info's `extra.planned_collect` gives, if any:
+/// goals, seeds, solver).
+fn empty_dataset(
+    s: &SimClient,
+    windows: usize,
+    steps: usize,
+    seed: u64,
+    policy: &CollectPolicy,
+) -> Dataset {
+    let mut name = policy.describe();
+    if matches!(policy, CollectPolicy::Planned { .. }) {
+        if let Some(how) = s
+            .info
+            .sim
+            .extra
+            .get("planned_collect")
+            .and_then(|v| v.as_str())
+        {
+            name = format!("{name}; {how}");
+        }
+    }
     super::empty_dataset(
         &s.info.sim,
         windows,
         steps,
         seed,
         format!("zenoh:sim/{}/collect", s.id),
-        "adapter-uniform",
+        &name,
     )
 }
 

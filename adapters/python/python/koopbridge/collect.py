@@ -1,6 +1,7 @@
 """In-process data collection: blocks of windows run by a simulator itself, deterministic by
-seed and resumable by block. A policy is plain JSON (``{"kind": "uniform", ...}``) so that the
-same request can later travel over Zenoh; window ``i`` depends only on ``(seed, i)``."""
+seed and resumable by block. A policy is plain JSON (``{"kind": "uniform", ...}`` or
+``{"kind": "planned", ...}``) so that the same request can travel over Zenoh; window ``i``
+depends only on ``(seed, i)``."""
 
 from __future__ import annotations
 
@@ -12,10 +13,10 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from ._native import InvalidInput
+from ._native import InvalidInput, Unsupported
 from .simulator import SimInfo, Simulator
 
-__all__ = ["Collector", "Policy", "UniformPolicy", "Windows", "collect_windows", "policy_from_json", "window_rng"]
+__all__ = ["Collector", "PlannedPolicy", "Policy", "UniformPolicy", "Windows", "collect_windows", "policy_from_json", "window_rng"]
 
 
 class Policy(Protocol):
@@ -63,12 +64,43 @@ class UniformPolicy:
         return d
 
 
+@dataclass(frozen=True)
+class PlannedPolicy:
+    """Windows cut from trajectories the simulator plans itself (``{"kind": "planned",
+    "windows_per_plan": K}``, PROTOCOL.md §7): not an input draw per window, so only a
+    simulator with a planner runs it in its own ``collect`` (the Drake Gen3 simulator,
+    ``koopbridge.adapters.drake_windows``); ``collect_windows`` and every other simulator answer
+    ``Unsupported``. ``windows_per_plan`` ≥ 1."""
+
+    windows_per_plan: int = 20
+
+    def inputs(self, rng: np.random.Generator, T: int, info: SimInfo) -> np.ndarray:
+        """Not a per-window input draw: raises ``Unsupported``."""
+        raise Unsupported("the planned collect policy needs a simulator that plans its own trajectories (the Drake Gen3 adapter)")
+
+    def to_json(self) -> dict[str, Any]:
+        return {"kind": "planned", "windows_per_plan": self.windows_per_plan}
+
+    @staticmethod
+    def from_json(d: Mapping[str, Any]) -> PlannedPolicy:
+        """``{"kind": "planned", "windows_per_plan": K}`` (K optional, default 20)."""
+        unknown = set(d) - {"kind", "windows_per_plan"}
+        if d.get("kind") != "planned" or unknown:
+            raise InvalidInput(f"planned policy: expected kind 'planned' and windows_per_plan, got {sorted(d)}")
+        k = d.get("windows_per_plan", 20)
+        if not isinstance(k, int) or isinstance(k, bool) or k < 1:
+            raise InvalidInput(f"planned policy: windows_per_plan must be an integer >= 1, got {k!r}")
+        return PlannedPolicy(k)
+
+
 def policy_from_json(d: Mapping[str, Any]) -> Policy:
-    """The policy a JSON object describes (``{"kind": "uniform", "low": [...], "high": [...]}``;
-    a scalar bound applies to every input)."""
+    """The policy a JSON object describes (``{"kind": "uniform", "low": [...], "high": [...]}``,
+    a scalar bound applying to every input, or ``{"kind": "planned", "windows_per_plan": K}``)."""
     kind = d.get("kind")
+    if kind == "planned":
+        return PlannedPolicy.from_json(d)
     if kind != "uniform":
-        raise InvalidInput(f"policy kind {kind!r}: only 'uniform' is known")
+        raise InvalidInput(f"policy kind {kind!r}: only 'uniform' and 'planned' are known")
     unknown = set(d) - {"kind", "low", "high"}
     if unknown:
         raise InvalidInput(f"uniform policy: unknown fields {sorted(unknown)}")
@@ -140,6 +172,8 @@ def collect_windows(
     here once). Any simulator error propagates (the block is then incomplete)."""
     if n_windows < 0 or T < 1:
         raise InvalidInput(f"collect: n_windows must be >= 0 and T >= 1, got {n_windows}, {T}")
+    if isinstance(policy, PlannedPolicy):
+        policy.inputs(np.random.default_rng(0), T, sim.info())  # raises Unsupported
     info = sim.info()
     step = step or sim.step
     xs = np.empty((n_windows, T + 1, info.nx))

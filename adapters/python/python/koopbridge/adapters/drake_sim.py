@@ -31,6 +31,7 @@ from ..collect import Windows
 from ..serving import run_main
 from ..simulator import SimInfo
 from .drake_model import CONTINUOUS, EFFORT_LIMITS, JOINT_NAMES, POSITION_LIMITS, VELOCITY_LIMITS, build_gen3
+from .drake_windows import DESCRIPTION as PLANNED_COLLECT
 
 __all__ = ["DrakeGen3Sim", "X0_VELOCITY_FACTOR", "main", "parser", "simulator"]
 
@@ -108,7 +109,7 @@ class DrakeGen3Sim:
                 effort_limits=EFFORT_LIMITS.tolist(),
                 time_step=self.time_step,
                 controller=dict(kind="inverse dynamics, velocity mode", kp=self.kp, kd=self.kd),
-            )),
+            ), planned_collect=PLANNED_COLLECT),
         )
 
     # ---- simulation ----
@@ -201,7 +202,7 @@ class DrakeGen3Sim:
         from .drake_windows import PlannedPolicy, collect_planned
 
         if isinstance(policy, dict):
-            policy = PlannedPolicy.from_json(policy) if policy.get("kind") == "planned" else policy_from_json(policy)
+            policy = policy_from_json(policy)
         if isinstance(policy, PlannedPolicy):
             if self._planner is None:
                 from .drake_plan import Gen3Planner

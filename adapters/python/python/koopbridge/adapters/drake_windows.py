@@ -15,44 +15,27 @@ state) without one plan per window or executing whole plans to reach a window.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from .._native import InvalidInput, Unsupported
-from ..collect import Windows
+from ..collect import PlannedPolicy, Windows
 from .drake_model import VELOCITY_LIMITS
 
-__all__ = ["PlannedPolicy", "collect_planned", "plan_for"]
+__all__ = ["DESCRIPTION", "PlannedPolicy", "collect_planned", "plan_for"]
 
 #: Redraws of a plan's start and goal before giving up on it.
 MAX_ATTEMPTS = 20
 
-
-@dataclass(frozen=True)
-class PlannedPolicy:
-    """Windows from planned trajectories (see the module doc); ``windows_per_plan`` ≥ 1."""
-
-    windows_per_plan: int = 20
-
-    def inputs(self, rng: np.random.Generator, T: int, info: Any) -> np.ndarray:
-        """Not a per-window input draw: only the Drake simulator's ``collect`` runs it."""
-        raise Unsupported("the planned policy is run by the Drake simulator's collect, not drawn per window")
-
-    def to_json(self) -> dict[str, Any]:
-        return {"kind": "planned", "windows_per_plan": self.windows_per_plan}
-
-    @staticmethod
-    def from_json(d: dict[str, Any]) -> PlannedPolicy:
-        """``{"kind": "planned", "windows_per_plan": K}`` (K optional)."""
-        unknown = set(d) - {"kind", "windows_per_plan"}
-        if d.get("kind") != "planned" or unknown:
-            raise InvalidInput(f"planned policy: expected kind 'planned' and windows_per_plan, got {sorted(d)}")
-        k = d.get("windows_per_plan", 20)
-        if not isinstance(k, int) or isinstance(k, bool) or k < 1:
-            raise InvalidInput(f"planned policy: windows_per_plan must be an integer >= 1, got {k!r}")
-        return PlannedPolicy(k)
+#: How planned windows are made, for dataset metadata (the simulator's ``info().extra``; the
+#: orchestrator appends it to the dataset's ``policy``).
+DESCRIPTION = (
+    "plan p = window // windows_per_plan (default 20); its start and goal drawn uniformly within the joint limits, "
+    "collision-free with a 2 cm margin, from SeedSequence([seed, 7, p, attempt]) (attempt = redraws of infeasible pairs); "
+    "two-pass KinematicTrajectoryOptimization (10 control points, duration in [0.5, 5] s, then self/table collision), "
+    "SNOPT with IPOPT as fallback; windows start at evenly spaced planned states and apply the planned velocities"
+)
 
 
 def plan_for(planner: Any, seed: int, p: int) -> tuple[Any, int]:

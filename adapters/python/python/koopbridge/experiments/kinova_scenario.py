@@ -3,7 +3,7 @@ asks the scenario's Drake planner over Zenoh for trajectories to held-out goals 
 collection session) and writes them as the ``(T, 14)`` ``[q, q̇]`` reference that ``[control]
 reference_file`` reads; ``report`` (an ``after-control`` hook) scores the orchestrator's Koopman
 MPC run against the planner's open-loop feed-forward and feed-forward + LQR on the lifted model
-(both run in-process on the same Drake simulation), adds the result to ``report.json`` and draws
+(both run in-process on the same Drake simulation) and the arm held still at its start, adds the result to ``report.json`` and draws
 ``kinova.png``.
 
     python -m koopbridge.experiments.kinova_scenario reference --out OUT --session S --connect EP [--goals 2]
@@ -190,6 +190,8 @@ def _report(a: argparse.Namespace) -> int:
         steps=steps, dt=sim.dt,
         metric="joint tracking error x[:7] - planned q over every step: RMS (all joints, per joint) and final (max |.| at the last step), rad",
         controllers={k: tracking_errors(v, ref) for k, v in runs.items()},
+        # The floor every controller must beat: the arm left at its start (it holds to 1e-6 rad).
+        hold_still=tracking_errors(np.tile(ref[0], (steps + 1, 1)), ref),
         lqr=dict(q=q.tolist(), r=a.r, law="u = qd_plan,k - K (phi(x_k) - phi(x_ref,k)), clipped to the velocity limits",
                  closed_loop_spectral_radius=float(np.max(np.abs(np.linalg.eigvals(A - B @ K))))),
         mpc=dict(solve_median_us=ctrl.get("solve_median_us"), round_trip_median_us=ctrl.get("solve_round_trip_median_us"),
@@ -200,7 +202,8 @@ def _report(a: argparse.Namespace) -> int:
     if not a.no_plot:
         _plot(out / "kinova.png", ref, runs, sim.dt)
     update_report(rep_path, "kinova", entry)
-    print(json.dumps({k: (round(v["rms_rad"], 6), round(v["final_rad"], 6)) for k, v in entry["controllers"].items()}))
+    rows = dict(entry["controllers"], **{"hold-still": entry["hold_still"]})
+    print(json.dumps({k: (round(v["rms_rad"], 6), round(v["final_rad"], 6)) for k, v in rows.items()}))
     return 0
 
 
