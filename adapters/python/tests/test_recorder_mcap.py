@@ -26,7 +26,7 @@ def test_the_recording_opens_as_mcap(tmp_path, session_id):
     state = tmp_path / "state"
     serve = [str(exe), "serve", "recorder", "--session", session_id, "--id", "r0", "--state-dir", str(state), "--listen", ep]
     sim = [str(exe), "sim", "--env", "damped-pendulum", "--id", "fr", "--session", session_id, "--connect", ep,
-           "--free-run", "--rate", "200", "--steps", "120", "--wait-subscriber", "30"]
+           "--free-run", "--rate", "200", "--steps", "1000000", "--wait-subscriber", "30"]
     reference = np.column_stack([0.01 * np.arange(50), np.zeros(50)])
     with Child(serve, tmp_path / "serve.log") as services, koopbridge.Client(session=session_id, connect=[ep]) as c:
         with Child(sim, tmp_path / "sim.log") as free:
@@ -38,8 +38,11 @@ def test_the_recording_opens_as_mcap(tmp_path, session_id):
                 except (koopbridge.BridgeTimeout, koopbridge.RemoteError):
                     assert time.monotonic() < t_end, services.output()
                     time.sleep(0.2)
-            free.p.wait(timeout=60)
-        summary = c.record_stop("r0", "fr", "run")
+            # Stopped while the simulator still runs: the recorder asks its `info` at `stop`
+            # when the simulator was not up yet at `start`.
+            time.sleep(1.5)
+            summary = c.record_stop("r0", "fr", "run")
+            assert free.p.poll() is None, free.output()
     assert summary["mcap"] == "run.mcap" and summary["gaps"] == 0, summary
 
     with open(state / "data" / "run.mcap", "rb") as f:
