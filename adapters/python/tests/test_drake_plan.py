@@ -91,3 +91,16 @@ def test_random_goals_uniform_within_limits_and_reproducible(planner):
     np.testing.assert_allclose(np.quantile(g, [0.25, 0.5, 0.75], axis=0) / hi, np.array([[-0.5], [0.0], [0.5]]).repeat(7, 1), atol=0.06)
     free = random_goals(5, 20, planner=planner, margin=0.01)
     assert all(planner.min_distance(q) >= 0.01 for q in free)
+
+
+def test_the_ipopt_fallback_stops_at_its_iteration_limit():
+    """Goal 108 of seed 1 from goal 107 has no collision-free trajectory: SNOPT gives up and
+    IPOPT, the fallback, ran to its default 3000 iterations (39 s) before the limit was set. With
+    the limit it stops there, says so, and a bad limit is refused."""
+    p = Gen3Planner(ipopt_max_iterations=20)
+    goals = random_goals(1, 109, planner=p, margin=0.02)
+    with pytest.raises(Infeasible) as e:
+        p.plan(goals[107], goals[108])
+    assert "ipopt: kIterationLimit" in str(e.value), str(e.value)
+    with pytest.raises(InvalidInput):
+        Gen3Planner(ipopt_max_iterations=0)

@@ -50,6 +50,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--min-distance", type=float, default=0.01, help="clearance of the collision pass [m] (default: %(default)s)")
     p.add_argument("--solvers", default="snopt,ipopt", help="solvers in the order tried (default: %(default)s)")
     p.add_argument("--table-z", type=float, default=0.0, help="height of the table top [m] (default: %(default)s)")
+    p.add_argument("--ipopt-max-iterations", type=int, default=300, help="IPOPT's iteration limit per pass, the fallback after SNOPT (default: %(default)s)")
     g = add_zenoh_arguments(p, id_default="planner0", id_help="planner id: key koopbridge/{session}/planner/{id}/plan")
     add_lifeline_argument(g)
     return p
@@ -59,7 +60,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Runs the planner service; returns the exit code."""
     args = parser().parse_args(argv)
     try:
-        planner = Gen3Planner(min_distance=args.min_distance, solvers=[s.strip() for s in args.solvers.split(",") if s.strip()], table_z=args.table_z)
+        planner = Gen3Planner(min_distance=args.min_distance, solvers=[s.strip() for s in args.solvers.split(",") if s.strip()], table_z=args.table_z, ipopt_max_iterations=args.ipopt_max_iterations)
         service = PlannerService(handler(planner), 7)
     except KoopbridgeError as e:
         print(f"error: {e}", file=sys.stderr)
