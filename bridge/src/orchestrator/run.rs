@@ -286,8 +286,13 @@ fn collect_phase(
         }
     }
     reuse::forget(&record)?;
-    on(Event::Phase("collecting data (lockstep)"));
     let c = &sc.collect;
+    on(Event::Phase(match c.policy {
+        crate::scenario::Policy::Adapter { .. } => {
+            "collecting data (collect requests: each simulator runs its windows in-process)"
+        }
+        _ => "collecting data (lockstep)",
+    }));
     let tc = Instant::now();
     let mut per_split: Vec<Vec<Dataset>> = Vec::new();
     for (split, name, n) in [
