@@ -334,6 +334,7 @@ fn a_killed_mpc_service_fails_solves_within_1s_and_serves_again_once_configured(
             model: String::new(),
             x: x.to_vec(),
             reference: vec![0.0, 0.0],
+            feedforward: Vec::new(),
         };
         let p = c.client.start(
             &key,

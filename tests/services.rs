@@ -44,6 +44,7 @@ fn remote_solve_equals_local_solve_and_errors_are_typed() {
             model: "m1".into(),
             x: x.to_vec(),
             reference: vec![0.0, 0.0],
+            feedforward: Vec::new(),
         };
         let b = c
             .client
@@ -60,19 +61,63 @@ fn remote_solve_equals_local_solve_and_errors_are_typed() {
             .iter()
             .all(|u| (-2.0 - 1e-9..=2.0 + 1e-9).contains(u)));
     }
+    // Error-state tracking of a plan: the feed-forward travels with the request and the remote
+    // plan is the local `solve_about_plan`'s.
+    let u_ff: Vec<f64> = (0..15).map(|i| 0.1 * (i as f64 * 0.4).sin()).collect();
+    for x in [[0.5, -0.3], [-1.0, 0.8]] {
+        let req = SolveRequest {
+            model: "m1".into(),
+            x: x.to_vec(),
+            reference: vec![0.4, -0.2],
+            feedforward: u_ff.clone(),
+        };
+        let b = c
+            .client
+            .query(&key, req.encode(), Duration::from_secs(30), "mpc")
+            .unwrap();
+        let remote = SolveReply::decode(&b).unwrap();
+        let mine = local.solve_about_plan(&x, &[0.4, -0.2], &u_ff).unwrap();
+        let plain = local.solve(&x, &[0.4, -0.2]).unwrap();
+        let gap = |p: &[f64]| {
+            remote
+                .u
+                .iter()
+                .zip(p)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max)
+        };
+        assert!(
+            gap(&mine.u) < 1e-9,
+            "error-state: remote vs local {}",
+            gap(&mine.u)
+        );
+        assert!(
+            gap(&plain.u) > 1e-6,
+            "the feed-forward must change the plan"
+        );
+    }
     let q = |b: Vec<u8>| c.client.query(&key, b, Duration::from_secs(30), "mpc");
+    let short_ff = SolveRequest {
+        model: "m1".into(),
+        x: vec![0.0; 2],
+        reference: vec![0.0; 2],
+        feedforward: vec![0.0; 14],
+    };
+    assert_eq!(code(q(short_ff.encode())), ErrorCode::BadRequest);
     assert_eq!(code(q(b"\x00\x01".to_vec())), ErrorCode::BadRequest);
     assert_eq!(code(q(vec![7u8; 3 << 20])), ErrorCode::TooLarge);
     let wrong_dim = SolveRequest {
         model: "m1".into(),
         x: vec![0.0; 3],
         reference: vec![0.0, 0.0],
+        feedforward: Vec::new(),
     };
     assert_eq!(code(q(wrong_dim.encode())), ErrorCode::Dimension);
     let missing = SolveRequest {
         model: "nope".into(),
         x: vec![0.0; 2],
         reference: vec![0.0; 2],
+        feedforward: Vec::new(),
     };
     assert!(matches!(q(missing.encode()), Err(Error::Remote { .. })));
     // Still serving.
@@ -80,6 +125,7 @@ fn remote_solve_equals_local_solve_and_errors_are_typed() {
         model: String::new(),
         x: vec![0.1, 0.1],
         reference: vec![0.0, 0.0],
+        feedforward: Vec::new(),
     };
     assert!(SolveReply::decode(&q(ok.encode()).unwrap()).is_ok());
 
@@ -158,6 +204,7 @@ fn several_models_are_solved_side_by_side_each_with_its_own_plan() {
                         model: format!("m{i}"),
                         x: x.clone(),
                         reference: vec![0.0; nx],
+                        feedforward: Vec::new(),
                     };
                     let b = client
                         .query(key, req.encode(), Duration::from_secs(30), "mpc")

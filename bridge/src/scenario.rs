@@ -182,6 +182,13 @@ pub struct ControlSpec {
     /// folder); a relative path resolves in the scenario's repository.
     #[serde(default)]
     pub reference_file: Option<String>,
+    /// The inputs that realise `reference_file` (a plan): a float64 `.npy` of shape (T, nu), row
+    /// k the input planned at step k (rows past the end repeat the last); placeholders and paths
+    /// as `reference_file`. With it the MPC service plans the deviation from the plan
+    /// (error-state MPC: the model's own rollout of the plan is the reference, so its bias along
+    /// the plan cancels; a lifted-linear model only).
+    #[serde(default)]
+    pub feedforward_file: Option<String>,
     /// Closed-loop steps.
     pub steps: usize,
     /// `koopman::mpc::MpcConfig` fields to override (JSON object).
@@ -286,6 +293,12 @@ impl Scenario {
             if ctrl.reference.is_some() == ctrl.reference_file.is_some() {
                 return Err(Error::Config(format!(
                     "[control] for '{}' needs exactly one of `reference` and `reference_file`",
+                    self.controlled_id(ctrl)
+                )));
+            }
+            if ctrl.feedforward_file.is_some() && ctrl.reference_file.is_none() {
+                return Err(Error::Config(format!(
+                    "[control] for '{}': `feedforward_file` needs the `reference_file` it realises",
                     self.controlled_id(ctrl)
                 )));
             }
@@ -403,6 +416,15 @@ train_config = { iterations = 60000 }
         let cmd = no_env.replace("id = \"pend\"", "id = \"pend\"\ncommand = [\"my-adapter\"]");
         assert_eq!(Scenario::parse(&cmd).unwrap().sims[0].env, "");
         assert!(Scenario::parse(&GOOD.replace("[[sims]]", "base_dir = \"/\"\n[[sims]]")).is_err());
+        // A feed-forward realises a trajectory: without `reference_file` it is refused.
+        let ff = GOOD.replace("steps = 20", "steps = 20\nfeedforward_file = \"u.npy\"");
+        let e = Scenario::parse(&ff).unwrap_err().to_string();
+        assert!(
+            e.contains("`feedforward_file` needs the `reference_file`"),
+            "{e}"
+        );
+        let plan = ff.replace("reference = [0.0, 0.0]", "reference_file = \"r.npy\"");
+        assert!(Scenario::parse(&plan).is_ok());
         assert!(Scenario::parse(&GOOD.replace(
             "[[sims]]\nid = \"pend\"",
             "[[sims]]\nid = \"pend\"\n[[sims]]\nid = \"pend\""

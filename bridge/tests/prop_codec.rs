@@ -57,12 +57,15 @@ fn encoded() -> impl Strategy<Value = Vec<u8>> {
             .prop_map(|(seq, k, t, x, u)| StateMsg { seq, k, t, x, u }.encode()),
         (any::<u64>(), any::<u64>(), vec_f64())
             .prop_map(|(seq, k, u)| CommandMsg { seq, k, u }.encode()),
-        ("[a-z0-9_-]{0,16}", vec_f64(), vec_f64()).prop_map(|(model, x, reference)| SolveRequest {
-            model,
-            x,
-            reference
-        }
-        .encode()),
+        ("[a-z0-9_-]{0,16}", vec_f64(), vec_f64(), vec_f64()).prop_map(
+            |(model, x, reference, feedforward)| SolveRequest {
+                model,
+                x,
+                reference,
+                feedforward
+            }
+            .encode()
+        ),
         (0u8..4, any::<u32>(), any::<u64>(), vec_f64()).prop_map(
             |(s, iterations, solve_time_ns, u)| {
                 let status = [
@@ -154,11 +157,14 @@ proptest! {
 
     #[test]
     fn solve_messages_round_trip(model in "\\PC{0,20}", x in vec_f64(), reference in vec_f64(),
+                                 feedforward in vec_f64(),
                                  iterations in any::<u32>(), ns in any::<u64>(), s in 0u8..4) {
-        let q = SolveRequest { model: model.clone(), x: x.clone(), reference: reference.clone() };
+        let q = SolveRequest { model: model.clone(), x: x.clone(), reference: reference.clone(),
+                               feedforward: feedforward.clone() };
         let r = SolveRequest::decode(&q.encode()).unwrap();
         prop_assert_eq!(r.model, model);
         prop_assert_eq!((bits(&r.x), bits(&r.reference)), (bits(&x), bits(&reference)));
+        prop_assert_eq!(bits(&r.feedforward), bits(&feedforward));
         let status = [SolveStatus::Solved, SolveStatus::Suboptimal, SolveStatus::Fallback,
                       SolveStatus::Inaccurate][s as usize];
         let m = SolveReply { status, iterations, solve_time_ns: ns, u: x.clone() };

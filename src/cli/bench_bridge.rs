@@ -218,6 +218,7 @@ pub fn run(args: BenchBridgeArgs) -> anyhow::Result<()> {
             model: model_name.into(),
             x: vec![rng.uniform(-3.0, 3.0), rng.uniform(-3.0, 3.0)],
             reference: vec![0.0, 0.0],
+            feedforward: Vec::new(),
         }
         .encode();
         let t = Instant::now();

@@ -191,9 +191,12 @@ impl Client {
 
     /// Asks the MPC service ``mpc_id`` for a plan at state ``x`` towards ``reference`` (one
     /// state or H stacked states) with its model ``model`` (empty: the service's default).
-    /// Returns a dict: ``u`` (H, nu) when ``nu`` is given, else flat; ``status``;
-    /// ``iterations``; ``solve_time`` (seconds, inside the service).
-    #[pyo3(signature = (mpc_id, x, reference, model="", nu=None, timeout=10.0))]
+    /// With ``feedforward`` (the plan's inputs at this and the next H−1 steps, (H, nu) or
+    /// flat), ``reference`` is the planned state at this step and the service plans the
+    /// deviation from the plan (error-state MPC). Returns a dict: ``u`` (H, nu) when ``nu`` is
+    /// given, else flat; ``status``; ``iterations``; ``solve_time`` (seconds, inside the
+    /// service).
+    #[pyo3(signature = (mpc_id, x, reference, model="", nu=None, timeout=10.0, feedforward=None))]
     #[allow(clippy::too_many_arguments)]
     fn solve<'py>(
         &self,
@@ -204,14 +207,17 @@ impl Client {
         model: &str,
         nu: Option<usize>,
         timeout: f64,
+        feedforward: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
+        let np = py.import("numpy")?;
         let req = SolveRequest {
             model: model.to_string(),
             x: vec_f64(x, "x")?,
-            reference: vec_f64(
-                &py.import("numpy")?.call_method1("ravel", (reference,))?,
-                "reference",
-            )?,
+            reference: vec_f64(&np.call_method1("ravel", (reference,))?, "reference")?,
+            feedforward: match feedforward {
+                Some(f) => vec_f64(&np.call_method1("ravel", (f,))?, "feedforward")?,
+                None => Vec::new(),
+            },
         };
         let key = self.inner.keys.mpc_solve(mpc_id).map_err(bridge_err)?;
         let t = secs(timeout)?;

@@ -99,6 +99,19 @@ def test_fetch_configure_and_solve_through_the_services(tmp_path, session_id):
         want = koopbridge.Mpc(model, horizon=10, u_min=[-8.0], u_max=[8.0]).solve([-2.5, 0.1], [0.0, 0.0])
         assert sol["u"].shape == (10, 1) and sol["status"] in ("solved", "inaccurate")
         np.testing.assert_allclose(sol["u"], want["u"], atol=1e-9)
+        # Error-state MPC about a plan (feed-forward u_ff, planned state now r): with R = 0 it is
+        # the plain MPC towards the model's own rollout of the plan, computed here in numpy.
+        r_now, u_ff = np.array([-2.4, 0.2]), 0.5 * np.sin(np.arange(10.0))
+        z, rollout = np.asarray(model.encode(r_now), float), []
+        for u in u_ff:
+            z = np.asarray(model.A) @ z + np.asarray(model.B)[:, 0] * u
+            rollout.append(z[:2])
+        sol = c.solve("s0", [-2.5, 0.1], r_now, model="pend", nu=1, feedforward=u_ff)
+        want = koopbridge.Mpc(model, horizon=10, u_min=[-8.0], u_max=[8.0]).solve([-2.5, 0.1], np.array(rollout))
+        np.testing.assert_allclose(sol["u"], want["u"], atol=1e-6)
+        with pytest.raises(koopbridge.RemoteError) as e:
+            c.solve("s0", [-2.5, 0.1], r_now, model="pend", feedforward=u_ff[:9])
+        assert e.value.code == "bad_request" and "feed-forward" in str(e.value)
         with pytest.raises(koopbridge.RemoteError) as e:
             c.solve("s0", [1.0], [0.0, 0.0], model="pend")
         assert e.value.code in ("dimension", "bad_request")

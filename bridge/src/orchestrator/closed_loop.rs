@@ -170,6 +170,7 @@ impl<'a> ControlRun<'a> {
             model: self.task.model.to_string(),
             x: self.xs[k].clone(),
             reference: self.task.reference.window(k, self.task.horizon),
+            feedforward: self.task.reference.feedforward(k, self.task.horizon),
         };
         let t = Instant::now();
         let p = client.start(&self.key, req.encode(), Duration::from_secs(10), &self.who)?;
@@ -225,7 +226,7 @@ impl<'a> ControlRun<'a> {
             dt: info.dt,
             reference: match r {
                 Reference::Fixed(v) => v.clone(),
-                Reference::Trajectory(_) => refs[0].clone(),
+                Reference::Trajectory(_) | Reference::Plan { .. } => refs[0].clone(),
             },
             reference_trajectory: r.rows().map(|_| refs.clone()),
             final_error: final_error(&errs),

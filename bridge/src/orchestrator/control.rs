@@ -51,7 +51,7 @@ pub fn control_phase(
         let model = (what.model_of)(&sc.sims[j].id);
         let mpc = mpc_config(info, &ctrl.mpc)?;
         let horizon = mpc.horizon;
-        let reference = reference_of(ctrl, info.nx(), ph).map_err(|e| {
+        let reference = reference_of(ctrl, info.nx(), info.nu(), ph).map_err(|e| {
             crate::error::Error::Config(format!("[control] for simulator '{}': {e}", sc.sims[j].id))
         })?;
         let req = ConfigureRequest {

@@ -1,15 +1,19 @@
 //! The whole scenario checked against its simulators' `info` right after the readiness barrier,
 //! before the expensive phases: `[train].config`, `[control].mpc`, and the lengths of
-//! `control.x0`/`control.reference` (and a `reference_file` that exists already), so that a typo fails in seconds, not after collection.
+//! `control.x0`/`control.reference` (and a `reference_file` or `feedforward_file` that exists
+//! already), so that a typo fails in seconds, not after collection.
 
 use koopman::mpc::{MpcConfig, MpcController};
 use koopman::train::stand_in::{self, StandIn};
 use koopman::train::TrainConfig;
 
-use super::reference::load_trajectory;
+use super::reference::{load_feedforward, load_trajectory};
 use crate::error::{Error, Result};
 use crate::messages::SimInfo;
 use crate::scenario::{ControlSpec, Scenario};
+
+/// Loads and checks one of a control entry's files against the simulator's `info`.
+type LoadRows = fn(&std::path::Path, &SimInfo) -> Result<()>;
 use crate::services::koopman_trainer::train_config;
 
 /// The MPC settings of a scenario's `[control].mpc` for a simulator: SPEC defaults with the
@@ -69,19 +73,26 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
             }
             o.check(infos[j].nx()).map_err(|e| at(e.to_string()))?;
         }
-        if let Some(f) = ctrl
-            .reference_file
-            .as_deref()
-            .filter(|f| !f.contains("{out}"))
-        {
-            // A file that exists already is checked now; one a hook writes, when control starts.
+        // A file that exists already is checked now; one a hook writes, when control starts.
+        let files: [(Option<&str>, LoadRows); 2] = [
+            (ctrl.reference_file.as_deref(), |p, i| {
+                load_trajectory(p, i.nx()).map(drop)
+            }),
+            (ctrl.feedforward_file.as_deref(), |p, i| {
+                load_feedforward(p, i.nu()).map(drop)
+            }),
+        ];
+        for (f, load) in files {
+            let Some(f) = f.filter(|f| !f.contains("{out}")) else {
+                continue;
+            };
             let p = std::path::Path::new(f);
             let p = match &sc.base_dir {
                 Some(b) if p.is_relative() => b.join(p),
                 _ => p.to_path_buf(),
             };
             if p.is_file() {
-                load_trajectory(&p, infos[j].nx()).map_err(|e| {
+                load(&p, infos[j]).map_err(|e| {
                     Error::Config(format!("[control] for simulator '{}': {e}", sc.sims[j].id))
                 })?;
             }

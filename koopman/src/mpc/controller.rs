@@ -123,6 +123,9 @@ pub struct MpcController<'m> {
     zr: Vec<f64>,
     ustar: Vec<f64>,
     h: Vec<f64>,
+    /// `d ⊙ u_ff` of the last [`MpcController::solve_about_plan`] (empty after a plain solve):
+    /// the input weights' pull towards the feed-forward, part of that solve's linear term.
+    pull: Vec<f64>,
 }
 
 impl<'m> MpcController<'m> {
@@ -224,6 +227,7 @@ impl<'m> MpcController<'m> {
             zr: vec![0.0; condensed.latent + cfg.horizon * nx],
             ustar: vec![0.0; n],
             h: Vec::new(),
+            pull: Vec::new(),
             condensed,
         })
     }
@@ -261,6 +265,7 @@ impl<'m> MpcController<'m> {
             let latent = self.condensed.latent;
             let (z0, r) = self.zr.split_at(latent);
             self.condensed.linear_term(z0, r, &mut self.q);
+            self.q.iter_mut().zip(&self.pull).for_each(|(q, p)| *q -= p);
             self.q_current = true;
         }
         &self.q
@@ -313,7 +318,7 @@ impl<'m> MpcController<'m> {
             ));
         }
         ensure_finite("lifted state", &z0)?;
-        self.solve_lifted_from(start, &z0, reference)
+        self.solve_lifted_from(start, &z0, reference, None)
     }
 
     /// Like [`MpcController::solve`] but from an already lifted state `z_0` (N values).
@@ -327,7 +332,57 @@ impl<'m> MpcController<'m> {
             ));
         }
         ensure_finite("lifted state", z0)?;
-        self.solve_lifted_from(start, z0, reference)
+        self.solve_lifted_from(start, z0, reference, None)
+    }
+
+    /// Error-state (deviation) tracking of a planned trajectory: plans the deviation
+    /// `δu = u − u_ff` from the feed-forward `feedforward` (H·nu values, the plan's inputs at
+    /// steps k..k+H−1) so that the lifted deviation `δz = Φ(x) − ž` from the model's own rollout
+    /// `ž_0 = Φ(reference_now)`, `ž_{τ+1} = A ž_τ + B u_ff,τ` is driven to zero: the cost is
+    /// `Σ ‖P δz_{τ+1}‖²_Q + δu_τᵀ R δu_τ` (the Tikhonov term also acts on `δu`), the input bounds
+    /// stay on `u`. Whatever the model gets wrong along the plan appears in `ž` as well and
+    /// cancels, so a biased model tracks with the feed-forward's accuracy while its feedback
+    /// still corrects deviations. `reference_now` is the planned state at the current step k
+    /// (nx values). Returns the absolute inputs `u`.
+    ///
+    /// Errors: as [`MpcController::solve`]; a feed-forward of another length than H·nu
+    /// (`InvalidArgument`) or with a non-finite value (`NonFinite`).
+    pub fn solve_about_plan(
+        &mut self,
+        x: &[f64],
+        reference_now: &[f64],
+        feedforward: &[f64],
+    ) -> Result<MpcSolution> {
+        let start = Instant::now();
+        let (nx, n) = (self.nx(), self.condensed.n_vars());
+        for (what, v) in [("state", x), ("reference state", reference_now)] {
+            if v.len() != nx {
+                return Err(Error::dimension(what, nx, v.len()));
+            }
+            ensure_finite(what, v)?;
+        }
+        if feedforward.len() != n {
+            return Err(Error::InvalidArgument(format!(
+                "feed-forward has {} values; expected H·nu = {n}",
+                feedforward.len()
+            )));
+        }
+        ensure_finite("feed-forward", feedforward)?;
+        let model = self.model.get();
+        let (z0, z_plan) = (model.lift(x), model.lift(reference_now));
+        for z in [&z0, &z_plan] {
+            if z.len() != self.condensed.latent {
+                return Err(Error::dimension(
+                    "lifted state",
+                    self.condensed.latent,
+                    z.len(),
+                ));
+            }
+            ensure_finite("lifted state", z)?;
+        }
+        // P ž_1..H: tracking it from Φ(x) is the error-state cost up to the input weights.
+        let rollout = self.condensed.predict(&z_plan, feedforward);
+        self.solve_lifted_from(start, &z0, &rollout, Some(feedforward))
     }
 
     fn solve_lifted_from(
@@ -335,6 +390,7 @@ impl<'m> MpcController<'m> {
         start: Instant,
         z0: &[f64],
         reference: &[f64],
+        feedforward: Option<&[f64]>,
     ) -> Result<MpcSolution> {
         self.set_reference(reference)?;
         let latent = self.condensed.latent;
@@ -348,6 +404,10 @@ impl<'m> MpcController<'m> {
                 gemv_simd(g, &self.zr, &mut self.ustar);
             }
             Backend::Other(_) => self.condensed.linear_term(z0, &self.r, &mut self.q),
+        }
+        match feedforward {
+            Some(u_ff) => self.weigh_deviation_from(u_ff),
+            None => self.pull.clear(),
         }
         if let Some(c) = &self.constraints {
             let mut free = vec![0.0; self.condensed.horizon * self.condensed.nx];
@@ -395,6 +455,26 @@ impl<'m> MpcController<'m> {
             qp_time,
             iterations: outcome.iterations,
         })
+    }
+
+    /// Moves the input weights (R and the Tikhonov term, `d = diag(R̄ + δI)`) from `u` onto
+    /// `u − u_ff`: the linear term gains `−d ⊙ u_ff`, so `u* = −H⁻¹q` gains `H⁻¹ (d ⊙ u_ff)`.
+    fn weigh_deviation_from(&mut self, u_ff: &[f64]) {
+        let nu = self.nu();
+        let r = self.cfg.r.as_deref();
+        let tikhonov = self.condensed.tikhonov;
+        self.pull.clear();
+        self.pull.extend(
+            u_ff.iter()
+                .enumerate()
+                .map(|(i, u)| (r.map_or(0.0, |r| r[i % nu]) + tikhonov) * u),
+        );
+        match &self.solver {
+            Backend::Dedicated { qp, .. } => {
+                gemv_simd(qp.hessian_inverse(), &self.pull, &mut self.ustar)
+            }
+            Backend::Other(_) => self.q.iter_mut().zip(&self.pull).for_each(|(q, p)| *q -= p),
+        }
     }
 
     /// The previous plan shifted by one step (last input repeated) and clamped to the input

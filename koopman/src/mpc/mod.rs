@@ -3,7 +3,8 @@
 //! evaluation on the reference systems.
 //!
 //! - [`MpcController`] (built once per model and [`MpcConfig`]) plans with
-//!   [`MpcController::solve`]; [`SolverKind`] picks the dedicated box-QP solver
+//!   [`MpcController::solve`] (or, along a planned trajectory with its feed-forward inputs,
+//!   the error-state [`MpcController::solve_about_plan`]); [`SolverKind`] picks the dedicated box-QP solver
 //!   ([`boxqp::BoxQp`]), Clarabel ([`clarabel_qp::ClarabelQp`]) or the clamped closed form.
 //! - R = 0 (the paper's setting) leaves the Hessian only positive semidefinite: a relative
 //!   Tikhonov term `MpcConfig::regularization · max_i H_ii` (default 1e-9) is added to its
@@ -50,3 +51,5 @@ pub use shooting::{OneStepModel, RandomShooting, SystemAsModel};
 mod tests;
 #[cfg(test)]
 mod tests_closed_loop;
+#[cfg(test)]
+mod tests_error_state;

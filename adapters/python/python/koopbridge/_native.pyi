@@ -183,6 +183,7 @@ class Client:
         model: str = "",
         nu: int | None = None,
         timeout: float = 10.0,
+        feedforward: _ArrayLike | None = None,
     ) -> dict[str, Any]: ...
     def configure_mpc(self, mpc_id: str, model: str, timeout: float = 60.0, **mpc: Any) -> dict[str, Any]:
         """Loads a model into an MPC service with MpcConfig fields (and ``offset_free``, an

@@ -12,7 +12,7 @@ use koopman::mpc::{
 };
 
 use crate::codec::SolveStatus;
-use crate::error::{Error, Result};
+use crate::error::{Error, ErrorCode, Result};
 
 /// One model's controller.
 pub enum ServiceController {
@@ -113,9 +113,27 @@ impl ServiceController {
     ///
     /// Errors: wrong lengths, non-finite values, a failed QP without fallback.
     pub fn solve(&mut self, x: &[f64], reference: &[f64]) -> Result<ServicePlan> {
+        self.solve_with_feedforward(x, reference, &[])
+    }
+
+    /// [`ServiceController::solve`], or with a non-empty `feedforward` (H·nu values) the
+    /// error-state MPC about the plan whose state at this step is `reference` (nx values;
+    /// [`MpcController::solve_about_plan`]).
+    ///
+    /// Errors: as `solve`; a feed-forward for a bilinear model is `unsupported`.
+    pub fn solve_with_feedforward(
+        &mut self,
+        x: &[f64],
+        reference: &[f64],
+        feedforward: &[f64],
+    ) -> Result<ServicePlan> {
         match self {
             ServiceController::Lifted(c) => {
-                let s = c.solve(x, reference)?;
+                let s = if feedforward.is_empty() {
+                    c.solve(x, reference)?
+                } else {
+                    c.solve_about_plan(x, reference, feedforward)?
+                };
                 Ok(ServicePlan {
                     status: super::wire_status(&s.status),
                     iterations: s.iterations,
@@ -123,6 +141,10 @@ impl ServiceController {
                     u: s.u,
                 })
             }
+            ServiceController::Bilinear(_) if !feedforward.is_empty() => Err(Error::protocol(
+                ErrorCode::Unsupported,
+                "a feed-forward (error-state MPC) needs a lifted-linear model; this one is bilinear",
+            )),
             ServiceController::Bilinear(c) => {
                 let nx = c.nx();
                 if reference.len() < nx {

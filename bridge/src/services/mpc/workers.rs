@@ -16,7 +16,7 @@ use crate::services::respond;
 /// What a model's thread is asked to do, in order of arrival.
 enum Job {
     /// Plan for this request and answer the query.
-    Solve(Query, SolveRequest),
+    Solve(Query, Box<SolveRequest>),
     /// Use this controller from now on (the model was configured again).
     Replace(Box<ServiceController>),
 }
@@ -85,7 +85,7 @@ impl SolveWorkers {
                 format!("model '{model}' is not configured"),
             )
         })?;
-        w.jobs.send(Job::Solve(q, req)).map_err(|_| {
+        w.jobs.send(Job::Solve(q, Box::new(req))).map_err(|_| {
             ErrorReply::new(
                 ErrorCode::Internal,
                 format!("the solver thread of model '{model}' has ended"),
@@ -110,7 +110,7 @@ fn serve_model(model: &str, mut c: ServiceController, jobs: mpsc::Receiver<Job>)
             Job::Replace(new) => c = *new,
             Job::Solve(q, req) => {
                 let reply = c
-                    .solve(&req.x, &req.reference)
+                    .solve_with_feedforward(&req.x, &req.reference, &req.feedforward)
                     .map(|sol| {
                         SolveReply {
                             status: sol.status,

@@ -1,0 +1,228 @@
+//! Encoding and decoding of each binary message (the layouts of PROTOCOL.md §4).
+
+use super::frame::{bad, Reader, Writer};
+use super::*;
+use crate::error::Result;
+
+impl StepRequest {
+    /// Encodes: header, `k: u64`, `n: u32`, `u: n × f64`.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut w = Writer::new(MsgType::StepRequest, 12 + 8 * self.u.len());
+        w.u64(self.k);
+        w.vec(&self.u);
+        w.0
+    }
+    /// Decodes and checks the whole payload.
+    pub fn decode(b: &[u8]) -> Result<Self> {
+        let mut r = Reader::new(b, MsgType::StepRequest, "step request")?;
+        let m = StepRequest {
+            k: r.u64()?,
+            u: r.vec()?,
+        };
+        r.finish()?;
+        Ok(m)
+    }
+}
+
+impl StepReply {
+    /// Encodes: header, `k: u64`, `t: f64`, `n: u32`, `x: n × f64`.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut w = Writer::new(MsgType::StepReply, 20 + 8 * self.x.len());
+        w.u64(self.k);
+        w.f64(self.t);
+        w.vec(&self.x);
+        w.0
+    }
+    /// Decodes and checks the whole payload.
+    pub fn decode(b: &[u8]) -> Result<Self> {
+        let mut r = Reader::new(b, MsgType::StepReply, "step reply")?;
+        let m = StepReply {
+            k: r.u64()?,
+            t: r.f64()?,
+            x: r.vec()?,
+        };
+        r.finish()?;
+        Ok(m)
+    }
+}
+
+impl StateMsg {
+    /// Encodes: header, `seq: u64`, `k: u64`, `t: f64`, `n: u32`, `x: n × f64`, `m: u32`,
+    /// `u: m × f64`.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut w = Writer::new(MsgType::State, 32 + 8 * (self.x.len() + self.u.len()));
+        w.u64(self.seq);
+        w.u64(self.k);
+        w.f64(self.t);
+        w.vec(&self.x);
+        w.vec(&self.u);
+        w.0
+    }
+    /// Decodes and checks the whole payload.
+    pub fn decode(b: &[u8]) -> Result<Self> {
+        let mut r = Reader::new(b, MsgType::State, "state")?;
+        let m = StateMsg {
+            seq: r.u64()?,
+            k: r.u64()?,
+            t: r.f64()?,
+            x: r.vec()?,
+            u: r.vec()?,
+        };
+        r.finish()?;
+        Ok(m)
+    }
+}
+
+impl CommandMsg {
+    /// Encodes: header, `seq: u64`, `k: u64`, `n: u32`, `u: n × f64`.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut w = Writer::new(MsgType::Command, 20 + 8 * self.u.len());
+        w.u64(self.seq);
+        w.u64(self.k);
+        w.vec(&self.u);
+        w.0
+    }
+    /// Decodes and checks the whole payload.
+    pub fn decode(b: &[u8]) -> Result<Self> {
+        let mut r = Reader::new(b, MsgType::Command, "command")?;
+        let m = CommandMsg {
+            seq: r.u64()?,
+            k: r.u64()?,
+            u: r.vec()?,
+        };
+        r.finish()?;
+        Ok(m)
+    }
+}
+
+impl SolveRequest {
+    /// Encodes: header, `len: u16`, model name (UTF-8), `n: u32`, `x`, `m: u32`, `reference`,
+    /// and only when there is one, `f: u32`, `feedforward`.
+    pub fn encode(&self) -> Vec<u8> {
+        let name = self.model.as_bytes();
+        let mut w = Writer::new(
+            MsgType::SolveRequest,
+            14 + name.len() + 8 * (self.x.len() + self.reference.len() + self.feedforward.len()),
+        );
+        w.u16(name.len().min(u16::MAX as usize) as u16);
+        w.0.extend_from_slice(&name[..name.len().min(u16::MAX as usize)]);
+        w.vec(&self.x);
+        w.vec(&self.reference);
+        if !self.feedforward.is_empty() {
+            w.vec(&self.feedforward);
+        }
+        w.0
+    }
+    /// Decodes and checks the whole payload.
+    pub fn decode(b: &[u8]) -> Result<Self> {
+        let mut r = Reader::new(b, MsgType::SolveRequest, "solve request")?;
+        let len = r.u16()? as usize;
+        let model = std::str::from_utf8(r.take(len)?)
+            .map_err(|_| bad("solve request", "model name is not UTF-8"))?
+            .to_string();
+        let m = SolveRequest {
+            model,
+            x: r.vec()?,
+            reference: r.vec()?,
+            feedforward: if r.is_empty() { Vec::new() } else { r.vec()? },
+        };
+        r.finish()?;
+        Ok(m)
+    }
+}
+
+impl SolveReply {
+    /// Encodes: header, `status: u8`, `iterations: u32`, `solve_time_ns: u64`, `n: u32`, `u`.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut w = Writer::new(MsgType::SolveReply, 17 + 8 * self.u.len());
+        w.u8(self.status as u8);
+        w.u32(self.iterations);
+        w.u64(self.solve_time_ns);
+        w.vec(&self.u);
+        w.0
+    }
+    /// Decodes and checks the whole payload.
+    pub fn decode(b: &[u8]) -> Result<Self> {
+        let mut r = Reader::new(b, MsgType::SolveReply, "solve reply")?;
+        let status = match r.u8()? {
+            0 => SolveStatus::Solved,
+            1 => SolveStatus::Suboptimal,
+            2 => SolveStatus::Fallback,
+            3 => SolveStatus::Inaccurate,
+            s => return Err(bad("solve reply", format!("unknown status {s}"))),
+        };
+        let m = SolveReply {
+            status,
+            iterations: r.u32()?,
+            solve_time_ns: r.u64()?,
+            u: r.vec()?,
+        };
+        r.finish()?;
+        Ok(m)
+    }
+}
+
+impl CollectChunk {
+    /// Encodes: header, `block: u64`, `chunk: u32`, `chunks: u32`, `first: u64`,
+    /// `windows: u32`, `steps: u32`, `nx: u32`, `nu: u32`, `x: vec`, `u: vec`.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut w = Writer::new(
+            MsgType::CollectChunk,
+            48 + 8 * (self.x.len() + self.u.len()),
+        );
+        w.u64(self.block);
+        w.u32(self.chunk);
+        w.u32(self.chunks);
+        w.u64(self.first);
+        w.u32(self.windows);
+        w.u32(self.steps);
+        w.u32(self.nx);
+        w.u32(self.nu);
+        w.vec(&self.x);
+        w.vec(&self.u);
+        w.0
+    }
+    /// Decodes and checks the whole payload: `chunk < chunks`, and `x`/`u` hold exactly
+    /// `windows·(steps+1)·nx` and `windows·steps·nu` values.
+    pub fn decode(b: &[u8]) -> Result<Self> {
+        let what = "collect chunk";
+        let mut r = Reader::new(b, MsgType::CollectChunk, what)?;
+        let m = CollectChunk {
+            block: r.u64()?,
+            chunk: r.u32()?,
+            chunks: r.u32()?,
+            first: r.u64()?,
+            windows: r.u32()?,
+            steps: r.u32()?,
+            nx: r.u32()?,
+            nu: r.u32()?,
+            x: r.vec()?,
+            u: r.vec()?,
+        };
+        r.finish()?;
+        if m.chunk >= m.chunks {
+            return Err(bad(
+                what,
+                format!("chunk {} of {} chunks", m.chunk, m.chunks),
+            ));
+        }
+        let (n, t) = (u64::from(m.windows), u64::from(m.steps));
+        let want_x = n * (t + 1) * u64::from(m.nx);
+        let want_u = n * t * u64::from(m.nu);
+        if m.x.len() as u64 != want_x || m.u.len() as u64 != want_u {
+            return Err(bad(
+                what,
+                format!(
+                    "{} windows of {} steps (nx {}, nu {}) need {want_x} and {want_u} values, got {} and {}",
+                    m.windows,
+                    m.steps,
+                    m.nx,
+                    m.nu,
+                    m.x.len(),
+                    m.u.len()
+                ),
+            ));
+        }
+        Ok(m)
+    }
+}

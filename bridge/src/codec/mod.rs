@@ -1,0 +1,151 @@
+//! Compact little-endian binary codec of the hot-path messages (step, state, command, solve,
+//! collect chunks), each framed by the magic `KB`, the protocol version and a message type byte.
+
+/// Protocol version carried by every binary message and by `info`.
+pub const PROTOCOL_VERSION: u8 = 1;
+/// The two magic bytes that open every binary message.
+pub const MAGIC: [u8; 2] = *b"KB";
+/// The largest vector length a message may carry (guards allocations on hostile input).
+pub const MAX_VECTOR_LEN: usize = 1 << 20;
+
+/// The message type byte (4th byte of the header).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum MsgType {
+    /// [`StepRequest`].
+    StepRequest = 0x01,
+    /// [`StepReply`].
+    StepReply = 0x02,
+    /// [`StateMsg`].
+    State = 0x03,
+    /// [`CommandMsg`].
+    Command = 0x04,
+    /// [`SolveRequest`].
+    SolveRequest = 0x05,
+    /// [`SolveReply`].
+    SolveReply = 0x06,
+    /// [`CollectChunk`].
+    CollectChunk = 0x07,
+}
+
+/// `step` query: apply `u` at step `k` (`u_k` held over `[t_k, t_k + dt)`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct StepRequest {
+    /// The step index of the state the input is applied to.
+    pub k: u64,
+    /// The input `u_k`, `nu` values.
+    pub u: Vec<f64>,
+}
+
+/// `step` reply: the state after the step.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StepReply {
+    /// `k + 1`.
+    pub k: u64,
+    /// Simulation time `t_{k+1}` in seconds.
+    pub t: f64,
+    /// The state `x_{k+1}`, `nx` values.
+    pub x: Vec<f64>,
+}
+
+/// Free-run `state` publication.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StateMsg {
+    /// Publication sequence number (0, 1, 2, … without gaps at the sender).
+    pub seq: u64,
+    /// Step index.
+    pub k: u64,
+    /// Simulation time in seconds.
+    pub t: f64,
+    /// The state, `nx` values.
+    pub x: Vec<f64>,
+    /// The input that was held over `[t_{k-1}, t_k)` to reach this state (`nu` values; empty
+    /// for the first state after a reset), so that a recorder pairs transitions exactly.
+    pub u: Vec<f64>,
+}
+
+/// Free-run `command` publication.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CommandMsg {
+    /// Sequence number at the sender.
+    pub seq: u64,
+    /// The step index of the state this command answers.
+    pub k: u64,
+    /// The input, `nu` values.
+    pub u: Vec<f64>,
+}
+
+/// `solve` query of the MPC service.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SolveRequest {
+    /// Model name in the service's store; empty = the service's default model.
+    pub model: String,
+    /// Current state, `nx` values.
+    pub x: Vec<f64>,
+    /// Reference: one state (`nx`) or a stacked horizon (`H·nx`); with a `feedforward`, the
+    /// planned state at the current step (`nx`).
+    pub reference: Vec<f64>,
+    /// The plan's feed-forward inputs at the current and the next H−1 steps (`H·nu`), or empty.
+    /// When given, the service plans the deviation from them (error-state MPC: the model's own
+    /// rollout of the plan is the reference, so its bias along the plan cancels). Optional on
+    /// the wire: a request without it ends after `reference`.
+    pub feedforward: Vec<f64>,
+}
+
+/// Status of a solve.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum SolveStatus {
+    /// Solved to tolerance.
+    Solved = 0,
+    /// Stopped at an iteration or time limit; `u` is feasible but not proven optimal.
+    Suboptimal = 1,
+    /// The solver failed; `u` is a fallback plan (previous plan shifted, clamped to the bounds).
+    Fallback = 2,
+    /// Optimal to reduced accuracy.
+    Inaccurate = 3,
+}
+
+/// `solve` reply.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SolveReply {
+    /// Solver status.
+    pub status: SolveStatus,
+    /// Solver iterations.
+    pub iterations: u32,
+    /// Solve time inside the service in nanoseconds.
+    pub solve_time_ns: u64,
+    /// The input sequence, `H·nu` values, first input first.
+    pub u: Vec<f64>,
+}
+
+/// One reply of a `collect` query: windows `first .. first + windows` of the collection,
+/// chunk `chunk` of the `chunks` replies that together hold the requested block.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CollectChunk {
+    /// The block index of the request.
+    pub block: u64,
+    /// This chunk's index (0-based).
+    pub chunk: u32,
+    /// How many chunks the block has.
+    pub chunks: u32,
+    /// The collection index of the chunk's first window.
+    pub first: u64,
+    /// Windows in this chunk.
+    pub windows: u32,
+    /// Transitions per window T.
+    pub steps: u32,
+    /// State dimension.
+    pub nx: u32,
+    /// Input dimension.
+    pub nu: u32,
+    /// States `[windows, steps + 1, nx]`, row-major.
+    pub x: Vec<f64>,
+    /// Inputs `[windows, steps, nu]`, row-major.
+    pub u: Vec<f64>,
+}
+
+mod frame;
+mod messages;
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,227 @@
+//! Golden vectors of every binary message, written by hand from PROTOCOL.md, and the decoder's
+//! answers to malformed input.
+
+use super::*;
+use crate::error::{Error, ErrorCode, Result};
+
+fn hex(b: &[u8]) -> String {
+    b.iter().map(|x| format!("{x:02x}")).collect()
+}
+
+// Golden vectors: written by hand from the layout in PROTOCOL.md (1.5 = 0x3FF8000000000000,
+// -2.0 = 0xC000000000000000, 0.02 = 0x3F947AE147AE147B), not produced by the encoder.
+#[test]
+fn golden_step_request() {
+    let m = StepRequest { k: 3, u: vec![1.5] };
+    assert_eq!(
+        hex(&m.encode()),
+        "4b420101\
+         0300000000000000\
+         01000000\
+         000000000000f83f"
+    );
+    assert_eq!(StepRequest::decode(&m.encode()).unwrap(), m);
+}
+
+#[test]
+fn golden_step_reply() {
+    let m = StepReply {
+        k: 4,
+        t: 0.02,
+        x: vec![1.5, -2.0],
+    };
+    assert_eq!(
+        hex(&m.encode()),
+        "4b420102\
+         0400000000000000\
+         7b14ae47e17a943f\
+         02000000\
+         000000000000f83f\
+         00000000000000c0"
+    );
+    assert_eq!(StepReply::decode(&m.encode()).unwrap(), m);
+}
+
+#[test]
+fn golden_state_and_command() {
+    let s = StateMsg {
+        seq: 1,
+        k: 2,
+        t: 0.02,
+        x: vec![-2.0],
+        u: vec![1.5],
+    };
+    assert_eq!(
+        hex(&s.encode()),
+        "4b420103\
+         0100000000000000\
+         0200000000000000\
+         7b14ae47e17a943f\
+         01000000\
+         00000000000000c0\
+         01000000\
+         000000000000f83f"
+    );
+    assert_eq!(StateMsg::decode(&s.encode()).unwrap(), s);
+    let c = CommandMsg {
+        seq: 7,
+        k: 2,
+        u: vec![1.5, -2.0],
+    };
+    assert_eq!(
+        hex(&c.encode()),
+        "4b420104\
+         0700000000000000\
+         0200000000000000\
+         02000000\
+         000000000000f83f\
+         00000000000000c0"
+    );
+    assert_eq!(CommandMsg::decode(&c.encode()).unwrap(), c);
+}
+
+#[test]
+fn golden_solve() {
+    let q = SolveRequest {
+        model: "ab".into(),
+        x: vec![1.5],
+        reference: vec![],
+        feedforward: vec![],
+    };
+    assert_eq!(
+        hex(&q.encode()),
+        "4b420105\
+         0200\
+         6162\
+         01000000\
+         000000000000f83f\
+         00000000"
+    );
+    assert_eq!(SolveRequest::decode(&q.encode()).unwrap(), q);
+    // With a feed-forward: one more vector after the reference.
+    let f = SolveRequest {
+        model: "".into(),
+        x: vec![],
+        reference: vec![1.5],
+        feedforward: vec![-2.0],
+    };
+    assert_eq!(
+        hex(&f.encode()),
+        "4b420105\
+         0000\
+         00000000\
+         01000000\
+         000000000000f83f\
+         01000000\
+         00000000000000c0"
+    );
+    assert_eq!(SolveRequest::decode(&f.encode()).unwrap(), f);
+    // A truncated feed-forward is an error, not an empty one.
+    let mut cut = f.encode();
+    cut.pop();
+    assert!(SolveRequest::decode(&cut).is_err());
+    let r = SolveReply {
+        status: SolveStatus::Suboptimal,
+        iterations: 9,
+        solve_time_ns: 256,
+        u: vec![-2.0],
+    };
+    assert_eq!(
+        hex(&r.encode()),
+        "4b420106\
+         01\
+         09000000\
+         0001000000000000\
+         01000000\
+         00000000000000c0"
+    );
+    assert_eq!(SolveReply::decode(&r.encode()).unwrap(), r);
+}
+
+#[test]
+fn golden_collect_chunk() {
+    let m = CollectChunk {
+        block: 2,
+        chunk: 1,
+        chunks: 3,
+        first: 8,
+        windows: 1,
+        steps: 1,
+        nx: 1,
+        nu: 1,
+        x: vec![1.5, -2.0],
+        u: vec![0.02],
+    };
+    assert_eq!(
+        hex(&m.encode()),
+        "4b420107\
+         0200000000000000\
+         01000000\
+         03000000\
+         0800000000000000\
+         01000000\
+         01000000\
+         01000000\
+         01000000\
+         02000000\
+         000000000000f83f\
+         00000000000000c0\
+         01000000\
+         7b14ae47e17a943f"
+    );
+    assert_eq!(CollectChunk::decode(&m.encode()).unwrap(), m);
+    // Inconsistent counts and chunk indices are refused, typed.
+    for bad in [
+        CollectChunk { nx: 2, ..m.clone() },
+        CollectChunk {
+            u: vec![],
+            ..m.clone()
+        },
+        CollectChunk {
+            chunk: 3,
+            ..m.clone()
+        },
+    ] {
+        match CollectChunk::decode(&bad.encode()) {
+            Err(Error::Protocol { code, .. }) => assert_eq!(code, ErrorCode::BadRequest),
+            other => panic!("expected bad_request, got {other:?}"),
+        }
+    }
+}
+
+#[test]
+fn malformed_payloads_give_typed_errors() {
+    let good = StepRequest {
+        k: 1,
+        u: vec![0.5, 0.25],
+    }
+    .encode();
+    let code = |r: Result<StepRequest>| match r {
+        Err(Error::Protocol { code, .. }) => code,
+        other => panic!("expected a protocol error, got {other:?}"),
+    };
+    assert_eq!(code(StepRequest::decode(&[])), ErrorCode::BadRequest);
+    assert_eq!(
+        code(StepRequest::decode(b"{\"k\":1}")),
+        ErrorCode::BadRequest
+    );
+    let mut v = good.clone();
+    v[2] = 9;
+    assert_eq!(code(StepRequest::decode(&v)), ErrorCode::VersionMismatch);
+    let mut v = good.clone();
+    v[3] = MsgType::State as u8;
+    assert_eq!(code(StepRequest::decode(&v)), ErrorCode::BadRequest);
+    for cut in 4..good.len() {
+        assert_eq!(
+            code(StepRequest::decode(&good[..cut])),
+            ErrorCode::BadRequest
+        );
+    }
+    let mut v = good.clone();
+    v.push(0);
+    assert_eq!(code(StepRequest::decode(&v)), ErrorCode::BadRequest);
+    let mut v = good[..12].to_vec();
+    v.extend_from_slice(&u32::MAX.to_le_bytes());
+    assert_eq!(code(StepRequest::decode(&v)), ErrorCode::TooLarge);
+    assert!(SolveReply::decode(&[0x4b, 0x42, 1, 6, 7, 0, 0, 0, 0]).is_err());
+}
