@@ -183,6 +183,7 @@ fn bad_requests_get_typed_errors_and_the_adapter_keeps_serving() {
     let planned = CollectRequest {
         policy: CollectPolicy::Planned {
             windows_per_plan: Some(5),
+            dither: None,
         },
         ..base.clone()
     };

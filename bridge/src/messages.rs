@@ -217,22 +217,35 @@ pub enum CollectPolicy {
         /// default, 20 for the Drake Gen3 adapter).
         #[serde(default, skip_serializing_if = "Option::is_none")]
         windows_per_plan: Option<u32>,
+        /// Exploration on every planned command: `U(±dither)` per input and step (input units),
+        /// drawn from `(seed, window)` and clipped to the input bounds (≥ 0; absent or 0 = the
+        /// planned commands exactly). Without it a velocity-servoed arm follows its commands so
+        /// closely that command and measured velocity are collinear (correlation 0.99995 on
+        /// the Gen3), and no model can tell the command's effect from the state's.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        dither: Option<f64>,
     },
 }
 
 impl CollectPolicy {
     /// The policy's name in dataset metadata: `adapter-uniform`, or for a planned policy
     /// `adapter-planned` with its settings (`windows_per_plan=K`, absent = the simulator's
-    /// default).
+    /// default; `dither=D` when there is one).
     pub fn describe(&self) -> String {
         match self {
             CollectPolicy::Uniform { .. } => "adapter-uniform".into(),
             CollectPolicy::Planned {
-                windows_per_plan: Some(k),
-            } => format!("adapter-planned windows_per_plan={k}"),
-            CollectPolicy::Planned {
-                windows_per_plan: None,
-            } => "adapter-planned windows_per_plan=default".into(),
+                windows_per_plan,
+                dither,
+            } => {
+                let k = windows_per_plan.map_or("default".to_string(), |k| k.to_string());
+                match dither {
+                    Some(d) if *d > 0.0 => {
+                        format!("adapter-planned windows_per_plan={k} dither={d}")
+                    }
+                    _ => format!("adapter-planned windows_per_plan={k}"),
+                }
+            }
         }
     }
 }
@@ -325,6 +338,7 @@ mod tests {
         .unwrap();
         let planned = CollectPolicy::Planned {
             windows_per_plan: Some(20),
+            dither: None,
         };
         assert_eq!(req.policy, planned);
         assert_eq!(
@@ -335,13 +349,27 @@ mod tests {
         assert_eq!(
             default,
             CollectPolicy::Planned {
-                windows_per_plan: None
+                windows_per_plan: None,
+                dither: None,
             }
         );
         assert_eq!(
             serde_json::to_string(&default).unwrap(),
             r#"{"kind":"planned"}"#
         );
+        let dithered = CollectPolicy::Planned {
+            windows_per_plan: Some(20),
+            dither: Some(0.25),
+        };
+        assert_eq!(
+            serde_json::to_string(&dithered).unwrap(),
+            r#"{"kind":"planned","windows_per_plan":20,"dither":0.25}"#
+        );
+        assert_eq!(
+            dithered.describe(),
+            "adapter-planned windows_per_plan=20 dither=0.25"
+        );
+        assert_eq!(planned.describe(), "adapter-planned windows_per_plan=20");
         let uniform = CollectPolicy::Uniform {
             low: Some(InputBound::All(-0.12)),
             high: Some(InputBound::Each(vec![0.1, 0.2])),

@@ -72,20 +72,38 @@ impl Mpc {
     }
 
     /// Solves at state ``x`` (nx,) for ``reference``: one state (nx,), held over the horizon, or
-    /// the horizon's states (H, nx). Returns a dict: ``u`` (H, nu) plan, first input first;
-    /// ``status`` (``solved``, ``inaccurate``, ``suboptimal`` or ``fallback:<reason>``);
-    /// ``solve_time`` in seconds; ``iterations``.
+    /// the horizon's states (H, nx). With ``feedforward`` (a plan's inputs at this and the next
+    /// H−1 steps, (H, nu)), ``reference`` is the plan's state at this step (nx,) and the plan is
+    /// the error-state MPC's (the deviation from the plan; ``MpcController::solve_about_plan``).
+    /// Returns a dict: ``u`` (H, nu) plan, first input first; ``status`` (``solved``,
+    /// ``inaccurate``, ``suboptimal`` or ``fallback:<reason>``); ``solve_time`` in seconds;
+    /// ``iterations``.
+    #[pyo3(signature = (x, reference, feedforward=None))]
     fn solve<'py>(
         &self,
         py: Python<'py>,
         x: &Bound<'py, PyAny>,
         reference: &Bound<'py, PyAny>,
+        feedforward: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let x = vec_n(x, self.nx, "x")?;
-        let r = vec_f64(
-            &py.import("numpy")?.call_method1("ravel", (reference,))?,
-            "reference",
-        )?;
+        let np = py.import("numpy")?;
+        let r = vec_f64(&np.call_method1("ravel", (reference,))?, "reference")?;
+        let ff = match feedforward {
+            Some(f) => Some(vec_n(
+                &np.call_method1("ravel", (f,))?,
+                self.nu * self.horizon,
+                "feedforward",
+            )?),
+            None => None,
+        };
+        if ff.is_some() && r.len() != self.nx {
+            return Err(PyValueError::new_err(format!(
+                "reference: with a feedforward, the plan's state at this step ({} values), got {}",
+                self.nx,
+                r.len()
+            )));
+        }
         if r.len() != self.nx && r.len() != self.nx * self.horizon {
             return Err(PyValueError::new_err(format!(
                 "reference: expected {} (one state) or {} (H × nx) values, got {}",
@@ -99,7 +117,11 @@ impl Mpc {
                 .ctrl
                 .lock()
                 .map_err(|_| PyRuntimeError::new_err("MPC controller poisoned"))?;
-            c.solve(&x, &r).map_err(koopman_err)
+            match &ff {
+                Some(ff) => c.solve_about_plan(&x, &r, ff),
+                None => c.solve(&x, &r),
+            }
+            .map_err(koopman_err)
         })?;
         let d = PyDict::new(py);
         d.set_item(

@@ -55,6 +55,20 @@ def test_velocity_commands_are_tracked(sim):
     np.testing.assert_allclose(x2[:7], x[:7], atol=1e-6)
 
 
+def test_a_command_gain_scales_what_the_actuators_realise():
+    slow = DrakeGen3Sim(command_gain=0.5)
+    assert slow.info().extra["drake"]["controller"]["command_gain"] == 0.5
+    q0 = np.array([0.3, 0.5, -0.2, 1.0, 0.1, -0.4, 0.2])
+    u = np.array([0.4, -0.3, 0.5, -0.2, 0.6, 0.3, -0.5])
+    x = slow.reset(x0=np.concatenate([q0, np.zeros(7)]))
+    for _ in range(500):
+        x = slow.step(u)
+    np.testing.assert_allclose(x[7:], 0.5 * u, atol=2e-3)  # the velocity reached is half the command
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(InvalidInput):
+            DrakeGen3Sim(command_gain=bad)
+
+
 def test_holding_torque_is_mujocos_gravity_bias(sim):
     mujoco = pytest.importorskip("mujoco")
     m = mujoco.MjModel.from_xml_path(str(robosuite_mjcf()))

@@ -43,10 +43,34 @@ def test_planned_windows_are_deterministic_resumable_and_on_the_plan(sim):
 
 
 def test_planned_policy_json_is_checked(sim):
-    for bad in ({"kind": "planned", "windows_per_plan": 0}, {"kind": "planned", "other": 1}):
+    bads = ({"kind": "planned", "windows_per_plan": 0}, {"kind": "planned", "other": 1},
+            {"kind": "planned", "dither": -0.1}, {"kind": "planned", "dither": "0.2"}, {"kind": "planned", "dither": float("nan")})
+    for bad in bads:
         with pytest.raises(InvalidInput):
             sim.collect(bad, 1, 1, 15)
     assert PlannedPolicy.from_json(PlannedPolicy(4).to_json()) == PlannedPolicy(4)
+    assert PlannedPolicy(4, 0.2).to_json() == {"kind": "planned", "windows_per_plan": 4, "dither": 0.2}
+    assert PlannedPolicy.from_json(PlannedPolicy(4, 0.2).to_json()) == PlannedPolicy(4, 0.2)
+
+
+def test_dither_excites_the_commands_off_the_plan_deterministically(sim):
+    plain = sim.collect(PlannedPolicy(3), 5, 3, 15)
+    a = sim.collect(PlannedPolicy(3, 0.2), 5, 3, 15)
+    assert a.u.tobytes() == sim.collect({"kind": "planned", "windows_per_plan": 3, "dither": 0.2}, 5, 3, 15).u.tobytes()
+    # Resumable: window 2 alone draws what it drew in the block.
+    assert sim.collect(PlannedPolicy(3, 0.2), 5, 1, 15, start=2).u.tobytes() == a.u[2:3].tobytes()
+    # The same windows (starts) as without the dither; commands within ±0.2 of the plan's and
+    # within the limits; the excitation breaks the command/velocity collinearity.
+    np.testing.assert_array_equal(a.x[:, 0], plain.x[:, 0])
+    d = a.u - plain.u
+    from koopbridge.adapters.drake_model import VELOCITY_LIMITS
+
+    assert np.all(np.abs(d) <= 0.2 + 1e-12) and np.std(d) > 0.05
+    assert np.all(np.abs(a.u) <= VELOCITY_LIMITS + 1e-12)
+    qd, u = a.x[:, :-1, 7:].reshape(-1, 7), a.u.reshape(-1, 7)
+    qd0, u0 = plain.x[:, :-1, 7:].reshape(-1, 7), plain.u.reshape(-1, 7)
+    resid = lambda c, v: np.sqrt(np.mean((c - v) ** 2))  # noqa: E731
+    assert resid(u, qd) > 3 * resid(u0, qd0), (resid(u, qd), resid(u0, qd0))  # 0.113 vs 0.024
 
 
 def test_planned_policy_is_one_sdk_type_and_unsupported_without_a_planner(sim):

@@ -85,6 +85,25 @@ def test_mpc_matches_the_least_squares_optimum(model):
     np.testing.assert_allclose(mpc.solve(x0, np.tile(ref, (H, 1)))["u"], sol["u"], atol=1e-9)
 
 
+def test_error_state_mpc_is_the_least_squares_optimum_about_the_plan(model):
+    # Cost Σ‖P(z_τ − ž_τ)‖² + r‖u − u_ff‖², ž the model's rollout of the plan from Φ(r_now):
+    # its least-squares optimum in closed form, computed here with numpy.
+    H, r_w = 6, 0.1
+    x0, r_now, u_ff = np.array([0.4, -0.2]), np.array([0.3, 0.1]), 0.3 * np.sin(np.arange(6.0))
+    f, G = condensed(model, x0, H)
+    f_plan, _ = condensed(model, r_now, H)
+    plan = f_plan + G @ u_ff
+    R = np.full(H, r_w)
+    u_star = np.linalg.solve(G.T @ G + np.diag(R), G.T @ (plan - f) + R * u_ff)
+    mpc = koopbridge.Mpc(model, horizon=H, r=[r_w], u_min=[-1e3], u_max=[1e3])
+    sol = mpc.solve(x0, r_now, feedforward=u_ff.reshape(H, 1))
+    np.testing.assert_allclose(sol["u"].ravel(), u_star, rtol=1e-6, atol=1e-6)
+    with pytest.raises(ValueError, match="feedforward"):
+        mpc.solve(x0, r_now, feedforward=u_ff[:5])
+    with pytest.raises(ValueError, match="with a feedforward"):
+        mpc.solve(x0, np.tile(r_now, (H, 1)), feedforward=u_ff)
+
+
 def test_mpc_respects_bounds_and_beats_clamping(model):
     H = 6
     x0, ref = np.array([1.5, -1.0]), np.array([0.0, 0.0])

@@ -42,6 +42,8 @@ pub enum PlanInputs {
     Planned {
         /// Windows per plan (≥ 1; `None` = the simulator's default).
         windows_per_plan: Option<u32>,
+        /// Exploration amplitude on the planned commands (finite, ≥ 0; `None` = none).
+        dither: Option<f64>,
     },
 }
 
@@ -116,11 +118,20 @@ impl CollectPlan {
         }
         let (low, high) = match &req.policy {
             CollectPolicy::Uniform { low, high } => (low, high),
-            CollectPolicy::Planned { windows_per_plan } => {
+            CollectPolicy::Planned {
+                windows_per_plan,
+                dither,
+            } => {
                 if *windows_per_plan == Some(0) {
                     return Err(refuse(
                         ErrorCode::BadRequest,
                         "planned policy: windows_per_plan must be at least 1",
+                    ));
+                }
+                if let Some(d) = dither.filter(|d| !(d.is_finite() && *d >= 0.0)) {
+                    return Err(refuse(
+                        ErrorCode::BadRequest,
+                        format!("planned policy: dither must be finite and >= 0, got {d}"),
                     ));
                 }
                 return Ok(CollectPlan {
@@ -131,6 +142,7 @@ impl CollectPlan {
                     steps: t,
                     inputs: PlanInputs::Planned {
                         windows_per_plan: *windows_per_plan,
+                        dither: *dither,
                     },
                     nx,
                     nu,
@@ -189,8 +201,12 @@ impl CollectPlan {
                 low: Some(Each(low.clone())),
                 high: Some(Each(high.clone())),
             },
-            PlanInputs::Planned { windows_per_plan } => CollectPolicy::Planned {
+            PlanInputs::Planned {
+                windows_per_plan,
+                dither,
+            } => CollectPolicy::Planned {
                 windows_per_plan: *windows_per_plan,
+                dither: *dither,
             },
         }
     }
@@ -447,6 +463,7 @@ mod tests {
         let planned = |k: Option<u32>| CollectRequest {
             policy: CollectPolicy::Planned {
                 windows_per_plan: k,
+                dither: None,
             },
             ..request(0, None)
         };
@@ -457,6 +474,20 @@ mod tests {
             "{}",
             zero.message
         );
+        let dithered = |d: f64| CollectRequest {
+            policy: CollectPolicy::Planned {
+                windows_per_plan: Some(20),
+                dither: Some(d),
+            },
+            ..request(0, None)
+        };
+        for bad in [-0.1, f64::NAN, f64::INFINITY] {
+            let e = CollectPlan::new(&info, &dithered(bad)).unwrap_err();
+            assert_eq!(e.code, ErrorCode::BadRequest);
+            assert!(e.message.contains("dither"), "{}", e.message);
+        }
+        let d = CollectPlan::new(&info, &dithered(0.2)).unwrap();
+        assert_eq!(d.policy(), dithered(0.2).policy);
         let plan = CollectPlan::new(&info, &planned(Some(20))).unwrap();
         // What a Python backend is handed: the policy as asked.
         assert_eq!(plan.policy(), planned(Some(20)).policy);

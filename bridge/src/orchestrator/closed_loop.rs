@@ -60,6 +60,14 @@ pub struct ControlReport {
     pub step_round_trip_median_us: f64,
     /// Solves whose status was not `solved`.
     pub not_solved: usize,
+    /// The MPC settings the service solved with (the scenario's `[control].mpc` over SPEC's
+    /// defaults, bounds intersected with the simulator's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mpc: Option<koopman::mpc::MpcConfig>,
+    /// True when the MPC planned the deviation from a plan (`feedforward_file`: the error-state
+    /// MPC), false for the standard MPC.
+    #[serde(default)]
+    pub error_state: bool,
 }
 
 /// A closed-loop control task for the MPC service.
@@ -238,6 +246,8 @@ impl<'a> ControlRun<'a> {
             solve_round_trip_median_us: quantile(&self.rt_us, 0.5),
             step_round_trip_median_us: quantile(&self.step_us, 0.5),
             not_solved: self.not_solved,
+            mpc: None,
+            error_state: matches!(r, Reference::Plan { .. }),
             x: self.xs,
             u: self.us,
         }

@@ -20,6 +20,7 @@ struct Prepared {
     model: String,
     reference: Reference,
     horizon: usize,
+    mpc: koopman::mpc::MpcConfig,
 }
 
 /// What the control phase is asked to do.
@@ -56,7 +57,7 @@ pub fn control_phase(
         })?;
         let req = ConfigureRequest {
             model: model.clone(),
-            mpc: Some(mpc),
+            mpc: Some(mpc.clone()),
             offset_free: ctrl.offset_free.clone(),
         };
         configure(client, SERVICES_ID, &req, Duration::from_secs(60))?;
@@ -65,6 +66,7 @@ pub fn control_phase(
             model,
             reference,
             horizon,
+            mpc,
         });
     }
     let run = |clients: &mut [SimClient],
@@ -96,7 +98,10 @@ pub fn control_phase(
         control_loop(client, live, jobs, &mut |k, n| on(Event::Control(k, n)))
     };
     let all: Vec<usize> = (0..prepared.len()).collect();
-    let (reports, mut figures) = run(clients, &all, what.publish, on)?;
+    let (mut reports, mut figures) = run(clients, &all, what.publish, on)?;
+    for (r, p) in reports.iter_mut().zip(&prepared) {
+        r.mpc = Some(p.mpc.clone());
+    }
     if what.baseline && prepared.len() > 1 {
         on(Event::Phase(
             "each controlled simulator alone in the loop (baseline)",

@@ -5,6 +5,7 @@ depends only on ``(seed, i)``."""
 
 from __future__ import annotations
 
+import math
 import os
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
@@ -70,27 +71,38 @@ class PlannedPolicy:
     "windows_per_plan": K}``, PROTOCOL.md §7): not an input draw per window, so only a
     simulator with a planner runs it in its own ``collect`` (the Drake Gen3 simulator,
     ``koopbridge.adapters.drake_windows``); ``collect_windows`` and every other simulator answer
-    ``Unsupported``. ``windows_per_plan`` ≥ 1."""
+    ``Unsupported``. ``windows_per_plan`` ≥ 1; ``dither`` ≥ 0: ``U(±dither)`` added to every
+    planned command (drawn from ``(seed, window)``, clipped to the input bounds), the
+    excitation that lets a model tell a command's effect from the state's (without it the
+    commands are the planned velocities the arm already moves at)."""
 
     windows_per_plan: int = 20
+    dither: float = 0.0
 
     def inputs(self, rng: np.random.Generator, T: int, info: SimInfo) -> np.ndarray:
         """Not a per-window input draw: raises ``Unsupported``."""
         raise Unsupported("the planned collect policy needs a simulator that plans its own trajectories (the Drake Gen3 adapter)")
 
     def to_json(self) -> dict[str, Any]:
-        return {"kind": "planned", "windows_per_plan": self.windows_per_plan}
+        d: dict[str, Any] = {"kind": "planned", "windows_per_plan": self.windows_per_plan}
+        if self.dither > 0:
+            d["dither"] = self.dither
+        return d
 
     @staticmethod
     def from_json(d: Mapping[str, Any]) -> PlannedPolicy:
-        """``{"kind": "planned", "windows_per_plan": K}`` (K optional, default 20)."""
-        unknown = set(d) - {"kind", "windows_per_plan"}
+        """``{"kind": "planned", "windows_per_plan": K, "dither": D}`` (K optional, default 20;
+        D optional, default 0)."""
+        unknown = set(d) - {"kind", "windows_per_plan", "dither"}
         if d.get("kind") != "planned" or unknown:
-            raise InvalidInput(f"planned policy: expected kind 'planned' and windows_per_plan, got {sorted(d)}")
+            raise InvalidInput(f"planned policy: expected kind 'planned', windows_per_plan and dither, got {sorted(d)}")
         k = d.get("windows_per_plan", 20)
         if not isinstance(k, int) or isinstance(k, bool) or k < 1:
             raise InvalidInput(f"planned policy: windows_per_plan must be an integer >= 1, got {k!r}")
-        return PlannedPolicy(k)
+        dither = d.get("dither", 0.0)
+        if isinstance(dither, bool) or not isinstance(dither, (int, float)) or not (math.isfinite(dither) and dither >= 0):
+            raise InvalidInput(f"planned policy: dither must be a finite number >= 0, got {dither!r}")
+        return PlannedPolicy(k, float(dither))
 
 
 def policy_from_json(d: Mapping[str, Any]) -> Policy:

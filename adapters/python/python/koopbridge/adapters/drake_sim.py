@@ -42,9 +42,13 @@ X0_VELOCITY_FACTOR = 2.0
 class DrakeGen3Sim:
     """The Gen3 simulation with the SDK's simulator methods (``info``, ``reset``, ``step``,
     ``close``) plus ``collect_plans``. ``dt``: the step of one ``step`` call, a whole number of plant time
-    steps (``time_step``, 1 ms); ``kp`` [1/s²], ``kd`` [1/s]: the controller's gains."""
+    steps (``time_step``, 1 ms); ``kp`` [1/s²], ``kd`` [1/s]: the controller's gains;
+    ``command_gain``: the actuators realise ``command_gain · u`` for a command ``u`` (a model
+    mismatch that only feedback corrects; 1 = none)."""
 
-    def __init__(self, dt: float = 0.001, time_step: float = 0.001, kp: float = 3600.0, kd: float = 120.0) -> None:
+    def __init__(
+        self, dt: float = 0.001, time_step: float = 0.001, kp: float = 3600.0, kd: float = 120.0, command_gain: float = 1.0
+    ) -> None:
         from importlib.metadata import version
 
         from pydrake.systems.analysis import Simulator
@@ -60,6 +64,9 @@ class DrakeGen3Sim:
         self.dt = float(dt)
         self.time_step = float(time_step)
         self.kp, self.kd = float(kp), float(kd)
+        if not (np.isfinite(command_gain) and command_gain > 0):
+            raise InvalidInput(f"command_gain must be finite and > 0, got {command_gain}")
+        self.command_gain = float(command_gain)
         self.drake_version = version("drake")
         b = DiagramBuilder()
         self.gen3 = build_gen3(time_step=time_step, collision=False, builder=b, finalize_diagram=False)
@@ -108,7 +115,7 @@ class DrakeGen3Sim:
                 velocity_limits=VELOCITY_LIMITS.tolist(),
                 effort_limits=EFFORT_LIMITS.tolist(),
                 time_step=self.time_step,
-                controller=dict(kind="inverse dynamics, velocity mode", kp=self.kp, kd=self.kd),
+                controller=dict(kind="inverse dynamics, velocity mode", kp=self.kp, kd=self.kd, command_gain=self.command_gain),
             ), planned_collect=PLANNED_COLLECT),
         )
 
@@ -173,6 +180,7 @@ class DrakeGen3Sim:
             raise InvalidInput(f"u: joint {j + 1} command {u[j]:.4f} rad/s exceeds its limit {VELOCITY_LIMITS[j]}")
         # The position reference starts at the measured q (no hidden state carried over).
         q_ref = self.state()[:7]
+        u = self.command_gain * u
         for i in range(self.substeps):
             self._desired.FixValue(self.context, np.concatenate([q_ref, u]))
             q_ref = q_ref + u * self.time_step
@@ -270,12 +278,14 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--dt", type=float, default=0.001, help="step of one step() in seconds, a multiple of 1 ms (default: %(default)s)")
     p.add_argument("--kp", type=float, default=3600.0, help="controller position gain [1/s^2] (default: %(default)s)")
     p.add_argument("--kd", type=float, default=120.0, help="controller velocity gain [1/s] (default: %(default)s)")
+    p.add_argument("--command-gain", type=float, default=1.0,
+                   help="the actuators realise this multiple of each command: a model mismatch for robustness tests (default: %(default)s)")
     return p
 
 
 def simulator(args: argparse.Namespace) -> DrakeGen3Sim:
     """The ``DrakeGen3Sim`` the parsed command line describes."""
-    return DrakeGen3Sim(dt=args.dt, kp=args.kp, kd=args.kd)
+    return DrakeGen3Sim(dt=args.dt, kp=args.kp, kd=args.kd, command_gain=args.command_gain)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -7,7 +7,8 @@ collision-free (``random_goals``, 2 cm margin) from ``(seed, p)`` and planned by
 ``Gen3Planner`` (a draw the planner refuses is redrawn, the attempt counted in the seed). Its
 ``windows_per_plan`` windows start at evenly spaced planned states along the plan; each resets
 the simulation to that planned state ``[q, q̇]`` and executes the next ``T`` planned velocities
-as commands. Since ``[q, q̇]`` is the simulator's whole state, that is what executing the plan
+as commands (plus, with a ``dither``, ``U(±dither)`` per joint and step drawn from
+``(seed, window)``: excitation off the plan). Since ``[q, q̇]`` is the simulator's whole state, that is what executing the plan
 from its start would give had the arm been on the plan there; the windows stay within SPEC's
 "constrained, expert-guided" data (every command a planned velocity, every start a planned
 state) without one plan per window or executing whole plans to reach a window.
@@ -34,7 +35,8 @@ DESCRIPTION = (
     "plan p = window // windows_per_plan (default 20); its start and goal drawn uniformly within the joint limits, "
     "collision-free with a 2 cm margin, from SeedSequence([seed, 7, p, attempt]) (attempt = redraws of infeasible pairs); "
     "two-pass KinematicTrajectoryOptimization (10 control points, duration in [0.5, 5] s, then self/table collision), "
-    "SNOPT with IPOPT as fallback; windows start at evenly spaced planned states and apply the planned velocities"
+    "SNOPT with IPOPT as fallback; windows start at evenly spaced planned states and apply the planned velocities "
+    "(+ U(+-dither) per joint and step from SeedSequence([seed, 11, window]) when the policy has a dither)"
 )
 
 
@@ -76,7 +78,10 @@ def collect_planned(sim: Any, planner: Any, policy: PlannedPolicy, seed: int, n_
         _, q, qd = cached
         last = len(q) - 1 - T
         s = 0 if K == 1 else int(round(j * last / (K - 1)))
-        u = np.clip(qd[s : s + T], -VELOCITY_LIMITS, VELOCITY_LIMITS)
+        u = qd[s : s + T]
+        if policy.dither > 0:
+            u = u + np.random.default_rng(np.random.SeedSequence([seed, 11, i])).uniform(-policy.dither, policy.dither, u.shape)
+        u = np.clip(u, -VELOCITY_LIMITS, VELOCITY_LIMITS)
         xs[n, 0] = sim.reset(x0=np.r_[np.clip(q[s], sim.q_lower, sim.q_upper), np.clip(qd[s], -VELOCITY_LIMITS, VELOCITY_LIMITS)])
         for t in range(T):
             xs[n, t + 1] = sim.step(u[t])

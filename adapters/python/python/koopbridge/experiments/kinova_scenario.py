@@ -3,8 +3,10 @@ asks the scenario's Drake planner over Zenoh for trajectories to held-out goals 
 collection session) and writes them as the ``(T, 14)`` ``[q, q̇]`` reference that ``[control]
 reference_file`` reads; ``report`` (an ``after-control`` hook) scores the orchestrator's Koopman
 MPC run against the planner's open-loop feed-forward and feed-forward + LQR on the lifted model
-(both run in-process on the same Drake simulation) and the arm held still at its start, adds the result to ``report.json`` and draws
-``kinova.png``.
+(both run in-process on the same Drake simulation) and the arm held still at its start, then
+runs the MPC (in-process, the service's settings), the feed-forward and the LQR again on an arm
+whose actuators realise only ``--command-gain`` (0.9) of each command (``disturbed``: what
+feedback corrects), adds the result to ``report.json`` and draws ``kinova.png``.
 
     python -m koopbridge.experiments.kinova_scenario reference --out OUT --session S --connect EP [--goals 2]
     python -m koopbridge.experiments.kinova_scenario report --out OUT [--sim gen3]
@@ -181,11 +183,34 @@ def _report(a: argparse.Namespace) -> int:
     K = feedback_gain(A, B, P.T @ np.diag(q) @ P + 1e-9 * np.eye(len(A)), a.r * np.eye(B.shape[1]))
     z_ref = np.asarray(model.encode(ref), float)
     sim = DrakeGen3Sim()
+    lqr = lambda k, x: ff[k] - K @ (np.asarray(model.encode(x), float) - z_ref[k])  # noqa: E731
     runs = {
         "koopman-mpc": x_mpc,
         "feed-forward": _run(sim, ref[0], steps, lambda k, x: ff[k]),
-        "feed-forward+lqr": _run(sim, ref[0], steps, lambda k, x: ff[k] - K @ (np.asarray(model.encode(x), float) - z_ref[k])),
+        "feed-forward+lqr": _run(sim, ref[0], steps, lqr),
     }
+    # The same controllers on an arm whose actuators realise only `command_gain` of each command
+    # (a mismatch none of them was told about): what feedback corrects. The MPC is the service's
+    # controller, in-process (koopbridge.Mpc, same model and settings).
+    disturbed = None
+    if a.command_gain != 1.0 and ctrl.get("mpc"):
+        from .. import Mpc
+
+        mpc_cfg = dict(ctrl["mpc"])
+        H = int(mpc_cfg["horizon"])
+        mpc = Mpc(model, **mpc_cfg)
+        ff_h = _padded(ff, steps + H, np.zeros(7))
+        error_state = bool(ctrl.get("error_state"))
+
+        def mpc_cmd(k: int, x: np.ndarray) -> np.ndarray:
+            if error_state:
+                return np.asarray(mpc.solve(x, ref[k], feedforward=ff_h[k : k + H])["u"])[0]
+            return np.asarray(mpc.solve(x, ref[k + 1 : k + 1 + H] if k + 1 + H <= len(ref) else _padded(ref[k + 1 :], H))["u"])[0]
+        slow = DrakeGen3Sim(command_gain=a.command_gain)
+        dis = {"koopman-mpc": _run(slow, ref[0], steps, mpc_cmd), "feed-forward": _run(slow, ref[0], steps, lambda k, x: ff[k]),
+               "feed-forward+lqr": _run(slow, ref[0], steps, lqr)}
+        disturbed = dict(command_gain=a.command_gain, mpc="error-state (in-process, the service's settings)" if error_state else "standard (in-process)",
+                         controllers={k: tracking_errors(v, ref) for k, v in dis.items()})
     entry: dict[str, Any] = dict(
         steps=steps, dt=sim.dt,
         metric="joint tracking error x[:7] - planned q over every step: RMS (all joints, per joint) and final (max |.| at the last step), rad",
@@ -196,6 +221,7 @@ def _report(a: argparse.Namespace) -> int:
                  closed_loop_spectral_radius=float(np.max(np.abs(np.linalg.eigvals(A - B @ K))))),
         mpc=dict(solve_median_us=ctrl.get("solve_median_us"), round_trip_median_us=ctrl.get("solve_round_trip_median_us"),
                  not_solved=ctrl.get("not_solved")),
+        disturbed=disturbed,
         plans=json.loads((out / PLANS).read_text())["plans"] if (out / PLANS).exists() else None,
         plot=None if a.no_plot else "kinova.png",
     )
@@ -203,6 +229,8 @@ def _report(a: argparse.Namespace) -> int:
         _plot(out / "kinova.png", ref, runs, sim.dt)
     update_report(rep_path, "kinova", entry)
     rows = dict(entry["controllers"], **{"hold-still": entry["hold_still"]})
+    if disturbed:
+        rows.update({f"{k} (gain {a.command_gain:g})": v for k, v in disturbed["controllers"].items()})
     print(json.dumps({k: (round(v["rms_rad"], 6), round(v["final_rad"], 6)) for k, v in rows.items()}))
     return 0
 
@@ -258,6 +286,8 @@ def parser() -> argparse.ArgumentParser:
     rep.add_argument("--q-weights", type=lambda s: [float(v) for v in s.split(",")], help="LQR state weights, 14 values (default: ones)")
     rep.add_argument("--r", type=float, default=1e-3, help="LQR input weight (times I; default: %(default)s)")
     rep.add_argument("--no-plot", action="store_true", help="skip kinova.png")
+    rep.add_argument("--command-gain", type=float, default=0.9,
+                     help="also run every controller on an arm whose actuators realise this multiple of each command (1: skip; default: %(default)s)")
     return p
 
 
