@@ -132,6 +132,12 @@ fn draw(
     let areas = root.split_evenly((panels.len(), 1));
     for (panel, area) in panels.iter().zip(&areas) {
         let (x0, x1, y0, y1, legend_corner) = layout(panel);
+        // Whole-number data (rounds, counts) get no fractional tick labels (no "round 0.5").
+        let whole_x = panel
+            .series
+            .iter()
+            .flat_map(|s| s.points.iter())
+            .all(|p| !p.0.is_finite() || p.0.fract() == 0.0);
         let mut chart = ChartBuilder::on(area)
             .caption(&panel.title, ("sans-serif", 18))
             .margin(8)
@@ -143,7 +149,7 @@ fn draw(
             .configure_mesh()
             .x_desc(x_label)
             .y_desc(&panel.y_label)
-            .x_label_formatter(&|x| tick_label(*x))
+            .x_label_formatter(&|x| x_tick_label(*x, whole_x))
             .y_label_formatter(&|y| tick_label(*y))
             .label_style(("sans-serif", 14))
             .draw()
@@ -267,6 +273,15 @@ fn emptiest_corner(panel: &Panel, x: (f64, f64), y: (f64, f64)) -> SeriesLabelPo
 
 /// An axis tick: whole numbers from 100 up (iterations, sample counts), otherwise at most three
 /// decimals without trailing zeros.
+/// An x tick's label: none for a fractional tick on an axis of whole-number data.
+fn x_tick_label(v: f64, whole: bool) -> String {
+    if whole && (v - v.round()).abs() > 1e-9 {
+        String::new()
+    } else {
+        tick_label(v)
+    }
+}
+
 fn tick_label(v: f64) -> String {
     if v.abs() >= 100.0 {
         return format!("{v:.0}");
@@ -312,6 +327,9 @@ mod tests {
         assert_eq!(tick_label(-1.25), "-1.25");
         assert_eq!(tick_label(2.0), "2");
         assert_eq!(tick_label(-0.0001), "0");
+        assert_eq!(x_tick_label(1.5, true), "");
+        assert_eq!(x_tick_label(2.0, true), "2");
+        assert_eq!(x_tick_label(1.5, false), "1.5");
     }
 
     #[test]

@@ -2,10 +2,10 @@
 //! the session's participants, and a lockstep simulator client with idempotent retries.
 
 use std::collections::HashSet;
+use std::sync::mpsc::{self, RecvTimeoutError};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use zenoh::handlers::FifoChannelHandler;
 use zenoh::query::{ConsolidationMode, Reply};
 use zenoh::sample::SampleKind;
 use zenoh::{Session, Wait};
@@ -26,7 +26,11 @@ pub struct Client {
 
 /// A query in flight; [`PendingQuery::wait`] returns its one reply.
 pub struct PendingQuery {
-    rx: FifoChannelHandler<Reply>,
+    /// The replies, as the query's callback hands them over; disconnected once Zenoh ends the
+    /// query. A callback, not Zenoh's FIFO handler: replies that arrive after the waiter has
+    /// what it needs (a second model store answering `query_first_ok`) are dropped quietly
+    /// instead of logged as errors on a closed channel.
+    rx: mpsc::Receiver<Reply>,
     who: String,
     what: String,
     started: Instant,
@@ -48,6 +52,7 @@ impl Client {
         timeout: Duration,
         who: &str,
     ) -> Result<PendingQuery> {
+        let (tx, rx) = mpsc::channel();
         let mut g = self
             .session
             .get(key)
@@ -56,7 +61,11 @@ impl Client {
         if !payload.is_empty() {
             g = g.payload(payload);
         }
-        let rx = g.wait().map_err(Error::zenoh)?;
+        g.callback(move |reply| {
+            let _ = tx.send(reply);
+        })
+        .wait()
+        .map_err(Error::zenoh)?;
         let started = Instant::now();
         Ok(PendingQuery {
             rx,
@@ -79,7 +88,11 @@ impl Client {
     ) -> Result<Vec<u8>> {
         let q = self.start(key, payload, timeout, who)?;
         let mut first_err = None;
-        while let Ok(Some(reply)) = q.rx.recv_deadline(q.deadline + Duration::from_millis(500)) {
+        while let Some(reply) = q
+            .recv_until(q.deadline + Duration::from_millis(500))
+            .ok()
+            .flatten()
+        {
             match q.decode(&reply) {
                 Ok(payload) => return Ok(payload),
                 Err(e) => {
@@ -128,7 +141,7 @@ impl PendingQuery {
             let now = Instant::now();
             let slice_end =
                 (now + Duration::from_millis(25)).min(self.deadline + Duration::from_millis(500));
-            match self.rx.recv_deadline(slice_end) {
+            match self.recv_until(slice_end) {
                 Ok(Some(reply)) => {
                     replies += 1;
                     if on_reply(self.decode(&reply)?)? {
@@ -181,6 +194,19 @@ impl PendingQuery {
                 who: self.who.clone(),
                 reply: ErrorReply::from_json(&e.payload().to_bytes()),
             }),
+        }
+    }
+
+    /// The next reply: `Ok(None)` when none came by `deadline`, `Err(())` once the query has
+    /// ended (every reply delivered).
+    fn recv_until(&self, deadline: Instant) -> std::result::Result<Option<Reply>, ()> {
+        match self
+            .rx
+            .recv_timeout(deadline.saturating_duration_since(Instant::now()))
+        {
+            Ok(r) => Ok(Some(r)),
+            Err(RecvTimeoutError::Timeout) => Ok(None),
+            Err(RecvTimeoutError::Disconnected) => Err(()),
         }
     }
 
