@@ -310,29 +310,27 @@ impl<'m> MpcController<'m> {
         }
         ensure_finite("state", x)?;
         let z0 = self.model.get().lift(x);
-        if z0.len() != self.condensed.latent {
-            return Err(Error::dimension(
-                "lifted state",
-                self.condensed.latent,
-                z0.len(),
-            ));
-        }
-        ensure_finite("lifted state", &z0)?;
+        self.check_lifted(&z0)?;
         self.solve_lifted_from(start, &z0, reference, None)
     }
 
     /// Like [`MpcController::solve`] but from an already lifted state `z_0` (N values).
     pub fn solve_lifted(&mut self, z0: &[f64], reference: &[f64]) -> Result<MpcSolution> {
         let start = Instant::now();
-        if z0.len() != self.condensed.latent {
+        self.check_lifted(z0)?;
+        self.solve_lifted_from(start, z0, reference, None)
+    }
+
+    /// A lifted state must have N finite values (a model's lifting is checked, not trusted).
+    fn check_lifted(&self, z: &[f64]) -> Result<()> {
+        if z.len() != self.condensed.latent {
             return Err(Error::dimension(
                 "lifted state",
                 self.condensed.latent,
-                z0.len(),
+                z.len(),
             ));
         }
-        ensure_finite("lifted state", z0)?;
-        self.solve_lifted_from(start, z0, reference, None)
+        ensure_finite("lifted state", z)
     }
 
     /// Error-state (deviation) tracking of a planned trajectory: plans the deviation
@@ -370,16 +368,8 @@ impl<'m> MpcController<'m> {
         ensure_finite("feed-forward", feedforward)?;
         let model = self.model.get();
         let (z0, z_plan) = (model.lift(x), model.lift(reference_now));
-        for z in [&z0, &z_plan] {
-            if z.len() != self.condensed.latent {
-                return Err(Error::dimension(
-                    "lifted state",
-                    self.condensed.latent,
-                    z.len(),
-                ));
-            }
-            ensure_finite("lifted state", z)?;
-        }
+        self.check_lifted(&z0)?;
+        self.check_lifted(&z_plan)?;
         // P ž_1..H: tracking it from Φ(x) is the error-state cost up to the input weights.
         let rollout = self.condensed.predict(&z_plan, feedforward);
         self.solve_lifted_from(start, &z0, &rollout, Some(feedforward))

@@ -22,57 +22,52 @@ fn step(model: &MatrixModel, z: &[f64], u: &[f64]) -> Vec<f64> {
     zn
 }
 
-/// `Σ ‖P(z_{τ+1} − ž_{τ+1})‖²_Q + (u_τ − u_ff,τ)ᵀ R (u_τ − u_ff,τ)` with `z` rolled out from
-/// `Φ(x)` under `u` and `ž` from `Φ(r_now)` under `u_ff` (Q is the identity).
-fn deviation_cost(
-    model: &MatrixModel,
-    x: &[f64],
-    r_now: &[f64],
-    u: &[f64],
-    u_ff: &[f64],
-    r: &[f64],
+/// One error-state problem: the model, the state, the plan's state now and its feed-forward,
+/// the input weights R and the horizon.
+struct Deviation<'a> {
+    model: &'a MatrixModel,
+    x: &'a [f64],
+    r_now: &'a [f64],
+    u_ff: &'a [f64],
+    r: &'a [f64],
     h: usize,
-) -> f64 {
-    let (nx, nu) = (model.nx(), model.nu());
-    let (mut z, mut zp) = (model.lift(x), model.lift(r_now));
-    let mut c = 0.0;
-    for t in 0..h {
-        z = step(model, &z, &u[t * nu..(t + 1) * nu]);
-        zp = step(model, &zp, &u_ff[t * nu..(t + 1) * nu]);
-        for i in 0..nx {
-            c += (z[i] - zp[i]).powi(2);
+}
+
+impl Deviation<'_> {
+    /// `Σ ‖P(z_{τ+1} − ž_{τ+1})‖²_Q + (u_τ − u_ff,τ)ᵀ R (u_τ − u_ff,τ)` with `z` rolled out
+    /// from `Φ(x)` under `u` and `ž` from `Φ(r_now)` under `u_ff` (Q is the identity).
+    fn cost(&self, u: &[f64]) -> f64 {
+        let (nx, nu) = (self.model.nx(), self.model.nu());
+        let (mut z, mut zp) = (self.model.lift(self.x), self.model.lift(self.r_now));
+        let mut c = 0.0;
+        for t in 0..self.h {
+            z = step(self.model, &z, &u[t * nu..(t + 1) * nu]);
+            zp = step(self.model, &zp, &self.u_ff[t * nu..(t + 1) * nu]);
+            for i in 0..nx {
+                c += (z[i] - zp[i]).powi(2);
+            }
+            for k in 0..nu {
+                c += self.r[k] * (u[t * nu + k] - self.u_ff[t * nu + k]).powi(2);
+            }
         }
-        for k in 0..nu {
-            c += r[k] * (u[t * nu + k] - u_ff[t * nu + k]).powi(2);
-        }
+        c
     }
-    c
+
+    /// Central differences of [`Deviation::cost`] at `u`.
+    fn fd_gradient(&self, u: &[f64]) -> Vec<f64> {
+        (0..u.len())
+            .map(|i| {
+                let (mut up, mut um) = (u.to_vec(), u.to_vec());
+                up[i] += 1e-5;
+                um[i] -= 1e-5;
+                (self.cost(&up) - self.cost(&um)) / 2e-5
+            })
+            .collect()
+    }
 }
 
 fn random_vec(rng: &mut Rng, n: usize, s: f64) -> Vec<f64> {
     (0..n).map(|_| rng.uniform(-s, s)).collect()
-}
-
-/// Central differences of [`deviation_cost`] at `u`.
-fn fd_gradient(
-    model: &MatrixModel,
-    x: &[f64],
-    r_now: &[f64],
-    u: &[f64],
-    u_ff: &[f64],
-    r: &[f64],
-    h: usize,
-) -> Vec<f64> {
-    (0..u.len())
-        .map(|i| {
-            let (mut up, mut um) = (u.to_vec(), u.to_vec());
-            up[i] += 1e-5;
-            um[i] -= 1e-5;
-            (deviation_cost(model, x, r_now, &up, u_ff, r, h)
-                - deviation_cost(model, x, r_now, &um, u_ff, r, h))
-                / 2e-5
-        })
-        .collect()
 }
 
 #[test]
@@ -118,12 +113,20 @@ fn unconstrained_error_state_plan_zeroes_the_gradient_of_the_written_out_cost() 
         let u_ff = random_vec(&mut rng, h * 2, 1.0);
         let s = c.solve_about_plan(&x, &r_now, &u_ff).unwrap();
         assert_eq!(s.status, SolveStatus::Solved);
-        let g = fd_gradient(&model, &x, &r_now, &s.u, &u_ff, &r, h);
+        let p = Deviation {
+            model: &model,
+            x: &x,
+            r_now: &r_now,
+            u_ff: &u_ff,
+            r: &r,
+            h,
+        };
+        let g = p.fd_gradient(&s.u);
         let worst = g.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         assert!(worst < 1e-6, "finite-difference gradient {worst}");
         // The QP's linear term is half the cost's gradient at U = 0 (`½UᵀHU + qᵀU = ½J + c`).
         let zero = vec![0.0; h * 2];
-        let g0 = fd_gradient(&model, &x, &r_now, &zero, &u_ff, &r, h);
+        let g0 = p.fd_gradient(&zero);
         let q = c.linear_term().to_vec();
         for i in 0..q.len() {
             assert!(
@@ -179,7 +182,15 @@ fn bounded_error_state_plans_agree_across_solvers_and_satisfy_kkt() {
                 "seed {seed}: dedicated vs clarabel max |Δu| = {diff}"
             );
             // KKT from the written-out cost: free inputs have zero gradient, bound ones push out.
-            let g = fd_gradient(&model, &x, &r_now, &a.u, &u_ff, &r, h);
+            let p = Deviation {
+                model: &model,
+                x: &x,
+                r_now: &r_now,
+                u_ff: &u_ff,
+                r: &r,
+                h,
+            };
+            let g = p.fd_gradient(&a.u);
             let scale = 1.0 + g.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             for (i, (&u, &gi)) in a.u.iter().zip(&g).enumerate() {
                 assert!(u.abs() <= bound + 1e-12, "bound violated at {i}");
