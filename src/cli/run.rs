@@ -85,6 +85,14 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     let mut last_phase = String::new();
+    // Without a terminal (a log file, CI) the bar is hidden: a progress line every 30 s instead.
+    let mut last_line = std::time::Instant::now();
+    let mut log_progress = |what: &str, done: u64, total: u64| {
+        if bar.is_hidden() && last_line.elapsed() >= std::time::Duration::from_secs(30) {
+            last_line = std::time::Instant::now();
+            eprintln!("   {what}: {done}/{total}");
+        }
+    };
     let extras = RunExtras {
         loop_baseline: args.loop_baseline,
         aggregate: args.aggregate,
@@ -104,6 +112,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                 bar.set_message(format!("collect {split}"));
             }
             bar.set_position(done as u64);
+            log_progress(
+                &format!("collect {split} (windows)"),
+                done as u64,
+                total as u64,
+            );
         }
         Event::Train(p) => {
             let it = p.get("iteration").and_then(|v| v.as_u64()).unwrap_or(0);
@@ -113,6 +126,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                 bar.set_message("train");
             }
             bar.set_position(it);
+            log_progress("train (iterations)", it, total);
         }
         Event::Control(k, n) => {
             if bar.length() != Some(n as u64) {
@@ -120,6 +134,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                 bar.set_message("control");
             }
             bar.set_position(k as u64);
+            log_progress("control (steps)", k as u64, n as u64);
         }
     })?;
     bar.finish_and_clear();
