@@ -192,7 +192,7 @@ def _report(a: argparse.Namespace) -> int:
     # The same controllers on an arm whose actuators realise only `command_gain` of each command
     # (a mismatch none of them was told about): what feedback corrects. The MPC is the service's
     # controller, in-process (koopbridge.Mpc, same model and settings).
-    disturbed = None
+    disturbed, dis = None, {}
     if a.command_gain != 1.0 and ctrl.get("mpc"):
         from .. import Mpc
 
@@ -226,7 +226,7 @@ def _report(a: argparse.Namespace) -> int:
         plot=None if a.no_plot else "kinova.png",
     )
     if not a.no_plot:
-        _plot(out / "kinova.png", ref, runs, sim.dt)
+        _plot(out / "kinova.png", ref, runs, sim.dt, dis if disturbed else None, a.command_gain)
     update_report(rep_path, "kinova", entry)
     rows = dict(entry["controllers"], **{"hold-still": entry["hold_still"]})
     if disturbed:
@@ -235,7 +235,8 @@ def _report(a: argparse.Namespace) -> int:
     return 0
 
 
-def _plot(path: Path, ref: np.ndarray, runs: dict[str, np.ndarray], dt: float) -> None:
+def _plot(path: Path, ref: np.ndarray, runs: dict[str, np.ndarray], dt: float,
+          disturbed: dict[str, np.ndarray] | None = None, gain: float = 1.0) -> None:
     import io
 
     import matplotlib
@@ -246,7 +247,8 @@ def _plot(path: Path, ref: np.ndarray, runs: dict[str, np.ndarray], dt: float) -
     from .dataset_npz import write_atomic
 
     t = dt * np.arange(len(ref))
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(13, 5))
+    fig, axes = plt.subplots(1, 3 if disturbed else 2, figsize=(19 if disturbed else 13, 5))
+    ax1, ax2 = axes[0], axes[1]
     for j in range(7):
         line = ax1.plot(t, ref[:, j], "--", lw=1.2)[0]
         ax1.plot(t, runs["koopman-mpc"][:, j], "-", lw=0.9, color=line.get_color(), label=f"q{j + 1}")
@@ -260,6 +262,14 @@ def _plot(path: Path, ref: np.ndarray, runs: dict[str, np.ndarray], dt: float) -
     ax2.set_xlabel("time (s)")
     ax2.set_ylabel("rad")
     ax2.legend(fontsize=8)
+    if disturbed:
+        ax3 = axes[2]
+        for name, x in disturbed.items():
+            ax3.semilogy(t, np.maximum(np.linalg.norm(x[:, :7] - ref[:, :7], axis=1), 1e-9), lw=1, label=name)
+        ax3.set_title(f"the same on an arm realising {gain:g} x each command")
+        ax3.set_xlabel("time (s)")
+        ax3.set_ylabel("rad")
+        ax3.legend(fontsize=8)
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
