@@ -1,11 +1,12 @@
 """The figure-8 steps of ``scenarios/franka-figure8.toml``: ``reference`` writes SPEC's joint
 reference (``figure8_ref.references``) as the ``(T, nx)`` ``.npy`` that ``[control]
 reference_file`` reads, ``x0`` prints the start state, and ``report`` (an ``after-control``
-hook) scores the orchestrator's closed loop with SPEC's error against zero input and the greedy
-joint follower on the same simulator, adds the result to ``report.json`` and draws
-``figure8.png``.
+hook) scores the orchestrator's closed loop with SPEC's error against zero input, the greedy
+joint follower and the error-state Koopman MPC about the reference's plan (its joint velocities
+as feed-forward; the run's model, in-process) on the same simulator, adds the result to
+``report.json`` and draws ``figure8.png``.
 
-    python -m koopbridge.experiments.figure8_scenario reference --out OUT/figure8-reference.npy [--steps 3001]
+    python -m koopbridge.experiments.figure8_scenario reference --out OUT/figure8-reference.npy [--steps 3001] [--feedforward OUT/figure8-feedforward.npy]
     python -m koopbridge.experiments.figure8_scenario x0 [--u-limit 1.0]
     python -m koopbridge.experiments.figure8_scenario report --out OUT [--sim arm0] [--u-limit 1.0]
 
@@ -75,14 +76,42 @@ def _baseline(sim: Any, task: Figure8, kind: str, u_limit: float) -> np.ndarray:
     return np.array(xs)
 
 
+def plan_of(sim: Any, task: Figure8, u_limit: float) -> tuple[np.ndarray, np.ndarray]:
+    """The plan the IK reference defines: the states ``[target, q_ref, q̇]`` with q̇ the joint
+    velocities ``(q_ref,k − q_ref,k−1)/dt`` (clipped to ``u_limit``; 0 at k = 0), and those
+    velocities as the inputs ``(T − 1, 7)`` (input k drives state k to k + 1)."""
+    off = 3 if sim.with_ee else 0
+    uff = np.clip(np.diff(task.q, axis=0) / sim.options.dt, -u_limit, u_limit)
+    plan = task.x.copy()
+    plan[1:, off + 7 : off + 14] = uff
+    return plan, uff
+
+
+def _error_state(sim: Any, task: Figure8, model: str, u_limit: float, horizon: int = 15) -> np.ndarray:
+    """States of the error-state Koopman MPC (``koopbridge.Mpc``, SPEC's Q = I, R = 0) about
+    the reference's plan (``plan_of``: its joint velocities as feed-forward); in-process."""
+    from .. import Mpc
+
+    plan, uff = plan_of(sim, task, u_limit)
+    uff_h = np.concatenate([uff, np.zeros((horizon, 7))])
+    mpc = Mpc(model, horizon=horizon, u_min=[-u_limit] * 7, u_max=[u_limit] * 7)
+    x = sim.reset(x0=task.x0)
+    xs = [x]
+    for k in range(len(task.x) - 1):
+        x = sim.step(np.asarray(mpc.solve(x, plan[k], feedforward=uff_h[k : k + horizon])["u"])[0])
+        xs.append(x)
+    return np.array(xs)
+
+
 def _ee_path(sim: Any, x: np.ndarray) -> np.ndarray:
     """End-effector positions of the states ``x`` by forward kinematics of their q."""
     off = 3 if sim.with_ee else 0
     return np.array([sim.ee_position(xi[off : off + 7]) for xi in x])
 
 
-def report(out: Path, sim_id: str, state: str, u_limit: float, plot: bool = True) -> dict[str, Any]:
-    """Scores the closed loop in ``out/report.json`` (see the module doc); returns the entry added."""
+def report(out: Path, sim_id: str, state: str, u_limit: float, plot: bool = True, error_state: bool = True) -> dict[str, Any]:
+    """Scores the closed loop in ``out/report.json`` (see the module doc); returns the entry added.
+    ``error_state``: also run the error-state MPC about the reference's plan with the run's model."""
     from .figure8 import Run
 
     rep_path = out / "report.json"
@@ -100,6 +129,12 @@ def report(out: Path, sim_id: str, state: str, u_limit: float, plot: bool = True
         ee = _ee_path(sim, xb)
         errors[name] = tracking_error(ee, task.targets)
         runs.append(Run(name, np.c_[ee, xb] if not sim.with_ee else xb, np.zeros((len(xb) - 1, 7)), [], [], 0.0, {}))
+    if error_state and ctrl.get("model"):
+        # Not SPEC's formulation (q̇_ref = 0): the deviation from the plan the reference defines.
+        xe = _error_state(sim, task, str(out / "models" / ctrl["model"]), u_limit)
+        ee = _ee_path(sim, xe)
+        errors["error-state-mpc"] = tracking_error(ee, task.targets)
+        runs.append(Run("error-state-mpc", np.c_[ee, xe] if not sim.with_ee else xe, np.zeros((len(xe) - 1, 7)), [], [], 0.0, {}))
     dev = np.linalg.norm(_ee_path(sim, x)[:, 1:3] - task.targets[:, 1:3], axis=1)
     entry = dict(
         metric=f"Frobenius norm of the (y, z) end-effector deviation after the first {SKIP} steps (SPEC)",
@@ -111,7 +146,8 @@ def report(out: Path, sim_id: str, state: str, u_limit: float, plot: bool = True
         saturated_fraction=round(float(np.mean(np.abs(u) >= u_limit - 1e-9)), 4),
         max_ref_joint_speed=[round(float(v), 4) for v in np.abs(np.diff(task.q, axis=0)).max(axis=0) / sim.options.dt],
         ik_max_error_m=task.ik_error,
-        baselines="zero input and the greedy joint follower u = clip((q_ref,k+1 - q_k)/dt, ±u_limit), in-process on the same simulator",
+        baselines="zero input and the greedy joint follower u = clip((q_ref,k+1 - q_k)/dt, ±u_limit), in-process on the same simulator"
+        + ("; error-state-mpc: the run's model, Q = I, feed-forward = the reference's joint velocities, in-process" if "error-state-mpc" in errors else ""),
         plot="figure8.png" if plot else None,
     )
     if plot:
@@ -132,12 +168,16 @@ def parser() -> argparse.ArgumentParser:
     r = sub.add_parser("reference", parents=[common], help="write the (T, nx) joint reference .npy")
     r.add_argument("--out", required=True, help="the .npy to write")
     r.add_argument("--steps", type=int, default=3001, help="points k = 0..steps-1 (SPEC: 3001)")
+    r.add_argument("--feedforward", metavar="NPY",
+                   help="also write the reference's joint velocities (T-1, 7) here, as the q̇ of the reference too: "
+                        "the plan for [control] feedforward_file (error-state MPC; SPEC's reference has q̇ = 0)")
     x = sub.add_parser("x0", parents=[common], help="print the start state (JSON) for [control] x0")
     x.add_argument("--steps", type=int, default=2, help=argparse.SUPPRESS)
     rep = sub.add_parser("report", parents=[common], help="score the closed loop of OUT/report.json, draw OUT/figure8.png")
     rep.add_argument("--out", required=True, help="the run's output folder (holds report.json)")
     rep.add_argument("--sim", default="arm0", help="the controlled simulator's id (default: %(default)s)")
     rep.add_argument("--no-plot", action="store_true", help="skip figure8.png")
+    rep.add_argument("--no-error-state", action="store_true", help="skip the in-process error-state MPC row")
     return p
 
 
@@ -146,7 +186,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     a = parser().parse_args(argv)
     if a.cmd == "report":
         try:
-            entry = report(Path(a.out), a.sim, a.state, a.u_limit, plot=not a.no_plot)
+            entry = report(Path(a.out), a.sim, a.state, a.u_limit, plot=not a.no_plot, error_state=not a.no_error_state)
         except (OSError, KeyError, ValueError) as e:
             print(f"figure8_scenario report: {e}", file=sys.stderr)
             return 2
@@ -155,11 +195,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     if a.steps < 2:
         print("figure8_scenario: --steps must be at least 2", file=sys.stderr)
         return 2
-    task = references(simulator(a.state, a.u_limit), a.steps)
+    sim = simulator(a.state, a.u_limit)
+    task = references(sim, a.steps)
     if a.cmd == "x0":
         print(json.dumps([round(float(v), 12) for v in task.x0]))
         return 0
-    write_npy(a.out, task.x)
+    if a.feedforward:
+        plan, uff = plan_of(sim, task, a.u_limit)
+        write_npy(a.out, plan)
+        write_npy(a.feedforward, uff)
+    else:
+        write_npy(a.out, task.x)
     print(f"figure8 reference: {task.x.shape} to {a.out} (IK error <= {task.ik_error:.2e} m)", file=sys.stderr)
     return 0
 
