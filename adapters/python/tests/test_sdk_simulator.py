@@ -257,15 +257,18 @@ def test_run_main_prints_the_counters_after_ctrl_c(session_id):
     import time
 
     code = _INTERRUPTIBLE.replace("SESSION", repr(session_id))
-    p = subprocess.Popen([sys.executable, "-c", code], stderr=subprocess.PIPE, text=True)
+    # A test run started in the background (`nohup … &`) hands its children SIGINT ignored, and
+    # Python then installs no handler for it: restore the default so that Ctrl-C is Ctrl-C.
+    p = subprocess.Popen([sys.executable, "-c", code], stderr=subprocess.PIPE, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         assert p.stderr is not None
         first = p.stderr.readline()
         assert "as sim 'sim0'" in first, first
         time.sleep(1.0)  # about 200 ticks at 200 Hz
         p.send_signal(signal.SIGINT)
-        err = p.stderr.read()
-        assert p.wait(timeout=20) == 130, err
+        _, err = p.communicate(timeout=20)
+        assert p.returncode == 130, err
     finally:
         p.kill()
     assert "interrupted after" in err, err
