@@ -79,6 +79,7 @@ def test_kinova_drake_scenario_tracks_held_out_plans(tmp_path, repo_tmp):
     assert k["feed-forward"]["rms_rad"] < zero and k["feed-forward+lqr"]["rms_rad"] < np.inf
     assert k["koopman-mpc"]["rms_rad"] < k["feed-forward"]["rms_rad"], seen
     # The mismatched arm (actuators realise 0.9 of each command): every controller scored.
+    assert rep["kinova"]["mpc"]["error_state"] is True and rep["kinova"]["mpc"]["settings"]["horizon"] == 15
     dis = rep["kinova"]["disturbed"]
     assert dis["command_gain"] == 0.9 and dis["mpc"].startswith("error-state")
     assert all(np.isfinite(v["rms_rad"]) for v in dis["controllers"].values())
