@@ -96,7 +96,7 @@ proptest! {
 
     #[test]
     fn arbitrary_bodies_behind_a_valid_header_never_panic(
-        t in 0u8..8,
+        t in 0u8..10,
         body in prop::collection::vec(any::<u8>(), 0..256),
     ) {
         let mut b = MAGIC.to_vec();

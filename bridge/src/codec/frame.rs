@@ -137,10 +137,6 @@ impl<'a> Reader<'a> {
         }
         (0..n).map(|_| self.f64()).collect()
     }
-    /// True when the whole payload has been read (an optional trailing field is absent).
-    pub(super) fn is_empty(&self) -> bool {
-        self.b.is_empty()
-    }
     pub(super) fn finish(self) -> Result<()> {
         if self.b.is_empty() {
             Ok(())

@@ -96,26 +96,38 @@ impl CommandMsg {
 }
 
 impl SolveRequest {
-    /// Encodes: header, `len: u16`, model name (UTF-8), `n: u32`, `x`, `m: u32`, `reference`,
-    /// and only when there is one, `f: u32`, `feedforward`.
+    /// Encodes: header (type `0x05`, or `0x08` with a feed-forward), `len: u16`, model name
+    /// (UTF-8), `n: u32`, `x`, `m: u32`, `reference`, and for `0x08` `f: u32`, `feedforward`.
     pub fn encode(&self) -> Vec<u8> {
         let name = self.model.as_bytes();
+        let t = if self.feedforward.is_empty() {
+            MsgType::SolveRequest
+        } else {
+            MsgType::SolveRequestFeedforward
+        };
         let mut w = Writer::new(
-            MsgType::SolveRequest,
+            t,
             14 + name.len() + 8 * (self.x.len() + self.reference.len() + self.feedforward.len()),
         );
         w.u16(name.len().min(u16::MAX as usize) as u16);
         w.0.extend_from_slice(&name[..name.len().min(u16::MAX as usize)]);
         w.vec(&self.x);
         w.vec(&self.reference);
-        if !self.feedforward.is_empty() {
+        if t == MsgType::SolveRequestFeedforward {
             w.vec(&self.feedforward);
         }
         w.0
     }
-    /// Decodes and checks the whole payload.
+    /// Decodes and checks the whole payload (either type; a `0x08` request must carry a
+    /// non-empty feed-forward).
     pub fn decode(b: &[u8]) -> Result<Self> {
-        let mut r = Reader::new(b, MsgType::SolveRequest, "solve request")?;
+        let with_ff = b.len() >= 4 && b[3] == MsgType::SolveRequestFeedforward as u8;
+        let t = if with_ff {
+            MsgType::SolveRequestFeedforward
+        } else {
+            MsgType::SolveRequest
+        };
+        let mut r = Reader::new(b, t, "solve request")?;
         let len = r.u16()? as usize;
         let model = std::str::from_utf8(r.take(len)?)
             .map_err(|_| bad("solve request", "model name is not UTF-8"))?
@@ -124,9 +136,15 @@ impl SolveRequest {
             model,
             x: r.vec()?,
             reference: r.vec()?,
-            feedforward: if r.is_empty() { Vec::new() } else { r.vec()? },
+            feedforward: if with_ff { r.vec()? } else { Vec::new() },
         };
         r.finish()?;
+        if with_ff && m.feedforward.is_empty() {
+            return Err(bad(
+                "solve request",
+                "type 0x08 (with a feed-forward) but the feed-forward is empty",
+            ));
+        }
         Ok(m)
     }
 }

@@ -26,6 +26,9 @@ pub enum MsgType {
     SolveReply = 0x06,
     /// [`CollectChunk`].
     CollectChunk = 0x07,
+    /// [`SolveRequest`] with a feed-forward (its own type, so that no prefix of it is a valid
+    /// request without one).
+    SolveRequestFeedforward = 0x08,
 }
 
 /// `step` query: apply `u` at step `k` (`u_k` held over `[t_k, t_k + dt)`).
@@ -87,8 +90,9 @@ pub struct SolveRequest {
     pub reference: Vec<f64>,
     /// The plan's feed-forward inputs at the current and the next H−1 steps (`H·nu`), or empty.
     /// When given, the service plans the deviation from them (error-state MPC: the model's own
-    /// rollout of the plan is the reference, so its bias along the plan cancels). Optional on
-    /// the wire: a request without it ends after `reference`.
+    /// rollout of the plan is the reference, so its bias along the plan cancels). On the wire a
+    /// request with one has type `0x08` and the vector after `reference`; one without it is the
+    /// original `0x05` layout.
     pub feedforward: Vec<f64>,
 }
 

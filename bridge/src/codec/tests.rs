@@ -107,7 +107,7 @@ fn golden_solve() {
     };
     assert_eq!(
         hex(&f.encode()),
-        "4b420105\
+        "4b420108\
          0000\
          00000000\
          01000000\
@@ -116,10 +116,19 @@ fn golden_solve() {
          00000000000000c0"
     );
     assert_eq!(SolveRequest::decode(&f.encode()).unwrap(), f);
-    // A truncated feed-forward is an error, not an empty one.
-    let mut cut = f.encode();
-    cut.pop();
-    assert!(SolveRequest::decode(&cut).is_err());
+    // No prefix of it decodes (in particular not the one that ends before the feed-forward,
+    // which would silently be a request without one), nor a 0x08 request with an empty one.
+    let b = f.encode();
+    for n in 0..b.len() {
+        assert!(SolveRequest::decode(&b[..n]).is_err(), "{n}-byte prefix");
+    }
+    let mut empty = b[..b.len() - 12].to_vec();
+    empty.extend_from_slice(&[0, 0, 0, 0]);
+    assert!(SolveRequest::decode(&empty).is_err());
+    // A 0x05 request with bytes after the reference is refused, not read as a feed-forward.
+    let mut trailing = q.encode();
+    trailing.extend_from_slice(&b[b.len() - 12..]);
+    assert!(SolveRequest::decode(&trailing).is_err());
     let r = SolveReply {
         status: SolveStatus::Suboptimal,
         iterations: 9,
