@@ -47,10 +47,11 @@ def step_request(k: int, u: list[float]) -> bytes:
     return struct.pack("<2sBBQI", b"KB", 1, 0x01, k, len(u)) + struct.pack(f"<{len(u)}d", *u)
 
 
-def solve_request(model: str, x: list[float], ref: list[float]) -> bytes:
+def solve_request(model: str, x: list[float], ref: list[float], feedforward: list[float] | None = None) -> bytes:
+    """A `SolveRequest`: type 0x05, or 0x08 with a feed-forward (PROTOCOL.md §4)."""
     name = model.encode()
-    out = struct.pack("<2sBBH", b"KB", 1, 0x05, len(name)) + name
-    for v in (x, ref):
+    out = struct.pack("<2sBBH", b"KB", 1, 0x08 if feedforward else 0x05, len(name)) + name
+    for v in (x, ref, *([feedforward] if feedforward else [])):
         out += struct.pack("<I", len(v)) + struct.pack(f"<{len(v)}d", *v)
     return out
 
@@ -67,7 +68,8 @@ SEEDS = {
     ],
     "job": [b"", b'{"cancel": true}'],
     "configure": [b'{"model": "nope"}', b'{"model": "m", "mpc": {"horizon": 5}}'],
-    "solve": [solve_request("", [0.1, 0.2], [0.0, 0.0]), solve_request("m", [0.0], [])],
+    "solve": [solve_request("", [0.1, 0.2], [0.0, 0.0]), solve_request("m", [0.0], []),
+              solve_request("", [0.1, 0.2], [0.0, 0.0], [0.5] * 5)],
     "attach": [b'{"sim": "sim0", "model": "m", "reference": [0, 0]}', b'{"sim": "sim0", "detach": true}'],
     "record": [b'{"action": "start", "sim": "sim0"}', b'{"action": "stop", "sim": "sim0", "name": "r"}'],
     "models": [b""],

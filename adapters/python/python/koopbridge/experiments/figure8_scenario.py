@@ -28,7 +28,7 @@ import numpy as np
 from .dataset_npz import write_atomic
 from .figure8_ref import SKIP, Figure8, joint_p_command, references, tracking_error
 
-__all__ = ["closed_loop_of", "main", "parser", "simulator", "update_report"]
+__all__ = ["closed_loop_of", "main", "parser", "plan_of", "simulator", "update_report"]
 
 
 def simulator(state: str = "ee,q,qd", u_limit: float = 0.3) -> Any:
