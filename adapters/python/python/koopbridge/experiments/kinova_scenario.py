@@ -195,6 +195,7 @@ def _report(a: argparse.Namespace) -> int:
     disturbed, dis = None, {}
     if a.command_gain != 1.0 and ctrl.get("mpc"):
         from .. import Mpc
+        from ..adapters.drake_model import VELOCITY_LIMITS
 
         mpc_cfg = dict(ctrl["mpc"])
         H = int(mpc_cfg["horizon"])
@@ -206,9 +207,23 @@ def _report(a: argparse.Namespace) -> int:
             if error_state:
                 return np.asarray(mpc.solve(x, ref[k], feedforward=ff_h[k : k + H])["u"])[0]
             return np.asarray(mpc.solve(x, ref[k + 1 : k + 1 + H] if k + 1 + H <= len(ref) else _padded(ref[k + 1 :], H))["u"])[0]
+
+        def looped_cmd(k: int, x: np.ndarray) -> np.ndarray:
+            # The plan corrected by a position loop: planned velocities (inputs and the planned
+            # state's q̇ alike) minus gain · (q − q_plan); the error-state MPC plans around it.
+            corr = -a.position_gain * (x[:7] - ref[k, :7])
+            r = ref[k].copy()
+            r[7:] += corr
+            ffk = np.clip(ff_h[k : k + H] + corr, -VELOCITY_LIMITS, VELOCITY_LIMITS)
+            return np.asarray(mpc.solve(x, r, feedforward=ffk)["u"])[0]
+
         slow = DrakeGen3Sim(command_gain=a.command_gain)
         dis = {"koopman-mpc": _run(slow, ref[0], steps, mpc_cmd), "feed-forward": _run(slow, ref[0], steps, lambda k, x: ff[k]),
                "feed-forward+lqr": _run(slow, ref[0], steps, lqr)}
+        if error_state and a.position_gain > 0:
+            name = f"koopman-mpc+position-loop (gain {a.position_gain:g}, in-process)"
+            runs[name] = _run(sim, ref[0], steps, looped_cmd)
+            dis[name] = _run(slow, ref[0], steps, looped_cmd)
         disturbed = dict(command_gain=a.command_gain, mpc="error-state (in-process, the service's settings)" if error_state else "standard (in-process)",
                          controllers={k: tracking_errors(v, ref) for k, v in dis.items()})
     entry: dict[str, Any] = dict(
@@ -297,6 +312,8 @@ def parser() -> argparse.ArgumentParser:
     rep.add_argument("--q-weights", type=lambda s: [float(v) for v in s.split(",")], help="LQR state weights, 14 values (default: ones)")
     rep.add_argument("--r", type=float, default=1e-3, help="LQR input weight (times I; default: %(default)s)")
     rep.add_argument("--no-plot", action="store_true", help="skip kinova.png")
+    rep.add_argument("--position-gain", type=float, default=30.0,
+                     help="also run the error-state MPC about the plan corrected by this position loop, 1/s (0: skip; default: %(default)s)")
     rep.add_argument("--command-gain", type=float, default=0.9,
                      help="also run every controller on an arm whose actuators realise this multiple of each command (1: skip; default: %(default)s)")
     return p
