@@ -53,6 +53,7 @@ def test_franka_figure8_scenario_tracks_better_than_zero_input(tmp_path, repo_tm
     # The error-state MPC about the reference's plan, same model (in-process): far better
     # (0.70 vs 4.40 at this budget).
     assert e["error-state-mpc"] < 0.5 * e["koopman-mpc"], e
+    assert e["error-state-mpc+position-loop"] < 0.5 * e["error-state-mpc"], e  # 0.046 vs 0.70
     assert rep["figure8"]["steps"] == 600
     assert (tmp_path / "out" / "figure8.png").read_bytes()[:4] == b"\x89PNG"
 
