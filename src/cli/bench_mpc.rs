@@ -47,6 +47,12 @@ pub struct BenchMpcArgs {
     /// and whole-step times `step_ns` [S] (the format of an external QP anchor script).
     #[arg(long, value_name = "DIR")]
     pub dump_qps: Option<PathBuf>,
+    /// Also time the error-state MPC (`solve_about_plan`, dedicated solver) on the same states,
+    /// about a plan whose state is the reference's first row and whose feed-forward is the
+    /// dedicated solver's plan of the step: an `error-state` line per case, `vs_dedicated` its
+    /// median over the plain solve's (same run).
+    #[arg(long)]
+    pub error_state: bool,
 }
 
 /// One line of the report.
@@ -84,6 +90,9 @@ struct CaseResult {
     /// Clarabel median / dedicated median, on the dedicated line.
     #[serde(skip_serializing_if = "Option::is_none")]
     speedup_vs_clarabel: Option<f64>,
+    /// This line's median / the dedicated line's (the error-state line).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    vs_dedicated: Option<f64>,
     not_solved: usize,
 }
 
@@ -112,7 +121,7 @@ pub fn run(args: BenchMpcArgs) -> anyhow::Result<()> {
             "iters",
             "max|Δu|",
             "active",
-            "speedup"
+            "ratio"
         );
     }
     for &latent in &args.latent {
@@ -137,7 +146,10 @@ pub fn run(args: BenchMpcArgs) -> anyhow::Result<()> {
                             c.mean_iterations,
                             c.max_abs_input_diff,
                             c.active_fraction,
-                            c.speedup_vs_clarabel.map(|s| format!("{s:.1}x")).unwrap_or_default()
+                            c.speedup_vs_clarabel
+                                .or(c.vs_dedicated)
+                                .map(|s| format!("{s:.2}x"))
+                                .unwrap_or_default()
                         );
                     }
                 }
@@ -248,6 +260,11 @@ fn bench_case(
         ..free_cfg
     };
     let mut ded = MpcController::new(&model, &cfg)?;
+    let mut es = if args.error_state {
+        Some(MpcController::new(&model, &cfg)?)
+    } else {
+        None
+    };
     let mut cla = if args.no_clarabel {
         None
     } else {
@@ -276,7 +293,9 @@ fn bench_case(
     let phases: Vec<f64> = (0..nx)
         .map(|_| rng.uniform(0.0, std::f64::consts::TAU))
         .collect();
-    let (mut t_ded, mut t_qp, mut t_cla) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut t_ded, mut t_qp, mut t_cla, mut t_es) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (mut it_es, mut bad_e) = (0usize, 0usize);
     let (mut it_ded, mut it_cla, mut diff, mut active, mut bad_d, mut bad_c) =
         (0usize, 0usize, 0.0f64, 0usize, 0, 0);
     let mut x = x0;
@@ -299,6 +318,13 @@ fn bench_case(
         record.step_ns.push(sd.solve_time.as_secs_f64() * 1e9);
         it_ded += sd.iterations;
         bad_d += usize::from(sd.status != SolveStatus::Solved);
+        if let Some(es) = es.as_mut() {
+            let t1 = Instant::now();
+            let se = es.solve_about_plan(&x, &reference[..nx], &sd.u)?;
+            t_es.push(t1.elapsed().as_secs_f64());
+            it_es += se.iterations;
+            bad_e += usize::from(se.status != SolveStatus::Solved);
+        }
         if let Some(cla) = cla.as_mut() {
             let t1 = Instant::now();
             let sc = cla.solve(&x, &reference)?;
@@ -353,6 +379,7 @@ fn bench_case(
         max_abs_input_diff: diff,
         active_fraction: active as f64 / (n * nv as f64),
         speedup_vs_clarabel: speed,
+        vs_dedicated: None,
         not_solved: bad,
     };
     let qp = Some(quantile_ms(&mut t_qp, 0.5));
@@ -367,6 +394,12 @@ fn bench_case(
     )];
     if let Some(mc) = mc {
         lines.push(mk("clarabel", &mut t_cla, mc, None, it_cla, bad_c, None));
+    }
+    if !t_es.is_empty() {
+        let me = quantile_ms(&mut t_es, 0.5);
+        let mut line = mk("error-st", &mut t_es, me, None, it_es, bad_e, None);
+        line.vs_dedicated = Some(me / md);
+        lines.push(line);
     }
     Ok(lines)
 }

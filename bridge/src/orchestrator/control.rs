@@ -19,7 +19,6 @@ struct Prepared {
     sim: usize,
     model: String,
     reference: Reference,
-    horizon: usize,
     mpc: koopman::mpc::MpcConfig,
 }
 
@@ -51,7 +50,6 @@ pub fn control_phase(
         let info = &clients[j].info.sim;
         let model = (what.model_of)(&sc.sims[j].id);
         let mpc = mpc_config(info, &ctrl.mpc)?;
-        let horizon = mpc.horizon;
         let reference = reference_of(ctrl, info.nx(), info.nu(), ph).map_err(|e| {
             crate::error::Error::Config(format!("[control] for simulator '{}': {e}", sc.sims[j].id))
         })?;
@@ -65,7 +63,6 @@ pub fn control_phase(
             sim: j,
             model,
             reference,
-            horizon,
             mpc,
         });
     }
@@ -89,7 +86,7 @@ pub fn control_phase(
                     model: &p.model,
                     x0: &ctrl.x0,
                     reference: &p.reference,
-                    horizon: p.horizon,
+                    horizon: p.mpc.horizon,
                     steps: ctrl.steps,
                     publish,
                 },

@@ -11,9 +11,6 @@ use super::reference::{load_feedforward, load_trajectory};
 use crate::error::{Error, Result};
 use crate::messages::SimInfo;
 use crate::scenario::{ControlSpec, Scenario};
-
-/// Loads and checks one of a control entry's files against the simulator's `info`.
-type LoadRows = fn(&std::path::Path, &SimInfo) -> Result<()>;
 use crate::services::koopman_trainer::train_config;
 
 /// The MPC settings of a scenario's `[control].mpc` for a simulator: SPEC defaults with the
@@ -74,28 +71,22 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
             o.check(infos[j].nx()).map_err(|e| at(e.to_string()))?;
         }
         // A file that exists already is checked now; one a hook writes, when control starts.
-        let files: [(Option<&str>, LoadRows); 2] = [
-            (ctrl.reference_file.as_deref(), |p, i| {
-                load_trajectory(p, i.nx()).map(drop)
-            }),
-            (ctrl.feedforward_file.as_deref(), |p, i| {
-                load_feedforward(p, i.nu()).map(drop)
-            }),
-        ];
-        for (f, load) in files {
-            let Some(f) = f.filter(|f| !f.contains("{out}")) else {
-                continue;
-            };
+        let existing = |f: &Option<String>| {
+            let f = f.as_deref().filter(|f| !f.contains("{out}"))?;
             let p = std::path::Path::new(f);
             let p = match &sc.base_dir {
                 Some(b) if p.is_relative() => b.join(p),
                 _ => p.to_path_buf(),
             };
-            if p.is_file() {
-                load(&p, infos[j]).map_err(|e| {
-                    Error::Config(format!("[control] for simulator '{}': {e}", sc.sims[j].id))
-                })?;
-            }
+            p.is_file().then_some(p)
+        };
+        let at =
+            |e: Error| Error::Config(format!("[control] for simulator '{}': {e}", sc.sims[j].id));
+        if let Some(p) = existing(&ctrl.reference_file) {
+            load_trajectory(&p, infos[j].nx()).map_err(at)?;
+        }
+        if let Some(p) = existing(&ctrl.feedforward_file) {
+            load_feedforward(&p, infos[j].nu()).map_err(at)?;
         }
     }
     Ok(())

@@ -93,6 +93,7 @@ def _error_state(sim: Any, task: Figure8, model: str, u_limit: float, horizon: i
     ``position_gain`` (1/s) the plan is first corrected by a position loop: its velocities (the
     inputs and the planned state's q̇ alike) minus gain · (q − q_ref)."""
     from .. import Mpc
+    from .plan_loop import corrected_plan
 
     off = 3 if sim.with_ee else 0
     plan, uff = plan_of(sim, task, u_limit)
@@ -101,10 +102,7 @@ def _error_state(sim: Any, task: Figure8, model: str, u_limit: float, horizon: i
     x = sim.reset(x0=task.x0)
     xs = [x]
     for k in range(len(task.x) - 1):
-        corr = -position_gain * (x[off : off + 7] - task.q[k])
-        r = plan[k].copy()
-        r[off + 7 : off + 14] += corr
-        ff = np.clip(uff_h[k : k + horizon] + corr, -u_limit, u_limit)
+        r, ff = corrected_plan(x, plan[k], uff_h[k : k + horizon], slice(off, off + 7), slice(off + 7, off + 14), position_gain, u_limit)
         x = sim.step(np.asarray(mpc.solve(x, r, feedforward=ff)["u"])[0])
         xs.append(x)
     return np.array(xs)

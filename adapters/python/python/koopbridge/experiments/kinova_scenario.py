@@ -196,6 +196,7 @@ def _report(a: argparse.Namespace) -> int:
     if a.command_gain != 1.0 and ctrl.get("mpc"):
         from .. import Mpc
         from ..adapters.drake_model import VELOCITY_LIMITS
+        from .plan_loop import corrected_plan
 
         mpc_cfg = dict(ctrl["mpc"])
         H = int(mpc_cfg["horizon"])
@@ -209,12 +210,7 @@ def _report(a: argparse.Namespace) -> int:
             return np.asarray(mpc.solve(x, ref[k + 1 : k + 1 + H] if k + 1 + H <= len(ref) else _padded(ref[k + 1 :], H))["u"])[0]
 
         def looped_cmd(k: int, x: np.ndarray) -> np.ndarray:
-            # The plan corrected by a position loop: planned velocities (inputs and the planned
-            # state's q̇ alike) minus gain · (q − q_plan); the error-state MPC plans around it.
-            corr = -a.position_gain * (x[:7] - ref[k, :7])
-            r = ref[k].copy()
-            r[7:] += corr
-            ffk = np.clip(ff_h[k : k + H] + corr, -VELOCITY_LIMITS, VELOCITY_LIMITS)
+            r, ffk = corrected_plan(x, ref[k], ff_h[k : k + H], slice(0, 7), slice(7, 14), a.position_gain, VELOCITY_LIMITS)
             return np.asarray(mpc.solve(x, r, feedforward=ffk)["u"])[0]
 
         slow = DrakeGen3Sim(command_gain=a.command_gain)
