@@ -189,6 +189,13 @@ pub struct ControlSpec {
     /// the plan cancels; a lifted-linear model only).
     #[serde(default)]
     pub feedforward_file: Option<String>,
+    /// A position loop on the plan (arms commanded in joint velocities; needs
+    /// `feedforward_file`): at every step the orchestrator corrects the planned velocities — in
+    /// the feed-forward window and in the planned state alike — by `−gain · (q − q_plan)`, and
+    /// the error-state MPC plans about the corrected plan. What corrects an actuator mismatch
+    /// that no MPC weighting of the model does (BENCHMARKS.md, session 8).
+    #[serde(default)]
+    pub position_loop: Option<PositionLoopSpec>,
     /// Closed-loop steps.
     pub steps: usize,
     /// `koopman::mpc::MpcConfig` fields to override (JSON object).
@@ -202,6 +209,20 @@ pub struct ControlSpec {
     /// `disturbance` or `integral`), `radius`, `gain` (nx values), `angles`.
     #[serde(default)]
     pub offset_free: Option<koopman::mpc::OffsetFreeConfig>,
+}
+
+/// A position loop on a plan: which state components are the joint positions and which their
+/// velocities (input `i` commands velocity `velocity[i]` and corrects position `position[i]`),
+/// and the loop's gain.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PositionLoopSpec {
+    /// State indices of the joint positions (`nu` of them, input order).
+    pub position: Vec<usize>,
+    /// State indices of the joint velocities (`nu` of them, input order).
+    pub velocity: Vec<usize>,
+    /// Gain in 1/s: the velocity correction per unit of position error (≥ 0).
+    pub gain: f64,
 }
 
 /// Overrides for `--full`.
@@ -301,6 +322,21 @@ impl Scenario {
                     "[control] for '{}': `feedforward_file` needs the `reference_file` it realises",
                     self.controlled_id(ctrl)
                 )));
+            }
+            if let Some(pl) = &ctrl.position_loop {
+                if ctrl.feedforward_file.is_none() {
+                    return Err(Error::Config(format!(
+                        "[control] for '{}': `position_loop` corrects a plan and needs `feedforward_file`",
+                        self.controlled_id(ctrl)
+                    )));
+                }
+                if !(pl.gain.is_finite() && pl.gain >= 0.0) {
+                    return Err(Error::Config(format!(
+                        "[control] for '{}': position_loop.gain must be finite and ≥ 0, got {}",
+                        self.controlled_id(ctrl),
+                        pl.gain
+                    )));
+                }
             }
             if self.control[..i]
                 .iter()
@@ -425,6 +461,18 @@ train_config = { iterations = 60000 }
         );
         let plan = ff.replace("reference = [0.0, 0.0]", "reference_file = \"r.npy\"");
         assert!(Scenario::parse(&plan).is_ok());
+        // A position loop corrects a plan: without `feedforward_file`, or with a bad gain, refused.
+        let looped = "steps = 20\nposition_loop = { position = [0], velocity = [1], gain = 30.0 }";
+        let pl = plan.replace("steps = 20", looped);
+        assert!(Scenario::parse(&pl).is_ok());
+        let e = Scenario::parse(&GOOD.replace("steps = 20", looped))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("needs `feedforward_file`"), "{e}");
+        let e = Scenario::parse(&pl.replace("gain = 30.0", "gain = -1.0"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("position_loop.gain"), "{e}");
         assert!(Scenario::parse(&GOOD.replace(
             "[[sims]]\nid = \"pend\"",
             "[[sims]]\nid = \"pend\"\n[[sims]]\nid = \"pend\""

@@ -79,15 +79,21 @@ def test_kinova_drake_scenario_tracks_held_out_plans(tmp_path, repo_tmp):
     assert k["koopman-mpc"]["rms_rad"] < 0.5 * zero and k["koopman-mpc"]["final_rad"] < rep["kinova"]["hold_still"]["final_rad"], seen
     assert k["feed-forward"]["rms_rad"] < zero and k["feed-forward+lqr"]["rms_rad"] < np.inf
     assert k["koopman-mpc"]["rms_rad"] < k["feed-forward"]["rms_rad"], seen
+    # Through the bridge: the error-state MPC about the plan corrected by the orchestrator's
+    # position loop (`[control] position_loop`, gain 30/s). The service's run replayed in-process
+    # (koopbridge.Mpc + plan_loop.corrected_plan, a second computation of the correction) agrees.
+    assert rep["kinova"]["through_service"] == "koopman-mpc+position-loop"
+    assert rep["kinova"]["position_loop"]["gain"] == 30.0
+    assert rep["kinova"]["service_replay"]["max_abs_state_difference"] < 1e-6, rep["kinova"]["service_replay"]
     # The mismatched arm (actuators realise 0.9 of each command): every controller scored.
     assert rep["kinova"]["mpc"]["error_state"] is True and rep["kinova"]["mpc"]["settings"]["horizon"] == 15
     dis = rep["kinova"]["disturbed"]
     assert dis["command_gain"] == 0.9 and dis["mpc"].startswith("error-state")
     assert all(np.isfinite(v["rms_rad"]) for v in dis["controllers"].values())
     assert dis["controllers"]["feed-forward"]["rms_rad"] > 10 * k["feed-forward"]["rms_rad"]
-    # The plan corrected by a position loop (gain 30/s) around the error-state MPC: feedback that
-    # acts (at this budget 0.0002 vs 0.0045 nominal; final error 0.128 vs 0.276 on the 0.9 arm).
-    looped = next(n for n in dis["controllers"] if n.startswith("koopman-mpc+position-loop"))
+    # The position loop is feedback that acts (at this budget 0.0002 vs 0.0045 nominal; final
+    # error 0.128 vs 0.276 on the 0.9 arm).
+    looped = "koopman-mpc+position-loop"
     assert k[looped]["rms_rad"] < 0.5 * k["feed-forward"]["rms_rad"], k[looped]
     assert dis["controllers"][looped]["final_rad"] < 0.75 * dis["controllers"]["feed-forward"]["final_rad"], dis["controllers"]
     meta = json.loads((out / "data" / "gen3" / "train.json").read_text())

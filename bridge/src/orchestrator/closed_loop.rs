@@ -7,6 +7,7 @@ use std::time::{Duration, Instant};
 use koopman::mpc::metrics::{final_error, quantile, time_to_goal, wrapped_error, GoalSpec};
 use serde::{Deserialize, Serialize};
 
+use super::position_loop::PositionLoop;
 use super::reference::Reference;
 use crate::client::{Client, Liveliness, SimClient};
 use crate::codec::{SolveReply, SolveRequest, SolveStatus, StateMsg};
@@ -68,6 +69,9 @@ pub struct ControlReport {
     /// MPC), false for the standard MPC.
     #[serde(default)]
     pub error_state: bool,
+    /// The position loop that corrected the plan at every step (`[control] position_loop`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position_loop: Option<crate::scenario::PositionLoopSpec>,
 }
 
 /// A closed-loop control task for the MPC service.
@@ -83,6 +87,8 @@ pub struct ControlTask<'a> {
     pub reference: &'a Reference,
     /// The MPC horizon H (the window of a trajectory reference has H rows).
     pub horizon: usize,
+    /// A position loop that corrects a plan's window before each solve.
+    pub position_loop: Option<&'a PositionLoop>,
     /// Closed-loop steps.
     pub steps: usize,
     /// Publish every executed state on the simulator's `state` key (`StateMsg`, as a free-run
@@ -174,11 +180,16 @@ impl<'a> ControlRun<'a> {
     /// first input, step the simulator.
     pub fn step(&mut self, client: &Client, live: &Liveliness) -> Result<()> {
         let k = self.us.len();
+        let (r, h) = (self.task.reference, self.task.horizon);
+        let (mut reference, mut feedforward) = (r.window(k, h), r.feedforward(k, h));
+        if let (Some(pl), Reference::Plan { .. }) = (self.task.position_loop, r) {
+            pl.correct(&self.xs[k], &mut reference, &mut feedforward);
+        }
         let req = SolveRequest {
             model: self.task.model.to_string(),
             x: self.xs[k].clone(),
-            reference: self.task.reference.window(k, self.task.horizon),
-            feedforward: self.task.reference.feedforward(k, self.task.horizon),
+            reference,
+            feedforward,
         };
         let t = Instant::now();
         let p = client.start(&self.key, req.encode(), Duration::from_secs(10), &self.who)?;
@@ -248,6 +259,7 @@ impl<'a> ControlRun<'a> {
             not_solved: self.not_solved,
             mpc: None,
             error_state: matches!(r, Reference::Plan { .. }),
+            position_loop: self.task.position_loop.map(|p| p.spec().clone()),
             x: self.xs,
             u: self.us,
         }

@@ -6,11 +6,12 @@ use std::time::Duration;
 
 use super::commands::Placeholders;
 use super::control_loop::{control_loop, LoopReport};
+use super::position_loop::PositionLoop;
 use super::reference::{reference_of, Reference};
 use super::validate::{controlled_sim, mpc_config};
 use super::{ControlReport, ControlTask, Event, SERVICES_ID};
 use crate::client::{Client, Liveliness, SimClient};
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::scenario::Scenario;
 use crate::services::mpc::{configure, ConfigureRequest};
 
@@ -20,6 +21,7 @@ struct Prepared {
     model: String,
     reference: Reference,
     mpc: koopman::mpc::MpcConfig,
+    position_loop: Option<PositionLoop>,
 }
 
 /// What the control phase is asked to do.
@@ -50,9 +52,13 @@ pub fn control_phase(
         let info = &clients[j].info.sim;
         let model = (what.model_of)(&sc.sims[j].id);
         let mpc = mpc_config(info, &ctrl.mpc)?;
-        let reference = reference_of(ctrl, info.nx(), info.nu(), ph).map_err(|e| {
-            crate::error::Error::Config(format!("[control] for simulator '{}': {e}", sc.sims[j].id))
-        })?;
+        let at =
+            |e: Error| Error::Config(format!("[control] for simulator '{}': {e}", sc.sims[j].id));
+        let reference = reference_of(ctrl, info.nx(), info.nu(), ph).map_err(at)?;
+        let position_loop = match &ctrl.position_loop {
+            Some(s) => Some(position_loop_of(s, info, &mpc).map_err(|e| at(Error::Config(e)))?),
+            None => None,
+        };
         let req = ConfigureRequest {
             model: model.clone(),
             mpc: Some(mpc.clone()),
@@ -64,6 +70,7 @@ pub fn control_phase(
             model,
             reference,
             mpc,
+            position_loop,
         });
     }
     let run = |clients: &mut [SimClient],
@@ -87,6 +94,7 @@ pub fn control_phase(
                     x0: &ctrl.x0,
                     reference: &p.reference,
                     horizon: p.mpc.horizon,
+                    position_loop: p.position_loop.as_ref(),
                     steps: ctrl.steps,
                     publish,
                 },
@@ -119,4 +127,20 @@ pub fn control_phase(
             Some(slowest / figures.macro_steps_per_second.max(1e-9));
     }
     Ok((reports, figures))
+}
+
+/// The position loop of a control entry, its inputs clipped to the MPC's bounds (the scenario's
+/// intersected with the simulator's); the error says what does not fit.
+pub fn position_loop_of(
+    spec: &crate::scenario::PositionLoopSpec,
+    info: &crate::messages::SimInfo,
+    mpc: &koopman::mpc::MpcConfig,
+) -> std::result::Result<PositionLoop, String> {
+    PositionLoop::new(
+        spec,
+        info.nx(),
+        info.nu(),
+        mpc.u_min.as_deref(),
+        mpc.u_max.as_deref(),
+    )
 }

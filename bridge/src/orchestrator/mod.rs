@@ -20,6 +20,7 @@ pub mod cluster;
 pub mod commands;
 pub mod control;
 pub mod control_loop;
+pub mod position_loop;
 pub mod reference;
 pub mod reuse;
 pub mod run;
@@ -33,6 +34,7 @@ use crate::session::ZenohOptions;
 pub use closed_loop::{closed_loop, ControlReport, ControlTask};
 pub use cluster::Cluster;
 pub use control_loop::{control_loop, LoopReport};
+pub use position_loop::PositionLoop;
 pub use reference::Reference;
 pub use run::{run_scenario, run_scenario_with, CollectReport, Report, RunExtras, TrainReport};
 

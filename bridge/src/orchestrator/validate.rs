@@ -137,6 +137,11 @@ fn validate_control(ctrl: &ControlSpec, sim: &str, info: &SimInfo) -> Result<()>
             "MPC needs states and inputs (nx = {nx}, nu = {nu})"
         ));
     }
+    if let Some(pl) = &ctrl.position_loop {
+        if let Err(e) = super::control::position_loop_of(pl, info, &cfg) {
+            return bad(e);
+        }
+    }
     // The real controller is built by the MPC service from the trained model after training;
     // the same settings on a stand-in model of the same dimensions fail the same way now.
     let model = stand_in::build(StandIn::Dimensions { nx, nu })

@@ -184,16 +184,21 @@ def _report(a: argparse.Namespace) -> int:
     z_ref = np.asarray(model.encode(ref), float)
     sim = DrakeGen3Sim()
     lqr = lambda k, x: ff[k] - K @ (np.asarray(model.encode(x), float) - z_ref[k])  # noqa: E731
+    # The service's closed loop is the row `through_service` names: the error-state MPC, about the
+    # plan corrected by the orchestrator's position loop when the scenario sets `position_loop`.
+    loop = ctrl.get("position_loop")
+    through_service = "koopman-mpc+position-loop" if loop else "koopman-mpc"
     runs = {
-        "koopman-mpc": x_mpc,
+        through_service: x_mpc,
         "feed-forward": _run(sim, ref[0], steps, lambda k, x: ff[k]),
         "feed-forward+lqr": _run(sim, ref[0], steps, lqr),
     }
-    # The same controllers on an arm whose actuators realise only `command_gain` of each command
-    # (a mismatch none of them was told about): what feedback corrects. The MPC is the service's
-    # controller, in-process (koopbridge.Mpc, same model and settings).
-    disturbed, dis = None, {}
-    if a.command_gain != 1.0 and ctrl.get("mpc"):
+    # The service's controller in-process (koopbridge.Mpc, same model and settings): the MPC row
+    # the service did not run, the service's own run replayed (how closely it agrees), and every
+    # controller on an arm whose actuators realise only `command_gain` of each command (a
+    # mismatch none of them was told about: what feedback corrects).
+    disturbed, dis, replay = None, {}, None
+    if ctrl.get("mpc"):
         from .. import Mpc
         from ..adapters.drake_model import VELOCITY_LIMITS
         from .plan_loop import corrected_plan
@@ -203,6 +208,8 @@ def _report(a: argparse.Namespace) -> int:
         mpc = Mpc(model, **mpc_cfg)
         ff_h = _padded(ff, steps + H, np.zeros(7))
         error_state = bool(ctrl.get("error_state"))
+        pos, vel = (loop["position"], loop["velocity"]) if loop else (list(range(7)), list(range(7, 14)))
+        gain = float(loop["gain"]) if loop else a.position_gain
 
         def mpc_cmd(k: int, x: np.ndarray) -> np.ndarray:
             if error_state:
@@ -210,18 +217,24 @@ def _report(a: argparse.Namespace) -> int:
             return np.asarray(mpc.solve(x, ref[k + 1 : k + 1 + H] if k + 1 + H <= len(ref) else _padded(ref[k + 1 :], H))["u"])[0]
 
         def looped_cmd(k: int, x: np.ndarray) -> np.ndarray:
-            r, ffk = corrected_plan(x, ref[k], ff_h[k : k + H], slice(0, 7), slice(7, 14), a.position_gain, VELOCITY_LIMITS)
+            r, ffk = corrected_plan(x, ref[k], ff_h[k : k + H], pos, vel, gain, VELOCITY_LIMITS)
             return np.asarray(mpc.solve(x, r, feedforward=ffk)["u"])[0]
 
-        slow = DrakeGen3Sim(command_gain=a.command_gain)
-        dis = {"koopman-mpc": _run(slow, ref[0], steps, mpc_cmd), "feed-forward": _run(slow, ref[0], steps, lambda k, x: ff[k]),
-               "feed-forward+lqr": _run(slow, ref[0], steps, lqr)}
-        if error_state and a.position_gain > 0:
-            name = f"koopman-mpc+position-loop (gain {a.position_gain:g}, in-process)"
-            runs[name] = _run(sim, ref[0], steps, looped_cmd)
-            dis[name] = _run(slow, ref[0], steps, looped_cmd)
-        disturbed = dict(command_gain=a.command_gain, mpc="error-state (in-process, the service's settings)" if error_state else "standard (in-process)",
-                         controllers={k: tracking_errors(v, ref) for k, v in dis.items()})
+        looped = error_state and gain > 0
+        if loop:
+            runs["koopman-mpc"] = _run(sim, ref[0], steps, mpc_cmd)
+            x_replay = _run(sim, ref[0], steps, looped_cmd)
+            replay = dict(row=through_service, max_abs_state_difference=float(np.max(np.abs(x_replay - x_mpc))))
+        elif looped:
+            runs["koopman-mpc+position-loop"] = _run(sim, ref[0], steps, looped_cmd)
+        if a.command_gain != 1.0:
+            slow = DrakeGen3Sim(command_gain=a.command_gain)
+            dis = {"koopman-mpc": _run(slow, ref[0], steps, mpc_cmd), "feed-forward": _run(slow, ref[0], steps, lambda k, x: ff[k]),
+                   "feed-forward+lqr": _run(slow, ref[0], steps, lqr)}
+            if looped:
+                dis["koopman-mpc+position-loop"] = _run(slow, ref[0], steps, looped_cmd)
+            disturbed = dict(command_gain=a.command_gain, mpc="error-state (in-process, the service's settings)" if error_state else "standard (in-process)",
+                             controllers={k: tracking_errors(v, ref) for k, v in dis.items()})
     entry: dict[str, Any] = dict(
         steps=steps, dt=sim.dt,
         metric="joint tracking error x[:7] - planned q over every step: RMS (all joints, per joint) and final (max |.| at the last step), rad",
@@ -230,6 +243,11 @@ def _report(a: argparse.Namespace) -> int:
         hold_still=tracking_errors(np.tile(ref[0], (steps + 1, 1)), ref),
         lqr=dict(q=q.tolist(), r=a.r, law="u = qd_plan,k - K (phi(x_k) - phi(x_ref,k)), clipped to the velocity limits",
                  closed_loop_spectral_radius=float(np.max(np.abs(np.linalg.eigvals(A - B @ K))))),
+        through_service=through_service,
+        # The service's run replayed in-process (koopbridge.Mpc, plan_loop.corrected_plan): what
+        # the orchestrator's loop and the MPC service did, computed a second way.
+        service_replay=replay,
+        position_loop=loop if loop else (dict(gain=a.position_gain, in_process=True) if a.position_gain > 0 else None),
         mpc=dict(error_state=bool(ctrl.get("error_state")), settings=ctrl.get("mpc"), solve_median_us=ctrl.get("solve_median_us"),
                  round_trip_median_us=ctrl.get("solve_round_trip_median_us"),
                  not_solved=ctrl.get("not_solved")),
@@ -238,7 +256,7 @@ def _report(a: argparse.Namespace) -> int:
         plot=None if a.no_plot else "kinova.png",
     )
     if not a.no_plot:
-        _plot(out / "kinova.png", ref, runs, sim.dt, dis if disturbed else None, a.command_gain)
+        _plot(out / "kinova.png", ref, runs, through_service, sim.dt, dis if disturbed else None, a.command_gain)
     update_report(rep_path, "kinova", entry)
     rows = dict(entry["controllers"], **{"hold-still": entry["hold_still"]})
     if disturbed:
@@ -247,7 +265,7 @@ def _report(a: argparse.Namespace) -> int:
     return 0
 
 
-def _plot(path: Path, ref: np.ndarray, runs: dict[str, np.ndarray], dt: float,
+def _plot(path: Path, ref: np.ndarray, runs: dict[str, np.ndarray], shown: str, dt: float,
           disturbed: dict[str, np.ndarray] | None = None, gain: float = 1.0) -> None:
     import io
 
@@ -263,8 +281,8 @@ def _plot(path: Path, ref: np.ndarray, runs: dict[str, np.ndarray], dt: float,
     ax1, ax2 = axes[0], axes[1]
     for j in range(7):
         line = ax1.plot(t, ref[:, j], "--", lw=1.2)[0]
-        ax1.plot(t, runs["koopman-mpc"][:, j], "-", lw=0.9, color=line.get_color(), label=f"q{j + 1}")
-    ax1.set_title("planned (dashed) vs executed by Koopman MPC (solid)")
+        ax1.plot(t, runs[shown][:, j], "-", lw=0.9, color=line.get_color(), label=f"q{j + 1}")
+    ax1.set_title(f"planned (dashed) vs executed by {shown} through the bridge (solid)")
     ax1.set_xlabel("time (s)")
     ax1.set_ylabel("joint angle (rad)")
     ax1.legend(fontsize=7, ncol=2)
@@ -309,7 +327,8 @@ def parser() -> argparse.ArgumentParser:
     rep.add_argument("--r", type=float, default=1e-3, help="LQR input weight (times I; default: %(default)s)")
     rep.add_argument("--no-plot", action="store_true", help="skip kinova.png")
     rep.add_argument("--position-gain", type=float, default=30.0,
-                     help="also run the error-state MPC about the plan corrected by this position loop, 1/s (0: skip; default: %(default)s)")
+                     help="when the service ran without [control] position_loop: also run the error-state MPC about the plan corrected by "
+                          "this position loop in-process, 1/s (0: skip; default: %(default)s)")
     rep.add_argument("--command-gain", type=float, default=0.9,
                      help="also run every controller on an arm whose actuators realise this multiple of each command (1: skip; default: %(default)s)")
     return p

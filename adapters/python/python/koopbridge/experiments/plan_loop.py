@@ -1,6 +1,8 @@
 """A plan corrected by a position loop, for arms commanded in joint velocities: the planned
 velocities (the inputs and the planned state's q̇ alike) minus ``gain · (q − q_plan)``; the
-error-state MPC then plans around the corrected plan (BENCHMARKS.md, session 8)."""
+error-state MPC then plans around the corrected plan (BENCHMARKS.md, session 8). Through the
+bridge the orchestrator does the same (``[control] position_loop``); the Kinova report replays
+the service's run with this one to check it."""
 
 from __future__ import annotations
 
@@ -9,7 +11,7 @@ import numpy as np
 __all__ = ["corrected_plan"]
 
 
-def corrected_plan(x: np.ndarray, state: np.ndarray, inputs: np.ndarray, q: slice, qd: slice, gain: float,
+def corrected_plan(x: np.ndarray, state: np.ndarray, inputs: np.ndarray, q: slice | list[int], qd: slice | list[int], gain: float,
                    limit: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
     """The planned state at this step and the feed-forward window ``inputs`` (H, nu) corrected
     by ``-gain · (x[q] − state[q])`` on the velocities ``state[qd]`` and on every input, the
