@@ -220,3 +220,97 @@ fn several_models_are_solved_side_by_side_each_with_its_own_plan() {
         }
     });
 }
+
+/// An NNDM in the store gets random-shooting MPC (the paper's NNDM baseline) through the same
+/// `configure`/`solve` as a lifted model: the remote plan is the best of the 1000 sequences
+/// drawn from the controller's seed, found here a second way (the draws repeated with the same
+/// generator, every rollout stepped one transition at a time instead of batched), a
+/// reconfigure starts the draws again, and what random shooting cannot do gets typed errors.
+#[test]
+fn an_nndm_is_planned_by_random_shooting_through_the_service() {
+    use koopman::model::nndm::{NndmArch, NndmModel};
+    use koopman::mpc::controllers::{SHOOTING_SAMPLES, SHOOTING_SEED};
+    let (opts, session) = common::options("mpc-nndm");
+    let model = NndmModel::init(NndmArch::new(2, 1, &[16, 16]).unwrap(), 3).unwrap();
+    model
+        .save(&opts.out_dir.join("models").join("nn1"))
+        .unwrap();
+    let c = bridge::orchestrator::Cluster::start(&opts, &session, &[], &["mpc", "models"]).unwrap();
+    let configure_key = c.client.keys.under(&["mpc", SERVICES_ID, "configure"]);
+    let configure = |mpc: serde_json::Value| {
+        let body = serde_json::to_vec(&serde_json::json!({"model": "nn1", "mpc": mpc})).unwrap();
+        c.client
+            .query(&configure_key, body, Duration::from_secs(60), "mpc")
+    };
+    let (h, q, lo, hi) = (5usize, [1.0, 0.1], -0.5, 0.5);
+    let good = serde_json::json!({"horizon": h, "q": q, "u_min": [lo], "u_max": [hi]});
+    let r: serde_json::Value = serde_json::from_slice(&configure(good.clone()).unwrap()).unwrap();
+    assert_eq!(
+        (r["nx"].clone(), r["horizon"].clone()),
+        (2.into(), 5.into())
+    );
+
+    // The independent computation: the same draws, rolled out one step at a time.
+    let (x, target) = ([0.3, -0.2], [0.0, 0.1]);
+    let mut rng = koopman::rng::Rng::new(SHOOTING_SEED);
+    let mut best = (f64::INFINITY, Vec::new());
+    for _ in 0..SHOOTING_SAMPLES {
+        let seq: Vec<f64> = (0..h).map(|_| rng.uniform(lo, hi)).collect();
+        let (mut s, mut cost) = (x.to_vec(), 0.0);
+        for u in &seq {
+            s = model.step(&s, &[*u]).unwrap();
+            cost += (0..2)
+                .map(|i| q[i] * (s[i] - target[i]).powi(2))
+                .sum::<f64>();
+        }
+        if cost < best.0 {
+            best = (cost, seq);
+        }
+    }
+    let key = c.client.keys.mpc_solve(SERVICES_ID).unwrap();
+    let solve = |reference: Vec<f64>, feedforward: Vec<f64>| {
+        let req = SolveRequest {
+            model: "nn1".into(),
+            x: x.to_vec(),
+            reference,
+            feedforward,
+        };
+        c.client
+            .query(&key, req.encode(), Duration::from_secs(30), "mpc")
+    };
+    let first = SolveReply::decode(&solve(target.to_vec(), vec![]).unwrap()).unwrap();
+    assert_eq!(first.u.len(), h);
+    for (a, b) in first.u.iter().zip(&best.1) {
+        assert!(
+            (a - b).abs() < 1e-12,
+            "remote {:?} vs independent {:?}",
+            first.u,
+            best.1
+        );
+    }
+    // The next solve draws new sequences; a reconfigure starts from the seed again, and the
+    // stacked reference (the target held over H steps) plans the same as the single state.
+    let second = SolveReply::decode(&solve(target.to_vec(), vec![]).unwrap()).unwrap();
+    assert_ne!(second.u, first.u);
+    configure(good.clone()).unwrap();
+    let stacked = SolveReply::decode(&solve(target.repeat(h), vec![]).unwrap()).unwrap();
+    assert_eq!(stacked.u, first.u);
+
+    // What random shooting cannot do: typed errors, and the service keeps serving.
+    assert_eq!(
+        code(solve(target.to_vec(), vec![0.0; h])),
+        ErrorCode::Unsupported
+    );
+    assert_eq!(code(solve(vec![0.0; 3], vec![])), ErrorCode::Dimension);
+    let e = format!(
+        "{:?}",
+        configure(serde_json::json!({"horizon": h})).unwrap_err()
+    );
+    assert!(e.contains("u_min and u_max"), "{e}");
+    let e = format!(
+        "{:?}",
+        configure(serde_json::json!({"u_min": [lo], "u_max": [hi], "r": [0.1]})).unwrap_err()
+    );
+    assert!(e.contains("no input weight"), "{e}");
+    assert!(SolveReply::decode(&solve(target.to_vec(), vec![]).unwrap()).is_ok());
+}

@@ -255,15 +255,19 @@ pub fn serve(
                 // the simulator's bounds are known, while its states already arrive.
                 let model = match load_model(&client, store, &req.model) {
                     Ok(LoadedModel::Lifted(m)) => m,
-                    Ok(LoadedModel::Bilinear(_)) => {
+                    Ok(other) => {
+                        let kind = match other {
+                            LoadedModel::Bilinear(_) => "bilinear",
+                            _ => "a one-step NNDM",
+                        };
                         return Err(ErrorReply::new(
                             ErrorCode::Unsupported,
                             format!(
-                                "model '{}' is bilinear: free-run attach controls lifted-linear \
+                                "model '{}' is {kind}: free-run attach controls lifted-linear \
                                  models only (use lockstep solves)",
                                 req.model
                             ),
-                        ))
+                        ));
                     }
                     Err(e) => return Err(e.to_reply()),
                 };

@@ -103,6 +103,20 @@ impl RandomShooting {
         x: &[f64],
         r: &[f64],
     ) -> Result<(Vec<f64>, f64)> {
+        let nu = model.nu();
+        let (mut seq, cost) = self.plan_sequence(model, x, r)?;
+        seq.truncate(nu);
+        Ok((seq, cost))
+    }
+
+    /// Like [`RandomShooting::plan`], but returns the whole best sequence (horizon·nu values,
+    /// step-major) and its cost.
+    pub fn plan_sequence(
+        &mut self,
+        model: &dyn OneStepModel,
+        x: &[f64],
+        r: &[f64],
+    ) -> Result<(Vec<f64>, f64)> {
         let (nx, nu) = (model.nx(), model.nu());
         if x.len() != nx {
             return Err(Error::dimension("state", nx, x.len()));
@@ -161,12 +175,12 @@ impl RandomShooting {
             .enumerate()
             .min_by(|a, b| a.1.total_cmp(b.1))
             .expect("samples ≥ 1");
-        let best = (seqs[i_best][..nu].to_vec(), c_best);
-        if !best.1.is_finite() {
+        if !c_best.is_finite() {
             return Err(Error::Numerical(
                 "random shooting: every rollout diverged".into(),
             ));
         }
-        Ok(best)
+        let mut seqs = seqs;
+        Ok((seqs.swap_remove(i_best), c_best))
     }
 }

@@ -1,14 +1,19 @@
 //! The controllers the MPC service keeps per model: Koopman MPC on a lifted model (`koopman`,
-//! `edmd`), or the sequential convex MPC on a bilinear model, whose optional offset-free
-//! correction follows the solves of one episode.
+//! `edmd`), the sequential convex MPC on a bilinear model, whose optional offset-free
+//! correction follows the solves of one episode, or random-shooting MPC on a one-step model
+//! (`nndm`, the paper's NNDM baseline).
 
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Duration;
 
 use koopman::model::bilinear::BilinearModel;
+use std::time::Instant;
+
+use koopman::mpc::controllers::{SHOOTING_SAMPLES, SHOOTING_SEED};
 use koopman::mpc::{
-    BilinearMpc, MpcConfig, MpcController, OffsetFreeConfig, ScpOptions, ScpStatus,
+    BilinearMpc, MpcConfig, MpcController, OffsetFreeConfig, OneStepModel, RandomShooting,
+    ScpOptions, ScpStatus,
 };
 
 use crate::codec::SolveStatus;
@@ -22,6 +27,15 @@ pub enum ServiceController {
     /// solves are one closed loop: each measured state updates the correction before the plan,
     /// and the plan's first input is recorded as applied.
     Bilinear(Box<BilinearMpc<'static>>),
+    /// Random-shooting MPC on a one-step model (SHOOTING_SAMPLES sequences per solve, seeded
+    /// once when the controller is built, so a configured episode is reproducible).
+    Shooting(Box<Shooting>),
+}
+
+/// A random-shooting planner and the one-step model it plans on.
+pub struct Shooting {
+    planner: RandomShooting,
+    model: Arc<dyn OneStepModel>,
 }
 
 /// What one solve returns to the wire.
@@ -44,13 +58,19 @@ pub enum LoadedModel {
     Lifted(Arc<dyn koopman::model::LiftedModel>),
     /// A bilinear model.
     Bilinear(Arc<BilinearModel>),
+    /// A one-step model `x⁺ = f(x, u)` (an NNDM).
+    OneStep(Arc<dyn OneStepModel>),
 }
 
 impl LoadedModel {
-    /// Loads the model saved in `dir`, dispatching on its kind (`koopman`, `edmd`, `bilinear`).
+    /// Loads the model saved in `dir`, dispatching on its kind (`koopman`, `edmd`, `bilinear`,
+    /// `nndm`).
     pub fn load(dir: &Path) -> Result<Self> {
         match koopman::model::store::read_kind(dir)?.as_str() {
             "bilinear" => Ok(LoadedModel::Bilinear(Arc::new(BilinearModel::load(dir)?))),
+            "nndm" => Ok(LoadedModel::OneStep(Arc::from(
+                koopman::model::load_one_step(dir)?,
+            ))),
             _ => Ok(LoadedModel::Lifted(Arc::from(koopman::model::load_lifted(
                 dir,
             )?))),
@@ -58,7 +78,9 @@ impl LoadedModel {
     }
 
     /// The controller of this model with `cfg`; `offset_free` only for a bilinear model (a
-    /// lifted model with one is refused: its controller has no such correction).
+    /// lifted model with one is refused: its controller has no such correction). A one-step
+    /// model gets random-shooting MPC, which needs finite input bounds and honours the
+    /// horizon and the state weight `q` only (other settings it cannot honour are refused).
     pub fn controller(
         &self,
         cfg: &MpcConfig,
@@ -80,6 +102,17 @@ impl LoadedModel {
                 c.set_offset_free(offset_free.cloned())?;
                 Ok(ServiceController::Bilinear(Box::new(c)))
             }
+            LoadedModel::OneStep(m) => {
+                if offset_free.is_some() {
+                    return Err(Error::Config(
+                        "offset_free needs a bilinear model (this one is a one-step NNDM)".into(),
+                    ));
+                }
+                Ok(ServiceController::Shooting(Box::new(Shooting {
+                    planner: shooting_planner(m.as_ref(), cfg)?,
+                    model: m.clone(),
+                })))
+            }
         }
     }
 }
@@ -90,6 +123,7 @@ impl ServiceController {
         match self {
             ServiceController::Lifted(c) => c.nx(),
             ServiceController::Bilinear(c) => c.nx(),
+            ServiceController::Shooting(s) => s.model.nx(),
         }
     }
 
@@ -98,6 +132,7 @@ impl ServiceController {
         match self {
             ServiceController::Lifted(c) => c.nu(),
             ServiceController::Bilinear(c) => c.nu(),
+            ServiceController::Shooting(s) => s.model.nu(),
         }
     }
 
@@ -106,6 +141,7 @@ impl ServiceController {
         match self {
             ServiceController::Lifted(c) => c.horizon(),
             ServiceController::Bilinear(c) => c.horizon(),
+            ServiceController::Shooting(s) => s.planner.horizon,
         }
     }
 
@@ -145,6 +181,34 @@ impl ServiceController {
                 ErrorCode::Unsupported,
                 "a feed-forward (error-state MPC) needs a lifted-linear model; this one is bilinear",
             )),
+            ServiceController::Shooting(_) if !feedforward.is_empty() => Err(Error::protocol(
+                ErrorCode::Unsupported,
+                "a feed-forward (error-state MPC) needs a lifted-linear model; this one is a one-step NNDM",
+            )),
+            ServiceController::Shooting(s) => {
+                let (nx, h) = (s.model.nx(), s.planner.horizon);
+                // One state is held over the horizon; the stacked x_1..x_H is used as it is.
+                let stacked = if reference.len() == nx {
+                    reference.repeat(h)
+                } else if reference.len() == h * nx {
+                    reference.to_vec()
+                } else {
+                    return Err(Error::from(koopman::Error::dimension(
+                        "reference (nx or horizon·nx)",
+                        h * nx,
+                        reference.len(),
+                    )));
+                };
+                koopman::error::ensure_finite("reference", &stacked).map_err(Error::from)?;
+                let t = Instant::now();
+                let (u, _) = s.planner.plan_sequence(s.model.as_ref(), x, &stacked)?;
+                Ok(ServicePlan {
+                    status: SolveStatus::Solved,
+                    iterations: s.planner.samples,
+                    solve_time: t.elapsed(),
+                    u,
+                })
+            }
             ServiceController::Bilinear(c) => {
                 let nx = c.nx();
                 if reference.len() < nx {
@@ -170,4 +234,44 @@ impl ServiceController {
             }
         }
     }
+}
+
+/// The random-shooting planner for `model` with `cfg` (horizon, `q`, the input bounds); the
+/// settings it cannot honour (input weight, terminal weight, rate and state bounds) are refused
+/// rather than ignored.
+fn shooting_planner(model: &dyn OneStepModel, cfg: &MpcConfig) -> Result<RandomShooting> {
+    let (nx, nu) = (model.nx(), model.nu());
+    let refuse = |what: &str| {
+        Err(Error::Config(format!(
+            "random-shooting MPC on a one-step NNDM: {what}"
+        )))
+    };
+    if cfg.r.as_ref().is_some_and(|r| r.iter().any(|&v| v != 0.0)) {
+        return refuse("no input weight r (the paper's cost is on the states only)");
+    }
+    if cfg.terminal.is_some() || cfg.has_general_constraints() {
+        return refuse("no terminal weight, rate or state bounds (input bounds only)");
+    }
+    let q = cfg.q.clone().unwrap_or_else(|| vec![1.0; nx]);
+    if q.len() != nx {
+        return Err(Error::from(koopman::Error::dimension("q", nx, q.len())));
+    }
+    let (Some(lo), Some(hi)) = (&cfg.u_min, &cfg.u_max) else {
+        return refuse("it samples inputs within the bounds: set u_min and u_max");
+    };
+    if lo.len() != nu || hi.len() != nu {
+        return Err(Error::from(koopman::Error::dimension(
+            "input bounds",
+            nu,
+            lo.len().min(hi.len()),
+        )));
+    }
+    Ok(RandomShooting::new(
+        SHOOTING_SAMPLES,
+        cfg.horizon,
+        q,
+        lo.clone(),
+        hi.clone(),
+        SHOOTING_SEED,
+    )?)
 }

@@ -6,7 +6,9 @@ joint-space P controller over the same adapter. Writes ``report.json`` and ``fig
     python -m koopbridge.experiments.figure8 --model models/franka-edmd --out results/franka-figure8 [--steps 3001]
 
 ``--model DIR`` is a trained model folder; its parent is the MPC service's model store and its
-name (``[a-z0-9_-]``) the model it loads.
+name (``[a-z0-9_-]``) the model it loads. The service picks the controller by the model's kind:
+Koopman MPC for ``koopman``/``edmd``, random-shooting MPC (1000 sequences per step, the paper's
+NNDM baseline) for ``nndm``.
 """
 
 from __future__ import annotations
