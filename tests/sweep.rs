@@ -82,6 +82,7 @@ fn sweep_cmd(
             "3000",
         ])
         .args(["--set", "hidden=[32,32]", "--set", "validate_every=250"])
+        .args(["--progress-every", "0"])
         .args([
             "--grace",
             "2",
@@ -179,6 +180,13 @@ fn a_sweep_survives_a_trainer_killed_midway_and_resumes_without_training_twice()
         assert!(f[10].parse::<f64>().unwrap() >= 1.0, "κ(G) ≥ 1: {r}");
     }
     assert!(out.join("scaling-m/scaling.json").is_file(), "{stdout}");
+    // Without a terminal, progress lines name the running points' iterations.
+    assert!(
+        stdout
+            .lines()
+            .any(|l| l.contains("points done") && l.contains("/3000 (t")),
+        "{stdout}"
+    );
 
     // The job t1 held when it died was either resumed (its point still waiting when t1 came
     // back) or cancelled (its point already on t2); either way no model of the sweep is done

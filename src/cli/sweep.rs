@@ -94,6 +94,10 @@ pub struct SweepArgs {
     /// Print the summary as one JSON object on the last line.
     #[arg(long)]
     pub json: bool,
+    /// Seconds between the progress lines printed when there is no terminal (a log, CI): the
+    /// points done and each running point's iterations. On a terminal the bar shows them.
+    #[arg(long, default_value_t = 60.0)]
+    pub progress_every: f64,
     #[command(flatten)]
     pub zenoh: super::ZenohArgs,
 }
@@ -297,7 +301,34 @@ pub fn run(args: SweepArgs) -> anyhow::Result<()> {
     );
     let started = Instant::now();
     let mut trained_here = 0usize;
+    // The running points' iterations: in the bar's message on a terminal, else a line a minute.
+    let mut running: std::collections::BTreeMap<String, String> = Default::default();
+    let mut last_line = Instant::now();
     let summary = run_sweep(&client, &live, &points, &data, &opts, &mut |e| match e {
+        SweepEvent::Progress {
+            point,
+            trainer,
+            iteration,
+            total,
+        } => {
+            running.insert(
+                point.name.clone(),
+                format!("{} {iteration}/{total} ({trainer})", point.name),
+            );
+            let now: Vec<&str> = running.values().map(String::as_str).collect();
+            if !bar.is_hidden() {
+                bar.set_message(now.join(", "));
+            } else if last_line.elapsed().as_secs_f64() >= args.progress_every {
+                last_line = Instant::now();
+                println!(
+                    "  {}/{} points done, {:.0} min; training: {}",
+                    bar.position(),
+                    points.len(),
+                    started.elapsed().as_secs_f64() / 60.0,
+                    now.join(", ")
+                );
+            }
+        }
         SweepEvent::Resumed { done } => {
             bar.set_position(done as u64);
             if done > 0 {
@@ -329,6 +360,7 @@ pub fn run(args: SweepArgs) -> anyhow::Result<()> {
             ),
         ),
         SweepEvent::Finished { point, result } => {
+            running.remove(&point.name);
             trained_here += 1;
             bar.inc(1);
             say(
@@ -343,14 +375,17 @@ pub fn run(args: SweepArgs) -> anyhow::Result<()> {
             point,
             error,
             retry,
-        } => say(
-            &bar,
-            format!(
-                "{}: failed{}: {error}",
-                point.name,
-                if retry { " (retrying)" } else { "" }
-            ),
-        ),
+        } => {
+            running.remove(&point.name);
+            say(
+                &bar,
+                format!(
+                    "{}: failed{}: {error}",
+                    point.name,
+                    if retry { " (retrying)" } else { "" }
+                ),
+            );
+        }
     });
     bar.finish_and_clear();
     stop.store(true, std::sync::atomic::Ordering::Relaxed);

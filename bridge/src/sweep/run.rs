@@ -162,6 +162,17 @@ pub enum SweepEvent<'a> {
         /// Whether it is tried again.
         retry: bool,
     },
+    /// A running point's latest training progress (once per status round).
+    Progress {
+        /// The point.
+        point: &'a SweepPoint,
+        /// Trainer id.
+        trainer: &'a str,
+        /// Iterations done.
+        iteration: u64,
+        /// Iterations in all.
+        total: u64,
+    },
     /// The trainers that answer changed.
     Trainers {
         /// Their ids.
@@ -346,6 +357,23 @@ pub fn run_sweep(
                                     });
                                 }
                             }
+                        }
+                    }
+                    JobState::Running if ours => {
+                        let field = |k: &str| {
+                            r.progress
+                                .as_ref()
+                                .and_then(|p| p.get(k))
+                                .and_then(|v| v.as_u64())
+                        };
+                        if let (Some(iteration), Some(total)) = (field("iteration"), field("total"))
+                        {
+                            on_event(SweepEvent::Progress {
+                                point: &points[i],
+                                trainer: t,
+                                iteration,
+                                total,
+                            });
                         }
                     }
                     JobState::Failed | JobState::Cancelled if ours => {
