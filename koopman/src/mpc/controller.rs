@@ -95,6 +95,10 @@ enum Backend {
         qp: Box<BoxQp>,
         /// `G = −H⁻¹ [M1 M2]` (column-major, n × (N + H·nx)): `u* = G [z_0; r]`.
         g: Vec<f64>,
+        /// The error-state map `[G₂Φ  G₂Γ + H⁻¹D]` (column-major, n × (N + n); G₂ = G's
+        /// reference columns, D = diag(R̄ + δI)): `u* = G₁z_0 + G_plan [ž; u_ff]` without
+        /// forming the plan's rollout. Built at the first [`MpcController::solve_about_plan`].
+        g_plan: Option<Vec<f64>>,
     },
     Other(Box<dyn QpSolver>),
 }
@@ -126,6 +130,11 @@ pub struct MpcController<'m> {
     /// `d ⊙ u_ff` of the last [`MpcController::solve_about_plan`] (empty after a plain solve):
     /// the input weights' pull towards the feed-forward, part of that solve's linear term.
     pull: Vec<f64>,
+    /// `[ž_0; u_ff]` of the last error-state solve with the dedicated solver, whose reference
+    /// part of `zr` (the plan's rollout) is then formed only if `linear_term` asks for it.
+    plan_in: Vec<f64>,
+    /// True while `zr`'s reference part waits for the rollout of `plan_in`.
+    rollout_pending: bool,
 }
 
 impl<'m> MpcController<'m> {
@@ -194,7 +203,14 @@ impl<'m> MpcController<'m> {
                 // the shifted plan touches on chattering loops (notes/h6-qp.md).
                 s.set_warm_start(WarmStart::Previous);
                 let g = ustar_map(&condensed, s.hessian_inverse());
-                (Backend::Dedicated { qp: Box::new(s), g }, None)
+                (
+                    Backend::Dedicated {
+                        qp: Box::new(s),
+                        g,
+                        g_plan: None,
+                    },
+                    None,
+                )
             }
             SolverKind::Clarabel => {
                 let c = LinearConstraints::build(cfg, &condensed)?;
@@ -228,6 +244,8 @@ impl<'m> MpcController<'m> {
             ustar: vec![0.0; n],
             h: Vec::new(),
             pull: Vec::new(),
+            plan_in: Vec::new(),
+            rollout_pending: false,
             condensed,
         })
     }
@@ -263,6 +281,12 @@ impl<'m> MpcController<'m> {
     pub fn linear_term(&mut self) -> &[f64] {
         if !self.q_current {
             let latent = self.condensed.latent;
+            if self.rollout_pending {
+                let (z_plan, u_ff) = self.plan_in.split_at(latent);
+                let rollout = self.condensed.predict(z_plan, u_ff);
+                self.zr[latent..].copy_from_slice(&rollout);
+                self.rollout_pending = false;
+            }
             let (z0, r) = self.zr.split_at(latent);
             self.condensed.linear_term(z0, r, &mut self.q);
             self.q.iter_mut().zip(&self.pull).for_each(|(q, p)| *q -= p);
@@ -370,9 +394,47 @@ impl<'m> MpcController<'m> {
         let (z0, z_plan) = (model.lift(x), model.lift(reference_now));
         self.check_lifted(&z0)?;
         self.check_lifted(&z_plan)?;
+        if matches!(self.solver, Backend::Dedicated { .. }) {
+            self.ustar_about_plan(&z0, &z_plan, feedforward);
+            return self.solve_qp(start, &z0);
+        }
         // P ž_1..H: tracking it from Φ(x) is the error-state cost up to the input weights.
         let rollout = self.condensed.predict(&z_plan, feedforward);
         self.solve_lifted_from(start, &z0, &rollout, Some(feedforward))
+    }
+
+    /// The dedicated solver's `u*` of the error-state problem, `G₁z_0 + G_plan [ž_0; u_ff]`:
+    /// the same as forming the rollout `Φž_0 + Γu_ff` as the reference and pulling the input
+    /// weights towards `u_ff`, in two products (`G_plan` is built at the first call).
+    fn ustar_about_plan(&mut self, z0: &[f64], z_plan: &[f64], u_ff: &[f64]) {
+        let (latent, n) = (self.condensed.latent, self.condensed.n_vars());
+        let d = self.input_weights();
+        let Backend::Dedicated { qp, g, g_plan } = &mut self.solver else {
+            unreachable!("called for the dedicated solver only")
+        };
+        let g_plan =
+            g_plan.get_or_insert_with(|| plan_map(&self.condensed, g, qp.hessian_inverse(), &d));
+        self.plan_in.clear();
+        self.plan_in.extend_from_slice(z_plan);
+        self.plan_in.extend_from_slice(u_ff);
+        self.ustar.fill(0.0);
+        gemv_simd(&g[..n * latent], z0, &mut self.ustar);
+        gemv_simd(g_plan, &self.plan_in, &mut self.ustar);
+        // What `linear_term` needs: z_0 now, the rollout on demand, the pull.
+        self.zr[..latent].copy_from_slice(z0);
+        self.rollout_pending = true;
+        self.pull.clear();
+        self.pull.extend(u_ff.iter().zip(&d).map(|(u, d)| d * u));
+        self.q_current = false;
+    }
+
+    /// `d = diag(R̄ + δI)`: the input weight of each of the H·nu planned inputs.
+    fn input_weights(&self) -> Vec<f64> {
+        let nu = self.nu();
+        let r = self.cfg.r.as_deref();
+        (0..self.condensed.n_vars())
+            .map(|i| r.map_or(0.0, |r| r[i % nu]) + self.condensed.tikhonov)
+            .collect()
     }
 
     fn solve_lifted_from(
@@ -384,6 +446,7 @@ impl<'m> MpcController<'m> {
     ) -> Result<MpcSolution> {
         self.set_reference(reference)?;
         let latent = self.condensed.latent;
+        self.rollout_pending = false;
         self.zr[..latent].copy_from_slice(z0);
         self.zr[latent..].copy_from_slice(&self.r);
         self.q_current = matches!(self.solver, Backend::Other(_));
@@ -399,6 +462,12 @@ impl<'m> MpcController<'m> {
             Some(u_ff) => self.weigh_deviation_from(u_ff),
             None => self.pull.clear(),
         }
+        self.solve_qp(start, z0)
+    }
+
+    /// The QP of a solve whose `u*` (dedicated solver) or `q` (the others) is formed, then the
+    /// status, the fallback and the warm start of the next solve.
+    fn solve_qp(&mut self, start: Instant, z0: &[f64]) -> Result<MpcSolution> {
         if let Some(c) = &self.constraints {
             let mut free = vec![0.0; self.condensed.horizon * self.condensed.nx];
             super::condensed::gemv_acc(self.condensed.phi.as_ref(), z0, &mut free);
@@ -450,15 +519,9 @@ impl<'m> MpcController<'m> {
     /// Moves the input weights (R and the Tikhonov term, `d = diag(R̄ + δI)`) from `u` onto
     /// `u − u_ff`: the linear term gains `−d ⊙ u_ff`, so `u* = −H⁻¹q` gains `H⁻¹ (d ⊙ u_ff)`.
     fn weigh_deviation_from(&mut self, u_ff: &[f64]) {
-        let nu = self.nu();
-        let r = self.cfg.r.as_deref();
-        let tikhonov = self.condensed.tikhonov;
+        let d = self.input_weights();
         self.pull.clear();
-        self.pull.extend(
-            u_ff.iter()
-                .enumerate()
-                .map(|(i, u)| (r.map_or(0.0, |r| r[i % nu]) + tikhonov) * u),
-        );
+        self.pull.extend(u_ff.iter().zip(&d).map(|(u, d)| d * u));
         match &self.solver {
             Backend::Dedicated { qp, .. } => {
                 gemv_simd(qp.hessian_inverse(), &self.pull, &mut self.ustar)
@@ -498,6 +561,24 @@ fn ustar_map(c: &Condensed, hinv: &[f64]) -> Vec<f64> {
     let mut out = Vec::with_capacity(g.nrows() * g.ncols());
     for j in 0..g.ncols() {
         out.extend((0..n).map(|i| g[(i, j)]));
+    }
+    out
+}
+
+/// `G_plan = [G₂Φ  G₂Γ + H⁻¹D]` (column-major, n × (N + n)) from `G = [G₁ G₂]` (column-major,
+/// n × (N + H·nx)), H⁻¹ (column-major) and `d = diag(D)`.
+fn plan_map(c: &Condensed, g: &[f64], hinv: &[f64], d: &[f64]) -> Vec<f64> {
+    let (n, latent, hx) = (c.n_vars(), c.latent, c.horizon * c.nx);
+    let g2 = faer::MatRef::from_column_major_slice(&g[n * latent..], n, hx);
+    let hinv = faer::MatRef::from_column_major_slice(hinv, n, n);
+    let left = g2 * &c.phi;
+    let right = g2 * &c.gamma;
+    let mut out = Vec::with_capacity(n * (latent + n));
+    for j in 0..latent {
+        out.extend((0..n).map(|i| left[(i, j)]));
+    }
+    for j in 0..n {
+        out.extend((0..n).map(|i| right[(i, j)] + hinv[(i, j)] * d[j]));
     }
     out
 }

@@ -240,3 +240,56 @@ fn bad_error_state_input_gives_typed_errors() {
     // The controller still serves afterwards.
     assert!(c.solve_about_plan(&x, &x, &ff).is_ok());
 }
+
+/// The dedicated solver folds the plan's rollout into a precomputed map and forms the QP's
+/// linear term only on demand: interleaved with plain solves, `linear_term` after each solve is
+/// the one Clarabel's controller (which forms it every solve) solved with, and so are the plans.
+#[test]
+fn the_folded_rollout_gives_the_linear_term_and_plan_of_each_solve_interleaved() {
+    let model = MatrixModel::random_stable(2, 9, 2, 0.97, 12).unwrap();
+    let h = 6;
+    let cfg = MpcConfig {
+        horizon: h,
+        r: Some(vec![0.02, 0.05]),
+        u_min: Some(vec![-0.5; 2]),
+        u_max: Some(vec![0.5; 2]),
+        ..MpcConfig::default()
+    };
+    let mut ded = MpcController::new(&model, &cfg).unwrap();
+    let clarabel = MpcConfig {
+        solver: SolverKind::Clarabel,
+        ..cfg.clone()
+    };
+    let mut cla = MpcController::new(&model, &clarabel).unwrap();
+    let mut rng = Rng::new(77);
+    for step in 0..6 {
+        let x = random_vec(&mut rng, 2, 1.0);
+        let r_now = random_vec(&mut rng, 2, 1.0);
+        let u_ff = random_vec(&mut rng, h * 2, 0.4);
+        let (a, b) = if step % 2 == 0 {
+            (
+                ded.solve_about_plan(&x, &r_now, &u_ff).unwrap(),
+                cla.solve_about_plan(&x, &r_now, &u_ff).unwrap(),
+            )
+        } else {
+            (
+                ded.solve(&x, &r_now).unwrap(),
+                cla.solve(&x, &r_now).unwrap(),
+            )
+        };
+        // Asked after plain solves that follow an unasked error-state solve, and after one
+        // error-state solve.
+        if step % 2 == 1 || step == 4 {
+            let (qa, qb) = (ded.linear_term().to_vec(), cla.linear_term().to_vec());
+            for (i, (p, q)) in qa.iter().zip(&qb).enumerate() {
+                assert!(
+                    (p - q).abs() < 1e-9 * (1.0 + q.abs()),
+                    "step {step}, q[{i}]: {p} vs {q}"
+                );
+            }
+        }
+        for (p, q) in a.u.iter().zip(&b.u) {
+            assert!((p - q).abs() < 1e-5, "step {step}: {:?} vs {:?}", a.u, b.u);
+        }
+    }
+}
