@@ -282,12 +282,15 @@ def _plot(path: Path, ref: np.ndarray, runs: dict[str, np.ndarray], shown: str, 
     for j in range(7):
         line = ax1.plot(t, ref[:, j], "--", lw=1.2)[0]
         ax1.plot(t, runs[shown][:, j], "-", lw=0.9, color=line.get_color(), label=f"q{j + 1}")
-    ax1.set_title(f"planned (dashed) vs executed by {shown} through the bridge (solid)")
+    ax1.set_title(f"planned (dashed) vs executed (solid):\n{shown}, through the bridge", fontsize=10)
     ax1.set_xlabel("time (s)")
     ax1.set_ylabel("joint angle (rad)")
     ax1.legend(fontsize=7, ncol=2)
+    # One colour per controller in both error panels.
+    names = list(dict.fromkeys([*runs, *(disturbed or {})]))
+    colour = {n: f"C{i}" for i, n in enumerate(names)}
     for name, x in runs.items():
-        ax2.semilogy(t, np.maximum(np.linalg.norm(x[:, :7] - ref[:, :7], axis=1), 1e-9), lw=1, label=name)
+        ax2.semilogy(t, np.maximum(np.linalg.norm(x[:, :7] - ref[:, :7], axis=1), 1e-9), lw=1, label=name, color=colour[name])
     ax2.set_title("joint tracking error |q - q_plan|")
     ax2.set_xlabel("time (s)")
     ax2.set_ylabel("rad")
@@ -295,7 +298,7 @@ def _plot(path: Path, ref: np.ndarray, runs: dict[str, np.ndarray], shown: str, 
     if disturbed:
         ax3 = axes[2]
         for name, x in disturbed.items():
-            ax3.semilogy(t, np.maximum(np.linalg.norm(x[:, :7] - ref[:, :7], axis=1), 1e-9), lw=1, label=name)
+            ax3.semilogy(t, np.maximum(np.linalg.norm(x[:, :7] - ref[:, :7], axis=1), 1e-9), lw=1, label=name, color=colour[name])
         ax3.set_title(f"the same on an arm realising {gain:g} x each command")
         ax3.set_xlabel("time (s)")
         ax3.set_ylabel("rad")
