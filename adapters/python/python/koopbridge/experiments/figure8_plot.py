@@ -29,7 +29,8 @@ def plot(path: str, task: Figure8, runs: Sequence[object]) -> None:
         err = tracking_error(ee, task.targets)
         ax1.plot(ee[:, 1], ee[:, 2], lw=1, label=f"{r.name} (error {err:.3f})")  # type: ignore[attr-defined]
         dev = np.linalg.norm(ee[:, 1:3] - task.targets[:, 1:3], axis=1)
-        ax2.plot(t, dev, lw=1, label=r.name)  # type: ignore[attr-defined]
+        # Log scale: the controllers worth comparing sit orders of magnitude below zero input.
+        ax2.semilogy(t, np.maximum(dev, 1e-6), lw=1, label=r.name)  # type: ignore[attr-defined]
     ax1.set_xlabel("y (m)")
     ax1.set_ylabel("z (m)")
     ax1.set_aspect("equal", adjustable="datalim")
@@ -37,7 +38,7 @@ def plot(path: str, task: Figure8, runs: Sequence[object]) -> None:
     ax1.legend(fontsize=8)
     ax2.axvline(0.02 * SKIP, color="grey", lw=0.8, ls=":")
     ax2.set_xlabel("time (s)")
-    ax2.set_ylabel("|(y, z) deviation| (m)")
+    ax2.set_ylabel("|(y, z) deviation| (m, log scale)")
     ax2.set_title(f"deviation per step (error counts t > {0.02 * SKIP:g} s)")
     ax2.legend(fontsize=8)
     fig.tight_layout()
