@@ -76,8 +76,7 @@ impl MpcController<'_> {
         // What `linear_term` needs: z_0 now, the rollout on demand, the pull.
         self.zr[..latent].copy_from_slice(z0);
         self.rollout_pending = true;
-        self.pull.clear();
-        self.pull.extend(u_ff.iter().zip(&d).map(|(u, d)| d * u));
+        self.set_pull(u_ff, &d);
         self.q_current = false;
     }
 
@@ -94,14 +93,19 @@ impl MpcController<'_> {
     /// `u − u_ff`: the linear term gains `−d ⊙ u_ff`, so `u* = −H⁻¹q` gains `H⁻¹ (d ⊙ u_ff)`.
     pub(super) fn weigh_deviation_from(&mut self, u_ff: &[f64]) {
         let d = self.input_weights();
-        self.pull.clear();
-        self.pull.extend(u_ff.iter().zip(&d).map(|(u, d)| d * u));
+        self.set_pull(u_ff, &d);
         match &self.solver {
             Backend::Dedicated { qp, .. } => {
                 gemv_simd(qp.hessian_inverse(), &self.pull, &mut self.ustar)
             }
             Backend::Other(_) => self.q.iter_mut().zip(&self.pull).for_each(|(q, p)| *q -= p),
         }
+    }
+
+    /// Records the input weights' pull towards the feed-forward, `d ⊙ u_ff`.
+    fn set_pull(&mut self, u_ff: &[f64], d: &[f64]) {
+        self.pull.clear();
+        self.pull.extend(u_ff.iter().zip(d).map(|(u, d)| d * u));
     }
 }
 
