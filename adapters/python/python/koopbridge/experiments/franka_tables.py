@@ -76,10 +76,6 @@ def stages(a: argparse.Namespace) -> list[Stage]:
                "--procs", str(a.trainers)]),
         Stage(f"prediction: Koopman base/+ctrl/+cov/+both at m = {a.table_samples}", [run(a.table_samples, reg) for reg in VARIANTS],
               [*common, "--samples", str(a.table_samples), "--regularisers", ",".join(VARIANTS)]),
-        Stage("prediction: the +both m-sweep", [run(m, "both") for m in ms],
-              [*common, "--samples", ",".join(map(str, ms)), "--regularisers", "both"]),
-        Stage("prediction: α_m of +both (refitted every time)", [],
-              [kb, "scaling", str(sweep / "runs"), "--out", str(out / "scaling")]),
         Stage("prediction: EDMD (polynomial)", [out / "models" / "edmd" / "metrics.json"],
               [kb, "train", "--model", "edmd", "--data", str(data), "--out", str(out / "models" / "edmd")]),
         Stage("prediction: NNDM (restarts from scratch if interrupted)", [out / "models" / "nndm" / "metrics.json"],
@@ -90,6 +86,11 @@ def stages(a: argparse.Namespace) -> list[Stage]:
         s.append(Stage(f"tracking: figure-8 with {name}", [out / "figure8" / name / "report.json"],
                        [py, "-m", "koopbridge.experiments.figure8", "--model", str(model), "--out", str(out / "figure8" / name),
                         "--baselines", "zero,p" if name == "edmd" else "none", "--u-limit", repr(a.u_limit), "--steps", str(a.steps)]))
+    # The m-sweep last: both tables are complete before its four extra trainings start.
+    s += [Stage("prediction: the +both m-sweep", [run(m, "both") for m in ms],
+                [*common, "--samples", ",".join(map(str, ms)), "--regularisers", "both"]),
+          Stage("prediction: α_m of +both (refitted every time)", [],
+                [kb, "scaling", str(sweep / "runs"), "--out", str(out / "scaling")])]
     return s
 
 
