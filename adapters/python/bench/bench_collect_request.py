@@ -111,6 +111,16 @@ def spread(ad: Adapters, k: int, windows: int, block: int, T: int) -> float:
     return blocks * block / (time.perf_counter() - t0)
 
 
+def _print_log_tails(log_dir: str, ids: list[str], lines: int = 30) -> None:
+    """The last ``lines`` lines of each adapter's log, on stderr (why an adapter went away)."""
+    for sim_id in ids:
+        path = os.path.join(log_dir, f"{sim_id}.log")
+        with open(path, "rb") as f:
+            tail = f.read().decode(errors="replace").splitlines()[-lines:]
+        print(f"--- {path} (last {len(tail)} lines)", file=sys.stderr)
+        print("\n".join(tail), file=sys.stderr, flush=True)
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--windows", type=int, default=180_000, help="part 1: windows (SPEC: 180,000)")
@@ -119,9 +129,13 @@ def main() -> None:
     p.add_argument("--round", type=int, default=10, help="blocks per alternation")
     p.add_argument("--procs", type=int, default=2, help="part 2: adapter processes (0: skip)")
     p.add_argument("--proc-windows", type=int, default=20_000, help="part 2: windows per measurement")
+    p.add_argument("--log-dir", help="keep the adapters' logs (ID.log) here (default: a temporary folder; "
+                   "their last lines are printed if the bench fails)")
     a = p.parse_args()
     res: dict[str, object] = {"load_before": os.getloadavg()[0]}
-    with tempfile.TemporaryDirectory(prefix="bench-collect-") as logs:
+    with tempfile.TemporaryDirectory(prefix="bench-collect-") as tmp:
+        logs = a.log_dir or tmp
+        os.makedirs(logs, exist_ok=True)
         ad = Adapters(max(1, a.procs), logs)
         try:
             ad.block(0, 0, 2, a.T)  # warm-up (first MuJoCo step, Zenoh routes)
@@ -131,6 +145,9 @@ def main() -> None:
                 one = spread(ad, 1, a.proc_windows, a.block, a.T)
                 many = spread(ad, a.procs, a.proc_windows, a.block, a.T)
                 res["procs"] = {"1": one, str(a.procs): many, "speed-up": many / one}
+        except BaseException:
+            _print_log_tails(logs, ad.ids)
+            raise
         finally:
             ad.close()
     res["load_after"] = os.getloadavg()[0]
