@@ -22,7 +22,7 @@ def test_franka_tables_runs_every_stage_and_resumes(tmp_path, capsys):
 
     out = tmp_path / "ft"
     args = ["--out", str(out), "--windows", "600", "--table-samples", "400", "--samples", "200,400",
-            "--iterations", "40", "--steps", "104", "--u-limit", "1.0"]
+            "--iterations", "40", "--steps", "104", "--u-limit", "1.0", "--also-u-limits", "0.5"]
     assert franka_tables.main(args) == 0
     t = json.loads((out / "tables.json").read_text())
     rows = t["rows"]
@@ -35,14 +35,17 @@ def test_franka_tables_runs_every_stage_and_resumes(tmp_path, capsys):
         fig8 = json.loads((out / "figure8" / name / "report.json").read_text())
         assert r["tracking"] == fig8["controllers"]["mpc"]["error"] and np.isfinite(r["tracking"]), name
         assert fig8["model"]["name"] == Path(r["model"]).name
+        # The second column: the same model at the other clip, its own run.
+        also = json.loads((out / "figure8-clip0.5" / name / "report.json").read_text())
+        assert also["task"]["u_limit"] == 0.5 and r["tracking_also"] == {"0.5": also["controllers"]["mpc"]["error"]}, name
     base = rows["koopman-base"]["tracking"]
     assert rows["koopman-both"]["gain_over_base"] == pytest.approx((base - rows["koopman-both"]["tracking"]) / base)
     # The +both m-sweep (m = 200 and 400) gave a curve to fit.
     assert [c for c in t["scaling"]["curves"] if "both" in c["label"]][0]["points"]
-    assert set(t["baselines"]) == {"zero", "p"}
+    assert set(t["baselines"]) == {"zero", "p"} and set(t["baselines_also"]["0.5"]) == {"zero", "p"}
     assert "| nndm |" in (out / "tables.md").read_text()
     capsys.readouterr()
     # A rerun runs nothing but the refit: every other stage is found done.
     assert franka_tables.main(args) == 0
     printed = capsys.readouterr().out
-    assert printed.count(": done") == 11 and "done in" in printed, printed
+    assert printed.count(": done") == 17 and "done in" in printed, printed
