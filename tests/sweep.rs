@@ -1,7 +1,8 @@
 //! `koopbridge sweep` against two real trainer services in separate processes: the points are
 //! spread over both, a trainer killed mid-sweep loses its point to the other and, restarted, has
 //! its orphaned job cancelled (no point trained twice, none lost), `results.csv` and the run
-//! folders are complete, and a rerun trains nothing.
+//! folders are complete, and a rerun trains nothing; a trainer the sweep started itself
+//! (`--local-trainers`) that is killed is started again and resumes its job from its checkpoint.
 
 mod common;
 
@@ -221,4 +222,89 @@ fn a_sweep_survives_a_trainer_killed_midway_and_resumes_without_training_twice()
     assert!(again.status.success(), "{text}");
     assert!(text.contains("4 points already finished"), "{text}");
     assert!(text.contains("0 trained in this run"), "{text}");
+}
+
+/// The pid of the process whose command line holds `needle` as one argument (not this one).
+fn pid_with_argument(needle: &str) -> Option<u32> {
+    std::fs::read_dir("/proc").ok()?.flatten().find_map(|e| {
+        let pid: u32 = e.file_name().to_str()?.parse().ok()?;
+        let cmd = std::fs::read(e.path().join("cmdline")).ok()?;
+        let hit = cmd.split(|b| *b == 0).any(|a| a == needle.as_bytes());
+        (hit && pid != std::process::id()).then_some(pid)
+    })
+}
+
+/// Whether a file ending in `.ckpt` lies anywhere below `dir`.
+fn has_checkpoint(dir: &Path) -> bool {
+    std::fs::read_dir(dir).is_ok_and(|rd| {
+        rd.flatten().any(|e| {
+            let p = e.path();
+            if p.is_dir() {
+                has_checkpoint(&p)
+            } else {
+                p.extension().is_some_and(|x| x == "ckpt")
+            }
+        })
+    })
+}
+
+#[test]
+fn a_local_trainer_killed_midway_is_started_again_and_resumes_its_job() {
+    let dir = common::scratch("sweep-local");
+    let data = dir.join("data/pend");
+    common::small_pendulum_dataset(&data, 5);
+    let out = dir.join("sweep");
+    let log = dir.join("sweep.log");
+    let mut sweep = std::process::Command::new(common::exe())
+        .arg("sweep")
+        .arg("--data")
+        .arg(&data)
+        .args(["--samples", "200", "--seeds", "1", "--iterations", "2000"])
+        .args(["--set", "hidden=[32,32]", "--set", "validate_every=250"])
+        .args(["--local-trainers", "1", "--progress-every", "0", "--out"])
+        .arg(&out)
+        .stdout(std::fs::File::create(&log).unwrap())
+        .stderr(std::fs::File::create(dir.join("sweep.err")).unwrap())
+        .spawn()
+        .unwrap();
+
+    // Kill the trainer the sweep started once its job has written a checkpoint.
+    let state = out.join("trainers/local0");
+    let deadline = Instant::now() + common::READY;
+    while !has_checkpoint(&state) {
+        assert!(
+            Instant::now() < deadline,
+            "the local trainer wrote no checkpoint"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let pid = pid_with_argument(&state.display().to_string()).expect("the local trainer runs");
+    let killed = std::process::Command::new("kill")
+        .args(["-9", &pid.to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+
+    let status = sweep.wait().unwrap();
+    let stdout = std::fs::read_to_string(&log).unwrap();
+    let stderr = std::fs::read_to_string(dir.join("sweep.err")).unwrap_or_default();
+    assert!(status.success(), "sweep failed:\n{stdout}\n{stderr}");
+    assert!(
+        stdout.contains("trainer 'local0' exited") && stdout.contains("started again (1 of 3)"),
+        "{stdout}"
+    );
+    // The first life's log is kept beside the second's.
+    assert!(state.join("trainer.log.1").is_file() && state.join("trainer.log").is_file());
+    // The point was finished by the restarted trainer from its checkpoint, not from scratch,
+    // and never moved elsewhere (there is no other trainer).
+    let metrics: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("runs/pend-m200-n16-s1-both-i2000/metrics.json"))
+            .unwrap(),
+    )
+    .unwrap();
+    let resumed = metrics["resumed_from"].as_u64().unwrap();
+    assert!((250..2000).contains(&resumed), "resumed from {resumed}");
+    assert!(!stdout.contains("goes to another"), "{stdout}");
+    let csv = std::fs::read_to_string(out.join("results.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 2, "{csv}");
 }

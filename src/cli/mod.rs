@@ -19,6 +19,7 @@ pub mod scaling;
 pub mod serve;
 pub mod sim;
 pub mod sweep;
+pub mod sweep_local;
 pub mod train;
 
 use std::path::PathBuf;

@@ -8,7 +8,6 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context};
 use bridge::client::{Client, Liveliness};
 use bridge::keyexpr::{fresh_session_id, Keys};
-use bridge::procs::ChildProc;
 use bridge::services::trainer::DatasetRef;
 use bridge::session::{free_loopback_endpoint, open_session};
 use bridge::sweep::{
@@ -17,6 +16,7 @@ use bridge::sweep::{
 };
 use koopman::data::Dataset;
 
+use super::sweep_local::{LocalTrainerSpec, LocalTrainers};
 use crate::plot::{time_series_png, Panel, Series};
 
 /// Arguments of `koopbridge sweep`.
@@ -68,7 +68,8 @@ pub struct SweepArgs {
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Start this many trainer services as children (1 thread each unless --train-threads),
-    /// in addition to any already in the session.
+    /// in addition to any already in the session. One that exits mid-sweep is started again
+    /// (up to 3 times) and resumes its job from its checkpoint.
     #[arg(long, default_value_t = 0)]
     pub local_trainers: usize,
     /// Threads per job of the trainers started with --local-trainers.
@@ -194,7 +195,6 @@ pub fn run(args: SweepArgs) -> anyhow::Result<()> {
         (None, 0) => "default".to_string(),
         (None, _) => fresh_session_id(),
     };
-    let mut children = Vec::new();
     if args.local_trainers > 0 && z.listen.is_empty() {
         z.listen = vec![free_loopback_endpoint()?];
     }
@@ -213,44 +213,34 @@ pub fn run(args: SweepArgs) -> anyhow::Result<()> {
     } else {
         None
     };
-    if args.local_trainers > 0 {
-        let exe = std::env::current_exe()?;
-        let mut connect = vec![z.listen[0].clone()];
-        connect.extend(z.connect.iter().cloned());
-        for k in 0..args.local_trainers {
-            let id = format!("local{k}");
-            let state = out.join("trainers").join(&id);
-            let mut a: Vec<String> = vec![
-                "serve".into(),
-                "trainer".into(),
-                "models".into(),
-                "--session".into(),
-                session_id.clone(),
-                "--id".into(),
-                id.clone(),
-                "--store".into(),
-                state.join("models").display().to_string(),
-                "--state-dir".into(),
-                state.display().to_string(),
-                "--train-threads".into(),
-                args.train_threads.to_string(),
-                "--data-root".into(),
-                data_dir.display().to_string(),
-                "--stdin-lifeline".into(),
-            ];
-            for c in &connect {
-                a.push("--connect".into());
-                a.push(c.clone());
-            }
-            std::fs::create_dir_all(&state)?;
-            children.push(ChildProc::spawn(
-                &format!("trainer '{id}'"),
-                &exe,
-                &a,
-                &state.join("trainer.log"),
-            )?);
-        }
-    }
+    // The bar exists before the local trainers: their supervisor prints its restarts above it.
+    let bar = indicatif::ProgressBar::new(points.len() as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{bar:30} {pos}/{len} points  {elapsed_precise}  {msg}",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let local = if args.local_trainers > 0 {
+        let spec = LocalTrainerSpec {
+            exe: std::env::current_exe()?,
+            session_id: session_id.clone(),
+            connect: std::iter::once(z.listen[0].clone())
+                .chain(z.connect.iter().cloned())
+                .collect(),
+            out: out.clone(),
+            data_root: data_dir.clone(),
+            threads: args.train_threads,
+        };
+        let b = bar.clone();
+        Some(LocalTrainers::start(
+            &spec,
+            args.local_trainers,
+            move |l| say(&b, l),
+        )?)
+    } else {
+        None
+    };
     let (train, val, test) = match &data_server {
         Some(names) => (
             DatasetRef::Recording {
@@ -291,13 +281,6 @@ pub fn run(args: SweepArgs) -> anyhow::Result<()> {
         points.len(),
         data_dir.display(),
         out.display()
-    );
-    let bar = indicatif::ProgressBar::new(points.len() as u64);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template(
-            "{bar:30} {pos}/{len} points  {elapsed_precise}  {msg}",
-        )
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     let started = Instant::now();
     let mut trained_here = 0usize;
@@ -389,7 +372,7 @@ pub fn run(args: SweepArgs) -> anyhow::Result<()> {
     });
     bar.finish_and_clear();
     stop.store(true, std::sync::atomic::Ordering::Relaxed);
-    drop(children);
+    drop(local);
     let summary = summary?;
     let csv = write_csv(&out)?;
     let hours = started.elapsed().as_secs_f64() / 3600.0;
