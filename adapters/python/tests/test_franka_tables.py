@@ -35,17 +35,20 @@ def test_franka_tables_runs_every_stage_and_resumes(tmp_path, capsys):
         fig8 = json.loads((out / "figure8" / name / "report.json").read_text())
         assert r["tracking"] == fig8["controllers"]["mpc"]["error"] and np.isfinite(r["tracking"]), name
         assert fig8["model"]["name"] == Path(r["model"]).name
-        # The second column: the same model at the other clip, its own run.
-        also = json.loads((out / "figure8-clip0.5" / name / "report.json").read_text())
-        assert also["task"]["u_limit"] == 0.5 and r["tracking_also"] == {"0.5": also["controllers"]["mpc"]["error"]}, name
+        # The other columns: the same model at the other clip and with q̇ weighted 0.01, own runs.
+        clip = json.loads((out / "figure8-clip0.5" / name / "report.json").read_text())
+        qd = json.loads((out / "figure8-qd0.01" / name / "report.json").read_text())
+        assert clip["task"]["u_limit"] == 0.5 and qd["task"]["u_limit"] == 1.0 and qd["task"]["q"] == [1.0] * 10 + [0.01] * 7
+        assert r["tracking_also"] == {"clip ±0.5 rad/s": clip["controllers"]["mpc"]["error"],
+                                      "q̇ weight 0.01": qd["controllers"]["mpc"]["error"]}, name
     base = rows["koopman-base"]["tracking"]
     assert rows["koopman-both"]["gain_over_base"] == pytest.approx((base - rows["koopman-both"]["tracking"]) / base)
     # The +both m-sweep (m = 200 and 400) gave a curve to fit.
     assert [c for c in t["scaling"]["curves"] if "both" in c["label"]][0]["points"]
-    assert set(t["baselines"]) == {"zero", "p"} and set(t["baselines_also"]["0.5"]) == {"zero", "p"}
+    assert set(t["baselines"]) == {"zero", "p"} and all(set(b) == {"zero", "p"} for b in t["baselines_also"].values())
     assert "| nndm |" in (out / "tables.md").read_text()
     capsys.readouterr()
     # A rerun runs nothing but the refit: every other stage is found done.
     assert franka_tables.main(args) == 0
     printed = capsys.readouterr().out
-    assert printed.count(": done") == 17 and "done in" in printed, printed
+    assert printed.count(": done") == 23 and "done in" in printed, printed
