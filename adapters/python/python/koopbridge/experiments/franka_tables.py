@@ -132,6 +132,7 @@ def _read(path: Path) -> dict[str, Any] | None:
 def tables(a: argparse.Namespace) -> dict[str, Any]:
     """Both tables from what the stages wrote (missing entries are ``None``)."""
     out = Path(a.out)
+    extra = _columns(a)[1:]
     rows: dict[str, Any] = {}
     for name, model in _tracked(a).items():
         metrics = _read(model / "metrics.json") or {}
@@ -139,19 +140,23 @@ def tables(a: argparse.Namespace) -> dict[str, Any]:
         ctrl = next(iter(fig8.get("controllers", {}).values()), {})
         rows[name] = dict(prediction=metrics.get("test_prediction_error"), tracking=ctrl.get("error"),
                           solve_median_us=(ctrl.get("solve") or {}).get("median_us"), model=str(model),
-                          tracking_also={label: _mpc_error(folder / name) for label, folder, _ in _columns(a)[1:]})
+                          tracking_also={label: _mpc_error(folder / name) for label, folder, _ in extra})
     base = rows["koopman-base"]["tracking"]
     for name in VARIANTS.values():
         t = rows[name]["tracking"]
         rows[name]["gain_over_base"] = (base - t) / base if base and t is not None else None
-    baselines = {k: v["error"] for k, v in (_read(out / "figure8" / "edmd" / "report.json") or {}).get("controllers", {}).items()
-                 if k != "mpc"}
-    baselines_also = {label: {k: v["error"] for k, v in (_read(folder / "edmd" / "report.json") or {}).get("controllers", {}).items()
-                              if k != "mpc"} for label, folder, _ in _columns(a)[1:]}
+    baselines = _baselines(out / "figure8")
+    baselines_also = {label: _baselines(folder) for label, folder, _ in extra}
     scaling = _read(out / "scaling" / "scaling.json")
     return dict(rows=rows, baselines=baselines, baselines_also=baselines_also, scaling=scaling, paper=PAPER,
                 settings=dict(iterations=a.iterations, table_samples=a.table_samples, samples=a.samples, u_limit=a.u_limit,
                               also_u_limits=a.also_u_limits, velocity_weight=a.velocity_weight, steps=a.steps, data=str(a.data)))
+
+
+def _baselines(folder: Path) -> dict[str, float]:
+    """The baselines' tracking errors (every controller but the MPC) of the EDMD run in ``folder``."""
+    controllers = (_read(folder / "edmd" / "report.json") or {}).get("controllers", {})
+    return {k: v["error"] for k, v in controllers.items() if k != "mpc"}
 
 
 def _mpc_error(folder: Path) -> float | None:
