@@ -40,6 +40,8 @@ struct Slot {
     log: PathBuf,
     child: ChildProc,
     restarts: u32,
+    /// Exited after [`MAX_RESTARTS`] restarts, or could not be started again: left alone.
+    given_up: bool,
 }
 
 /// The running local trainers and the thread that starts again those that exit. Dropping it
@@ -73,6 +75,7 @@ impl LocalTrainers {
                 log,
                 child,
                 restarts: 0,
+                given_up: false,
             });
         }
         let slots = Arc::new(Mutex::new(slots));
@@ -139,7 +142,7 @@ fn supervise(slots: &Mutex<Vec<Slot>>, stop: &AtomicBool, exe: &Path, say: &dyn 
         std::thread::sleep(POLL);
         let mut slots = slots.lock().unwrap_or_else(|p| p.into_inner());
         for s in slots.iter_mut() {
-            if s.restarts > MAX_RESTARTS || stop.load(Ordering::Relaxed) {
+            if s.given_up || stop.load(Ordering::Relaxed) {
                 continue;
             }
             let Some(why) = s.child.exited() else {
@@ -153,7 +156,7 @@ fn supervise(slots: &Mutex<Vec<Slot>>, stop: &AtomicBool, exe: &Path, say: &dyn 
                 .unwrap_or(first)
                 .to_string();
             if s.restarts == MAX_RESTARTS {
-                s.restarts += 1;
+                s.given_up = true;
                 say(format!(
                     "{status}; not started again after {MAX_RESTARTS} restarts (log: {})",
                     s.log.display()
@@ -173,7 +176,7 @@ fn supervise(slots: &Mutex<Vec<Slot>>, stop: &AtomicBool, exe: &Path, say: &dyn 
                     ));
                 }
                 Err(e) => {
-                    s.restarts = MAX_RESTARTS + 1;
+                    s.given_up = true;
                     say(format!("{status}; could not be started again: {e}"));
                 }
             }
