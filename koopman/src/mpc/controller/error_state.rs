@@ -8,6 +8,7 @@ use super::{Backend, MpcController, MpcSolution};
 use crate::error::{ensure_finite, Error, Result};
 use crate::linalg::kernels::gemv_simd;
 use crate::mpc::condensed::Condensed;
+use crate::mpc::config::MpcConfig;
 
 impl MpcController<'_> {
     /// Error-state (deviation) tracking of a planned trajectory: plans the deviation
@@ -61,12 +62,15 @@ impl MpcController<'_> {
     /// weights towards `u_ff`, in two products (`G_plan` is built at the first call).
     fn ustar_about_plan(&mut self, z0: &[f64], z_plan: &[f64], u_ff: &[f64]) {
         let (latent, n) = (self.condensed.latent, self.condensed.n_vars());
-        let d = self.input_weights();
         let Backend::Dedicated { qp, g, g_plan } = &mut self.solver else {
             unreachable!("called for the dedicated solver only")
         };
-        let g_plan =
-            g_plan.get_or_insert_with(|| plan_map(&self.condensed, g, qp.hessian_inverse(), &d));
+        let g_plan = g_plan.get_or_insert_with(|| {
+            let d: Vec<f64> = (0..n)
+                .map(|i| input_weight(&self.cfg, &self.condensed, i))
+                .collect();
+            plan_map(&self.condensed, g, qp.hessian_inverse(), &d)
+        });
         self.plan_in.clear();
         self.plan_in.extend_from_slice(z_plan);
         self.plan_in.extend_from_slice(u_ff);
@@ -76,24 +80,14 @@ impl MpcController<'_> {
         // What `linear_term` needs: z_0 now, the rollout on demand, the pull.
         self.zr[..latent].copy_from_slice(z0);
         self.rollout_pending = true;
-        self.set_pull(u_ff, &d);
+        self.set_pull(u_ff);
         self.q_current = false;
-    }
-
-    /// `d = diag(R̄ + δI)`: the input weight of each of the H·nu planned inputs.
-    fn input_weights(&self) -> Vec<f64> {
-        let nu = self.nu();
-        let r = self.cfg.r.as_deref();
-        (0..self.condensed.n_vars())
-            .map(|i| r.map_or(0.0, |r| r[i % nu]) + self.condensed.tikhonov)
-            .collect()
     }
 
     /// Moves the input weights (R and the Tikhonov term, `d = diag(R̄ + δI)`) from `u` onto
     /// `u − u_ff`: the linear term gains `−d ⊙ u_ff`, so `u* = −H⁻¹q` gains `H⁻¹ (d ⊙ u_ff)`.
     pub(super) fn weigh_deviation_from(&mut self, u_ff: &[f64]) {
-        let d = self.input_weights();
-        self.set_pull(u_ff, &d);
+        self.set_pull(u_ff);
         match &self.solver {
             Backend::Dedicated { qp, .. } => {
                 gemv_simd(qp.hessian_inverse(), &self.pull, &mut self.ustar)
@@ -102,11 +96,22 @@ impl MpcController<'_> {
         }
     }
 
-    /// Records the input weights' pull towards the feed-forward, `d ⊙ u_ff`.
-    fn set_pull(&mut self, u_ff: &[f64], d: &[f64]) {
+    /// Records the input weights' pull towards the feed-forward, `d ⊙ u_ff`, in place.
+    fn set_pull(&mut self, u_ff: &[f64]) {
+        let (cfg, condensed) = (&self.cfg, &self.condensed);
         self.pull.clear();
-        self.pull.extend(u_ff.iter().zip(d).map(|(u, d)| d * u));
+        self.pull.extend(
+            u_ff.iter()
+                .enumerate()
+                .map(|(i, u)| input_weight(cfg, condensed, i) * u),
+        );
     }
+}
+
+/// `d_i = (R̄ + δI)_ii`: the input weight of planned input `i` (of H·nu), R cycling over the
+/// horizon.
+fn input_weight(cfg: &MpcConfig, c: &Condensed, i: usize) -> f64 {
+    cfg.r.as_deref().map_or(0.0, |r| r[i % c.nu]) + c.tikhonov
 }
 
 /// `G_plan = [G₂Φ  G₂Γ + H⁻¹D]` (column-major, n × (N + n)) from `G = [G₁ G₂]` (column-major,
