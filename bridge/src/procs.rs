@@ -34,6 +34,52 @@ pub fn command_line(exe: &Path, args: &[String]) -> String {
         .join(" ")
 }
 
+/// The command line of a `koopbridge serve` child, shared by the orchestrator's services and a
+/// sweep's local trainers so that both start a service the same way.
+pub struct ServeLine<'a> {
+    /// The services it runs (`trainer`, `mpc`, `models`, …).
+    pub services: &'a [&'a str],
+    /// The Zenoh session id it joins (`--session`).
+    pub session: &'a str,
+    /// Its service id (`--id`).
+    pub id: &'a str,
+    /// Where it keeps models (`--store`).
+    pub store: &'a Path,
+    /// Where it keeps job state (`--state-dir`).
+    pub state_dir: &'a Path,
+    /// The folder every dataset path it is sent must lie in (`--data-root`).
+    pub data_root: &'a Path,
+    /// Threads per training job (`--train-threads`); the service's default when `None`.
+    pub train_threads: Option<usize>,
+    /// Zenoh options as arguments (`--connect E`, `--listen E`, …).
+    pub zenoh: &'a [String],
+}
+
+impl ServeLine<'_> {
+    /// The arguments after the executable, with the stdin lifeline on.
+    pub fn args(&self) -> Vec<String> {
+        let mut a = vec!["serve".to_string()];
+        a.extend(self.services.iter().map(|s| s.to_string()));
+        let paths = [
+            ("--store", self.store),
+            ("--state-dir", self.state_dir),
+            ("--data-root", self.data_root),
+        ];
+        for (k, v) in [("--session", self.session), ("--id", self.id)] {
+            a.extend([k.to_string(), v.to_string()]);
+        }
+        for (k, v) in paths {
+            a.extend([k.to_string(), v.display().to_string()]);
+        }
+        if let Some(t) = self.train_threads {
+            a.extend(["--train-threads".to_string(), t.to_string()]);
+        }
+        a.push("--stdin-lifeline".into());
+        a.extend(self.zenoh.iter().cloned());
+        a
+    }
+}
+
 impl ChildProc {
     /// Starts `exe args…` with stdin piped (the lifeline) and output to `log`.
     pub fn spawn(name: &str, exe: &Path, args: &[String], log: &Path) -> Result<Self> {

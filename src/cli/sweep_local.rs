@@ -9,7 +9,7 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-use bridge::procs::{stop_all, ChildProc};
+use bridge::procs::{stop_all, ChildProc, ServeLine};
 
 /// How many times one local trainer is started again before the sweep gives up on it (its
 /// points then go to the other trainers, as for any trainer that vanished).
@@ -108,31 +108,22 @@ impl Drop for LocalTrainers {
 
 /// The command line of trainer `id` (`koopbridge serve trainer models …`), its lifeline on.
 fn trainer_args(spec: &LocalTrainerSpec, id: &str, state: &Path) -> Vec<String> {
-    let mut a: Vec<String> = [
-        "serve",
-        "trainer",
-        "models",
-        "--session",
-        &spec.session_id,
-        "--id",
+    let zenoh: Vec<String> = spec
+        .connect
+        .iter()
+        .flat_map(|c| ["--connect".to_string(), c.clone()])
+        .collect();
+    ServeLine {
+        services: &["trainer", "models"],
+        session: &spec.session_id,
         id,
-        "--store",
-        &state.join("models").display().to_string(),
-        "--state-dir",
-        &state.display().to_string(),
-        "--train-threads",
-        &spec.threads.to_string(),
-        "--data-root",
-        &spec.data_root.display().to_string(),
-        "--stdin-lifeline",
-    ]
-    .map(String::from)
-    .to_vec();
-    for c in &spec.connect {
-        a.push("--connect".into());
-        a.push(c.clone());
+        store: &state.join("models"),
+        state_dir: state,
+        data_root: &spec.data_root,
+        train_threads: Some(spec.threads),
+        zenoh: &zenoh,
     }
-    a
+    .args()
 }
 
 /// Until `stop`: every [`POLL`], starts again each trainer that has exited, keeping the log of

@@ -9,7 +9,7 @@ use super::{RunOptions, SERVICES_ID};
 use crate::client::{Client, Liveliness};
 use crate::error::{Error, Result};
 use crate::keyexpr::{Keys, Role};
-use crate::procs::ChildProc;
+use crate::procs::{ChildProc, ServeLine};
 use crate::scenario::{CommandLine, ParticipantSpec, SimSpec};
 use crate::services::Service;
 use crate::session::{free_loopback_endpoint, open_session, ZenohOptions};
@@ -245,26 +245,19 @@ impl Cluster {
             children.push(child);
         }
         if !services.is_empty() {
-            let mut a: Vec<String> = vec!["serve".into()];
-            a.extend(services.iter().map(|s| s.as_str().to_string()));
-            for (k, v) in [
-                ("--session", session_id.to_string()),
-                ("--id", SERVICES_ID.to_string()),
-                ("--store", opts.out_dir.join("models").display().to_string()),
-                (
-                    "--state-dir",
-                    opts.out_dir.join("state").display().to_string(),
-                ),
-                (
-                    "--data-root",
-                    opts.out_dir.join("data").display().to_string(),
-                ),
-            ] {
-                a.push(k.into());
-                a.push(v);
+            let names: Vec<&str> = services.iter().map(|s| s.as_str()).collect();
+            let (store, state) = (opts.out_dir.join("models"), opts.out_dir.join("state"));
+            let a = ServeLine {
+                services: &names,
+                session: session_id,
+                id: SERVICES_ID,
+                store: &store,
+                state_dir: &state,
+                data_root: &opts.out_dir.join("data"),
+                train_threads: None,
+                zenoh: &child_zenoh,
             }
-            a.push("--stdin-lifeline".into());
-            a.extend(child_zenoh.iter().cloned());
+            .args();
             children.push(ChildProc::spawn(
                 "services",
                 &opts.exe,
