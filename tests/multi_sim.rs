@@ -76,6 +76,12 @@ fn the_multi_sim_scenario_collects_trains_and_controls_every_simulator_in_one_lo
     assert_eq!(l["macro_steps"], 100);
     assert!(l["macro_steps_per_second"].as_f64().unwrap() > 0.0);
     assert_eq!(l["step_round_trip_median_us"].as_array().unwrap().len(), 5);
+    // After the warm-up the loop named its critical path, and every other simulator (all were
+    // started by this run) was given a lower CPU priority.
+    let critical = l["critical_path"].as_str().expect("a critical path");
+    let others: Vec<&str> = SIMS.iter().copied().filter(|s| *s != critical).collect();
+    assert_eq!(others.len(), 4, "{critical} is not one of {SIMS:?}");
+    assert_eq!(l["deprioritised"], serde_json::json!(others));
 }
 
 /// The figure of issue 14: the macro-step rate of the five-simulator control loop against the

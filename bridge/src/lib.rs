@@ -16,6 +16,7 @@ pub mod fsutil;
 pub mod keyexpr;
 pub mod messages;
 pub mod orchestrator;
+pub mod priority;
 pub mod procs;
 pub mod scenario;
 pub mod services;

@@ -191,7 +191,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     }
     if let (true, Some(l)) = (several, &report.control_loop) {
         println!(
-            "  control loop of {:?}: {} macro steps at {:.0} macro steps/s (median {:.0} µs){}",
+            "  control loop of {:?}: {} macro steps at {:.0} macro steps/s (median {:.0} µs){}{}",
             l.sims,
             l.macro_steps,
             l.macro_steps_per_second,
@@ -199,7 +199,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             l.slowdown_vs_slowest_alone
                 .map_or(String::new(), |r| format!(
                     ", {r:.2}x the slowest simulator alone"
-                ))
+                )),
+            l.critical_path.as_ref().map_or(String::new(), |c| format!(
+                "; critical path '{c}', {} others at lower CPU priority",
+                l.deprioritised.len()
+            ))
         );
     }
     if !report.aggregation.is_empty() {

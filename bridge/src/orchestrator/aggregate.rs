@@ -195,6 +195,7 @@ pub fn aggregate(
                 model_of: &model_of,
                 publish: round < rounds,
                 baseline: false,
+                deprioritise: &|id| cluster.deprioritise_sim(id),
             },
             on,
         )?;

@@ -14,6 +14,9 @@ use crate::scenario::{CommandLine, ParticipantSpec, SimSpec};
 use crate::services::Service;
 use crate::session::{free_loopback_endpoint, open_session, ZenohOptions};
 
+/// By how much [`Cluster::deprioritise_sim`] raises a simulator's nice value.
+pub const DEPRIORITISE_BY: i32 = 10;
+
 /// Everything the orchestrator started, killed on drop.
 pub struct Cluster {
     /// Child processes.
@@ -274,6 +277,23 @@ impl Cluster {
         };
         c.wait_ready(&who, opts.ready_timeout)?;
         Ok(c)
+    }
+
+    /// Lowers the CPU priority (nice +10, every thread) of simulator `id`'s process if this
+    /// cluster started it; false (with a warning when it failed) otherwise. One-way for an
+    /// ordinary user: the process keeps the lower priority until it exits.
+    pub fn deprioritise_sim(&self, id: &str) -> bool {
+        let name = format!("simulator '{id}'");
+        let Some(child) = self.children.iter().find(|c| c.name == name) else {
+            return false;
+        };
+        match crate::priority::lower_priority(child.id(), DEPRIORITISE_BY) {
+            Ok(_) => true,
+            Err(e) => {
+                tracing::warn!("{name}: its priority could not be lowered: {e}");
+                false
+            }
+        }
     }
 
     /// Waits for the liveliness tokens of `who`, failing early if a child exits.

@@ -33,6 +33,9 @@ pub struct ControlPhase<'a> {
     /// Also run each controlled simulator alone in the loop (after the loop of all), for
     /// [`LoopReport::slowdown_vs_slowest_alone`].
     pub baseline: bool,
+    /// Lowers the CPU priority of simulator `id`'s process once the loop of several has found
+    /// another one to be its critical path; true if it did (e.g. [`super::Cluster::deprioritise_sim`]).
+    pub deprioritise: &'a dyn Fn(&str) -> bool,
 }
 
 /// Runs the control phase of `sc`: returns one report per `[control]` entry (in order) and the
@@ -80,12 +83,13 @@ pub fn control_phase(
      -> Result<(Vec<ControlReport>, LoopReport)> {
         // Disjoint &mut borrows of the controlled clients, in the order of `which`.
         let mut slots: Vec<Option<&mut SimClient>> = clients.iter_mut().map(Some).collect();
-        let mut jobs = Vec::new();
+        let (mut jobs, mut ids) = (Vec::new(), Vec::new());
         for &i in which {
             let (p, ctrl) = (&prepared[i], &sc.control[i]);
             let Some(c) = slots[p.sim].take() else {
                 continue;
             };
+            ids.push(sc.sims[p.sim].id.as_str());
             jobs.push((
                 c,
                 ControlTask {
@@ -100,7 +104,21 @@ pub fn control_phase(
                 },
             ));
         }
-        control_loop(client, live, jobs, &mut |k, n| on(Event::Control(k, n)))
+        // The others yield to the critical path: on 2 cores the macro step then costs less.
+        let mut yield_to = |critical: usize| -> Vec<String> {
+            ids.iter()
+                .enumerate()
+                .filter(|&(j, id)| j != critical && (what.deprioritise)(id))
+                .map(|(_, id)| id.to_string())
+                .collect()
+        };
+        control_loop(
+            client,
+            live,
+            jobs,
+            &mut |k, n| on(Event::Control(k, n)),
+            &mut yield_to,
+        )
     };
     let all: Vec<usize> = (0..prepared.len()).collect();
     let (mut reports, mut figures) = run(clients, &all, what.publish, on)?;

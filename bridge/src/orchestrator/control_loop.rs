@@ -1,6 +1,8 @@
 //! Several simulators controlled in ONE lockstep loop: each macro step runs every simulator's
 //! solve → step concurrently (one thread per simulator) and waits for all of them, so a macro
-//! step costs about the slowest simulator, not the sum; the loop's own figures.
+//! step costs about the slowest simulator, not the sum; the loop's own figures. After a warm-up
+//! the loop names its critical path (the simulator whose solve → step takes longest), so that
+//! the caller can let it go first when the processes outnumber the cores.
 
 use std::sync::mpsc;
 use std::time::Instant;
@@ -37,16 +39,31 @@ pub struct LoopReport {
     /// second (goal ≤ 1.2); absent when not measured.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub slowdown_vs_slowest_alone: Option<f64>,
+    /// The critical path found after [`WARMUP_MACRO_STEPS`]: the simulator whose solve → step
+    /// took longest on average (absent for a loop of one).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub critical_path: Option<String>,
+    /// The simulators whose processes were then given a lower CPU priority (nice +10) so that
+    /// the critical path is served first (those this run started; empty when none was).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub deprioritised: Vec<String>,
 }
+
+/// Macro steps after which the loop names its critical path (the first ones include warm-up
+/// costs: first solves, caches).
+pub const WARMUP_MACRO_STEPS: usize = 20;
 
 /// Runs every `(simulator, task)` in one lockstep loop: all reset, then each macro step steps
 /// every loop that still has steps, concurrently, and waits for all; the first failure ends the
-/// loop (naming its simulator). `progress(k, total)` after each macro step.
+/// loop (naming its simulator). `progress(k, total)` after each macro step. With several
+/// simulators, after [`WARMUP_MACRO_STEPS`] `on_critical(j)` is called once with the index (in
+/// `jobs`) of the critical path; it returns the simulators it deprioritised (for the report).
 pub fn control_loop(
     client: &Client,
     live: &Liveliness,
     jobs: Vec<(&mut SimClient, ControlTask<'_>)>,
     progress: &mut dyn FnMut(usize, usize),
+    on_critical: &mut dyn FnMut(usize) -> Vec<String>,
 ) -> Result<(Vec<ControlReport>, LoopReport)> {
     let total = jobs.iter().map(|(_, t)| t.steps).max().unwrap_or(0);
     let mut runs: Vec<ControlRun<'_>> = jobs
@@ -55,6 +72,7 @@ pub fn control_loop(
         .collect::<Result<_>>()?;
     let sims: Vec<String> = runs.iter().map(|r| r.sim_id().to_string()).collect();
     let mut macro_us = Vec::with_capacity(total);
+    let (mut critical, mut deprioritised) = (None, Vec::new());
     let t0 = Instant::now();
     if runs.len() == 1 {
         for k in 0..total {
@@ -66,23 +84,26 @@ pub fn control_loop(
     } else {
         let steps: Vec<usize> = runs.iter().map(ControlRun::remaining).collect();
         std::thread::scope(|scope| -> Result<()> {
-            let (done_tx, done_rx) = mpsc::channel::<Result<()>>();
+            // (simulator, outcome, seconds its solve → step took)
+            let (done_tx, done_rx) = mpsc::channel::<(usize, Result<()>, f64)>();
             let mut go = Vec::new();
-            for run in runs.iter_mut() {
+            for (j, run) in runs.iter_mut().enumerate() {
                 let (tx, rx) = mpsc::channel::<()>();
                 go.push(tx);
                 let done = done_tx.clone();
                 scope.spawn(move || {
                     // One step per signal; the thread ends when its sender is dropped.
                     while rx.recv().is_ok() {
+                        let t = Instant::now();
                         let r = run.step(client, live);
                         let failed = r.is_err();
-                        if done.send(r).is_err() || failed {
+                        if done.send((j, r, t.elapsed().as_secs_f64())).is_err() || failed {
                             return;
                         }
                     }
                 });
             }
+            let mut chain_seconds = vec![0.0; steps.len()];
             drop(done_tx);
             for k in 0..total {
                 let t = Instant::now();
@@ -95,8 +116,8 @@ pub fn control_loop(
                 let mut first_err = None;
                 for _ in &active {
                     match done_rx.recv() {
-                        Ok(Ok(())) => {}
-                        Ok(Err(e)) => {
+                        Ok((j, Ok(()), seconds)) => chain_seconds[j] += seconds,
+                        Ok((_, Err(e), _)) => {
                             first_err.get_or_insert(e);
                         }
                         Err(_) => {
@@ -108,6 +129,11 @@ pub fn control_loop(
                     return Err(e);
                 }
                 macro_us.push(t.elapsed().as_secs_f64() * 1e6);
+                if k + 1 == WARMUP_MACRO_STEPS {
+                    let j = slowest(&chain_seconds);
+                    critical = Some(sims[j].clone());
+                    deprioritised = on_critical(j);
+                }
                 progress(k + 1, total);
             }
             Ok(())
@@ -131,6 +157,28 @@ pub fn control_loop(
         sims,
         alone_steps_per_second: Vec::new(),
         slowdown_vs_slowest_alone: None,
+        critical_path: critical,
+        deprioritised,
     };
     Ok((reports, report))
+}
+
+/// The index of the largest total (the first of equal ones).
+fn slowest(totals: &[f64]) -> usize {
+    totals
+        .iter()
+        .enumerate()
+        .fold(0, |best, (j, &t)| if t > totals[best] { j } else { best })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::slowest;
+
+    #[test]
+    fn the_critical_path_is_the_largest_total_and_the_first_of_a_tie() {
+        assert_eq!(slowest(&[0.2, 0.9, 0.4]), 1);
+        assert_eq!(slowest(&[0.5, 0.1, 0.5]), 0);
+        assert_eq!(slowest(&[3.0]), 0);
+    }
 }

@@ -227,6 +227,7 @@ pub fn run_scenario_with(
                 model_of: &model_of,
                 publish: record,
                 baseline: extras.loop_baseline,
+                deprioritise: &|id| cluster.deprioritise_sim(id),
             },
             on,
         )?;
