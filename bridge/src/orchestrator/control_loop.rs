@@ -58,6 +58,7 @@ pub const WARMUP_MACRO_STEPS: usize = 20;
 /// loop (naming its simulator). `progress(k, total)` after each macro step. With several
 /// simulators, after [`WARMUP_MACRO_STEPS`] `on_critical(j)` is called once with the index (in
 /// `jobs`) of the critical path; it returns the simulators it deprioritised (for the report).
+/// From then on the critical path's solve is also the first issued in each macro step.
 pub fn control_loop(
     client: &Client,
     live: &Liveliness,
@@ -104,10 +105,12 @@ pub fn control_loop(
                 });
             }
             let mut chain_seconds = vec![0.0; steps.len()];
+            // The order the threads are signalled in: the critical path first once it is known.
+            let mut order: Vec<usize> = (0..steps.len()).collect();
             drop(done_tx);
             for k in 0..total {
                 let t = Instant::now();
-                let active: Vec<usize> = (0..steps.len()).filter(|&j| steps[j] > k).collect();
+                let active: Vec<usize> = order.iter().copied().filter(|&j| steps[j] > k).collect();
                 for &j in &active {
                     go[j].send(()).map_err(|_| {
                         Error::Config(format!("the control thread of '{}' ended", sims[j]))
@@ -131,6 +134,8 @@ pub fn control_loop(
                 macro_us.push(t.elapsed().as_secs_f64() * 1e6);
                 if k + 1 == WARMUP_MACRO_STEPS {
                     let j = slowest(&chain_seconds);
+                    order.retain(|&i| i != j);
+                    order.insert(0, j);
                     critical = Some(sims[j].clone());
                     deprioritised = on_critical(j);
                 }
