@@ -15,8 +15,8 @@ pub const NICE_MAX: i32 = 19;
 pub fn lower_priority(pid: u32, by: i32) -> Result<usize> {
     #[cfg(target_os = "linux")]
     {
-        let mut changed = lower_threads(pid, by)?;
-        for child in children(pid) {
+        let (mut changed, children) = lower_threads(pid, by)?;
+        for child in children {
             // A descendant that ended meanwhile is not an error.
             changed += lower_priority(child, by).unwrap_or(0);
         }
@@ -31,33 +31,23 @@ pub fn lower_priority(pid: u32, by: i32) -> Result<usize> {
     }
 }
 
-/// The child processes of `pid` (from every thread's `children` list).
+/// [`lower_priority`] for the threads of `pid` alone, in one pass over them that also collects
+/// their child processes (each thread's `children` list): (threads changed, children).
 #[cfg(target_os = "linux")]
-fn children(pid: u32) -> Vec<u32> {
-    let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else {
-        return Vec::new();
-    };
-    tasks
-        .flatten()
-        .filter_map(|t| std::fs::read_to_string(t.path().join("children")).ok())
-        .flat_map(|list| {
-            list.split_whitespace()
-                .filter_map(|c| c.parse().ok())
-                .collect::<Vec<u32>>()
-        })
-        .collect()
-}
-
-/// [`lower_priority`] for the threads of `pid` alone.
-#[cfg(target_os = "linux")]
-fn lower_threads(pid: u32, by: i32) -> Result<usize> {
+fn lower_threads(pid: u32, by: i32) -> Result<(usize, Vec<u32>)> {
     let tasks = std::fs::read_dir(format!("/proc/{pid}/task"))
         .map_err(|e| Error::Config(format!("process {pid}: {e}")))?;
-    let mut changed = 0;
+    let (mut changed, mut children) = (0, Vec::new());
     for t in tasks.flatten() {
         let Some(tid) = t.file_name().to_str().and_then(|s| s.parse::<u32>().ok()) else {
             continue;
         };
+        if let Ok(list) = std::fs::read_to_string(t.path().join("children")) {
+            children.extend(
+                list.split_whitespace()
+                    .filter_map(|c| c.parse::<u32>().ok()),
+            );
+        }
         // A thread that ended since the listing is not an error.
         let Ok(now) = thread_nice(pid, tid) else {
             continue;
@@ -70,7 +60,7 @@ fn lower_threads(pid: u32, by: i32) -> Result<usize> {
             .map_err(|e| Error::Config(format!("process {pid} thread {tid}: {e}")))?;
         changed += 1;
     }
-    Ok(changed)
+    Ok((changed, children))
 }
 
 /// The nice value of thread `tid` of process `pid` (field 19 of its `stat`).
@@ -134,7 +124,11 @@ mod tests {
         let pid = sh.id();
         let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
         let kid = loop {
-            if let Some(&k) = children(pid).first() {
+            let kids = std::fs::read_to_string(format!("/proc/{pid}/task/{pid}/children"));
+            if let Some(k) = kids
+                .ok()
+                .and_then(|l| l.split_whitespace().next()?.parse().ok())
+            {
                 break k;
             }
             assert!(std::time::Instant::now() < deadline, "sh started no child");

@@ -60,15 +60,14 @@ impl ServeLine<'_> {
     pub fn args(&self) -> Vec<String> {
         let mut a = vec!["serve".to_string()];
         a.extend(self.services.iter().map(|s| s.to_string()));
-        let paths = [
-            ("--store", self.store),
-            ("--state-dir", self.state_dir),
-            ("--data-root", self.data_root),
-        ];
         for (k, v) in [("--session", self.session), ("--id", self.id)] {
             a.extend([k.to_string(), v.to_string()]);
         }
-        for (k, v) in paths {
+        for (k, v) in [
+            ("--store", self.store),
+            ("--state-dir", self.state_dir),
+            ("--data-root", self.data_root),
+        ] {
             a.extend([k.to_string(), v.display().to_string()]);
         }
         if let Some(t) = self.train_threads {
