@@ -64,14 +64,22 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         let rep = lifted_report(kind, bil.linear(), err, &data);
         return print_report(&args, &rep);
     }
+    if kind == "koopman" {
+        // In the model's own coordinates: a model trained on z-scored data is evaluated on the
+        // test windows z-scored with its statistics, as its training reported.
+        let km = KoopmanModel::load(&args.model)?;
+        check_dims(&args, &data, km.nx(), km.nu())?;
+        let data = match km.normalisation() {
+            Some(norm) => norm.apply(&data)?,
+            None => data,
+        };
+        let err = koopman::train::prediction_error(&km, &data, args.gamma)?;
+        return print_report(&args, &lifted_report(kind, &km, err, &data));
+    }
     let model: Box<dyn LiftedModel> = load_lifted(&args.model)?;
     check_dims(&args, &data, model.nx(), model.nu())?;
-    let prediction_error = if kind == "koopman" {
-        let km = KoopmanModel::load(&args.model)?;
-        koopman::train::prediction_error(&km, &data, args.gamma)?
-    } else {
-        koopman::analysis::prediction_error(model.as_ref(), &data, args.gamma)?
-    };
+    let prediction_error =
+        { koopman::analysis::prediction_error(model.as_ref(), &data, args.gamma)? };
     let rep = lifted_report(kind, model.as_ref(), prediction_error, &data);
     print_report(&args, &rep)
 }

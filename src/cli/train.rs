@@ -84,6 +84,12 @@ pub struct TrainArgs {
     /// Discount γ of the multi-step losses (0.99 for legged robots).
     #[arg(long, default_value_t = 0.8)]
     pub gamma: f64,
+    /// Train on z-scored states and inputs (SPEC.md for legged robots): mean and standard
+    /// deviation of every dimension over the training pool, kept in the model, which the MPC
+    /// and every other consumer then use in raw units. The reported prediction errors are in
+    /// normalised units. Koopman models only.
+    #[arg(long)]
+    pub normalise: bool,
     /// Train in f64 instead of f32.
     #[arg(long)]
     pub f64: bool,
@@ -117,6 +123,12 @@ struct MetricsFile<'a, M: Serialize> {
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let splits = Splits::load(&args.data)
         .with_context(|| format!("loading the dataset folder {}", args.data.display()))?;
+    if args.normalise && args.model != ModelKind::Koopman {
+        anyhow::bail!(
+            "--normalise is implemented for the Koopman model only (asked for {:?})",
+            args.model
+        );
+    }
     match args.model {
         ModelKind::Koopman => train_koopman(&args, &splits, false),
         ModelKind::Bilinear => train_koopman(&args, &splits, true),
@@ -144,6 +156,7 @@ fn config(args: &TrainArgs) -> TrainConfig {
             Precision::F32
         },
         threads: args.threads,
+        normalise: args.normalise,
         ..TrainConfig::default()
     }
 }

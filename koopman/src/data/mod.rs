@@ -17,12 +17,14 @@
 //! the same metadata; see [`npz`].
 
 pub mod generate;
+pub mod normalise;
 pub mod npy;
 pub mod npz;
 pub mod region;
 pub mod splits;
 
 pub use generate::{generate, generate_with_progress, worker_threads};
+pub use normalise::Normalisation;
 pub use region::{DataRegion, InRegion};
 pub use splits::{generate_splits, generate_splits_with_progress, SplitSpec, Splits};
 

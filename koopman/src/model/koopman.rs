@@ -5,6 +5,7 @@ use super::encoder::EncoderWs;
 use super::init::init_params;
 use super::store::{self, Tensor};
 use super::LiftedModel;
+use crate::data::Normalisation;
 use crate::rng::Rng;
 use crate::{Error, Result};
 use faer::{Mat, MatRef, Par};
@@ -15,10 +16,15 @@ use std::path::Path;
 pub const FORMAT_VERSION: u32 = 1;
 
 /// A neural Koopman model `z = [x, ψ(x)]`, `z⁺ = A z + B u`, with f64 weights.
+///
+/// A model trained on z-scored data carries its [`Normalisation`]: its own coordinates (A, B,
+/// [`LiftedModel::lift`]) are then the normalised ones, and
+/// [`super::normalised::RawUnits`] presents it in raw units.
 #[derive(Clone, Debug, PartialEq)]
 pub struct KoopmanModel {
     arch: Arch,
     params: Vec<f64>,
+    normalisation: Option<Normalisation>,
     /// Free-form metadata saved in `config.json` (training configuration, metrics, data).
     pub metadata: serde_json::Value,
 }
@@ -33,8 +39,10 @@ struct ConfigFile {
     n_enc: usize,
     latent_dim: usize,
     widths: Vec<usize>,
-    /// Always `null`: states are in raw units (no normalisation layer).
-    normalisation: Option<serde_json::Value>,
+    /// `null` for a model in raw units; the z-scoring of states and inputs it was trained with
+    /// otherwise.
+    #[serde(default)]
+    normalisation: Option<Normalisation>,
     block: String,
     #[serde(default)]
     metadata: serde_json::Value,
@@ -56,8 +64,22 @@ impl KoopmanModel {
         Ok(KoopmanModel {
             arch,
             params,
+            normalisation: None,
             metadata: serde_json::Value::Null,
         })
+    }
+
+    /// The same model declared to work in the normalised coordinates of `norm` (checked against
+    /// nx and nu).
+    pub fn with_normalisation(mut self, norm: Normalisation) -> Result<Self> {
+        norm.check(self.arch.nx, self.arch.nu)?;
+        self.normalisation = Some(norm);
+        Ok(self)
+    }
+
+    /// The z-scoring the model was trained with (`None`: raw units).
+    pub fn normalisation(&self) -> Option<&Normalisation> {
+        self.normalisation.as_ref()
     }
 
     /// A freshly initialised model (SPEC initialisation) from `seed`.
@@ -199,7 +221,7 @@ impl KoopmanModel {
             n_enc: self.arch.n_enc(),
             latent_dim: n,
             widths: self.arch.widths.clone(),
-            normalisation: None,
+            normalisation: self.normalisation.clone(),
             block: "y = relu(W x + b) + R(x); R linear with bias if widths differ, identity otherwise; \
                     z = [x, psi(x)]; z+ = A z + B u; tensors row-major [out, in]"
                 .into(),
@@ -273,6 +295,17 @@ impl KoopmanModel {
         }
         let x = extra(&st, &st_path, &arch)?;
         let mut model = Self::from_params(arch, params)?;
+        if let Some(norm) = cfg.normalisation {
+            if kind != "koopman" {
+                return Err(Error::format(
+                    &cfg_path,
+                    format!("normalised data are not supported for {label}"),
+                ));
+            }
+            model = model
+                .with_normalisation(norm)
+                .map_err(|e| Error::format(&cfg_path, e.to_string()))?;
+        }
         model.metadata = cfg.metadata;
         Ok((model, x))
     }

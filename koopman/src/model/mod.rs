@@ -41,6 +41,7 @@ pub mod init;
 pub mod koopman;
 pub mod matrix;
 pub mod nndm;
+pub mod normalised;
 pub mod scalar;
 pub mod store;
 
@@ -48,10 +49,17 @@ use crate::{Error, Result};
 use std::path::Path;
 
 /// Loads any saved lifted model from `dir`, dispatching on `config.json`'s `"kind"`
-/// (`koopman` or `edmd`).
+/// (`koopman` or `edmd`). A model trained on z-scored data comes back in raw units
+/// ([`normalised::RawUnits`]).
 pub fn load_lifted(dir: &Path) -> Result<Box<dyn LiftedModel>> {
     match store::read_kind(dir)?.as_str() {
-        "koopman" => Ok(Box::new(koopman::KoopmanModel::load(dir)?)),
+        "koopman" => {
+            let model = koopman::KoopmanModel::load(dir)?;
+            match model.normalisation().cloned() {
+                Some(norm) => Ok(Box::new(normalised::RawUnits::new(Box::new(model), norm)?)),
+                None => Ok(Box::new(model)),
+            }
+        }
         "edmd" => Ok(Box::new(edmd::EdmdModel::load(dir)?)),
         other => Err(Error::UnknownName {
             kind: "lifted model kind",

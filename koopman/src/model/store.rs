@@ -104,9 +104,9 @@ pub fn read_kind(dir: &Path) -> Result<String> {
 }
 
 /// Reads `dir/config.json` and checks the header every saved model shares: `"kind"` equals
-/// `kind`, `"format_version"` is not newer than `max_version`, and `"normalisation"` is absent
-/// or null (normalised models are not supported). `label` names the model in errors (e.g.
-/// "a Koopman model"). Returns the parsed config for the caller's own fields, and its path.
+/// `kind` and `"format_version"` is not newer than `max_version`. `label` names the model in
+/// errors (e.g. "a Koopman model"). Returns the parsed config for the caller's own fields, and
+/// its path. Kinds without a normalisation layer refuse one with [`refuse_normalisation`].
 pub fn read_config_checked(
     dir: &Path,
     kind: &str,
@@ -140,8 +140,17 @@ pub fn read_config_checked(
         }
         Some(_) => {}
     }
-    if cfg.get("normalisation").is_some_and(|n| !n.is_null()) {
-        return Err(Error::format(&path, "normalised models are not supported"));
-    }
     Ok((cfg, path))
+}
+
+/// A format error when `cfg` carries a non-null `"normalisation"`: for the model kinds that have
+/// no normalisation layer (`label` names the kind, e.g. "an NNDM").
+pub fn refuse_normalisation(cfg: &serde_json::Value, path: &Path, label: &str) -> Result<()> {
+    if cfg.get("normalisation").is_some_and(|n| !n.is_null()) {
+        return Err(Error::format(
+            path,
+            format!("normalised data are not supported for {label}"),
+        ));
+    }
+    Ok(())
 }

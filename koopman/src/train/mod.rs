@@ -70,6 +70,11 @@ pub struct TrainConfig {
     /// Bilinear latent dynamics `z⁺ = A z + B u + Σ_i u_i N_i z` (N_i start at zero) instead of
     /// SPEC's linear ones; train with [`train_bilinear`].
     pub bilinear: bool,
+    /// Train on z-scored states and inputs (SPEC.md for legged robots): the statistics are
+    /// fitted on the whole training pool, the model keeps them
+    /// ([`KoopmanModel::normalisation`]) and the reported prediction errors are in normalised
+    /// units. Linear Koopman models only.
+    pub normalise: bool,
 }
 
 impl Default for TrainConfig {
@@ -92,6 +97,7 @@ impl Default for TrainConfig {
             precision: Precision::F32,
             threads: 0,
             bilinear: false,
+            normalise: false,
         }
     }
 }

@@ -6,7 +6,7 @@ use super::eval::{check_dataset, PredEval};
 use super::loss::{LossOptions, LossParts, LossWs};
 use super::tracker::{RunTracker, StepInfo};
 use super::{BilinearOutcome, Precision, Progress, TrainConfig, TrainMetrics, TrainOutcome};
-use crate::data::Dataset;
+use crate::data::{Dataset, Normalisation};
 use crate::model::arch::Arch;
 use crate::model::bilinear::BilinearModel;
 use crate::model::init::init_params;
@@ -50,14 +50,65 @@ pub fn train_resumable(
             "the configuration asks for a bilinear model: use train_bilinear".into(),
         ));
     }
+    let normalised = NormalisedSplits::new(cfg, train, val, test)?;
+    let (train, val, test) = normalised.views(train, val, test);
     let (arch, best, mut metrics) =
         train_params(cfg, train, val, test, resume, observer, on_checkpoint)?;
     let mut model = KoopmanModel::from_params(arch, best)?;
+    if let Some(norm) = normalised.norm.clone() {
+        model = model.with_normalisation(norm)?;
+    }
     if let Some(t) = test {
         metrics.test_prediction_error = Some(super::prediction_error(&model, t, cfg.gamma)?);
     }
     model.metadata = run_metadata(&metrics, train);
     Ok(TrainOutcome { model, metrics })
+}
+
+/// The z-scored copies of a run's splits when `cfg.normalise` is set (statistics over the whole
+/// training pool, SPEC.md); empty otherwise.
+struct NormalisedSplits {
+    norm: Option<Normalisation>,
+    data: Option<(Dataset, Dataset, Option<Dataset>)>,
+}
+
+impl NormalisedSplits {
+    fn new(
+        cfg: &TrainConfig,
+        train: &Dataset,
+        val: &Dataset,
+        test: Option<&Dataset>,
+    ) -> Result<Self> {
+        if !cfg.normalise {
+            return Ok(NormalisedSplits {
+                norm: None,
+                data: None,
+            });
+        }
+        let norm = Normalisation::fit(train)?;
+        let data = (
+            norm.apply(train)?,
+            norm.apply(val)?,
+            test.map(|t| norm.apply(t)).transpose()?,
+        );
+        Ok(NormalisedSplits {
+            norm: Some(norm),
+            data: Some(data),
+        })
+    }
+
+    /// The splits to train on: the normalised copies, or the given ones.
+    fn views<'a>(
+        &'a self,
+        train: &'a Dataset,
+        val: &'a Dataset,
+        test: Option<&'a Dataset>,
+    ) -> (&'a Dataset, &'a Dataset, Option<&'a Dataset>) {
+        match &self.data {
+            Some((t, v, s)) => (t, v, s.as_ref()),
+            None => (train, val, test),
+        }
+    }
 }
 
 /// [`train`] for the bilinear model `z⁺ = A z + B u + Σ_i u_i N_i z` (`cfg.bilinear` must be
@@ -204,6 +255,9 @@ fn check_config(cfg: &TrainConfig) -> Result<()> {
     super::check_optimiser_settings(cfg)?;
     if cfg.cov && cfg.batch < 2 {
         return bad("the covariance loss needs batch ≥ 2 (or --no-cov)");
+    }
+    if cfg.normalise && cfg.bilinear {
+        return bad("normalised training is implemented for the linear Koopman model only, not the bilinear one");
     }
     Ok(())
 }

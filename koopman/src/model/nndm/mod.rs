@@ -199,6 +199,7 @@ impl NndmModel {
     /// Loads a model saved by [`NndmModel::save`] (F32 or F64 tensors).
     pub fn load(dir: &Path) -> Result<Self> {
         let (value, cfg_path) = store::read_config_checked(dir, "nndm", FORMAT_VERSION, "an NNDM")?;
+        store::refuse_normalisation(&value, &cfg_path, "an NNDM")?;
         let cfg: ConfigFile = serde_json::from_value(value)
             .map_err(|e| Error::format(&cfg_path, format!("not an NNDM config: {e}")))?;
         let arch = NndmArch::new(cfg.nx, cfg.nu, &cfg.hidden)

@@ -97,6 +97,11 @@ pub fn train_nndm(
 }
 
 fn check_config(cfg: &TrainConfig) -> Result<()> {
+    if cfg.normalise {
+        return Err(Error::InvalidArgument(
+            "normalised training is implemented for the Koopman model only, not the NNDM".into(),
+        ));
+    }
     if cfg.n_mult == 0 || cfg.hidden.is_empty() || cfg.hidden.contains(&0) {
         return Err(Error::InvalidArgument(
             "n_mult must be ≥ 1 and hidden a non-empty list of widths ≥ 1 (they set the NNDM's parameter budget)".into(),
