@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The multi-simulator loop against the slowest simulator alone (BENCHMARKS.md "Session 7",
+# The multi-simulator loop against the slowest simulator alone (BENCHMARKS.md "Multi-simulator loop"; docs/log/2026-12.md "Session 7",
 # issue 14 §1): scenarios/multi-sim.toml with STEPS control steps per simulator, run with
 # `--loop-baseline` by each koopbridge binary given (default target/release/koopbridge), the
 # binaries alternating for ROUNDS rounds, one line per run. Needs the Python set-up

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Scale-out collection rate (BENCHMARKS.md "Scale-out on a quiet machine"): one collect-only
+# Scale-out collection rate (BENCHMARKS.md "Bridge and collection › Scale-out"): one collect-only
 # damped-pendulum scenario (3,000 windows x 15 steps) run embedded, as peers behind a
 # `koopbridge router`, and in client mode through it, in one run, three rounds. Needs
 # `cargo build --release`; KOOPBRIDGE=path overrides the binary. Take it on a quiet machine.

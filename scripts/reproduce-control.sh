@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Reproduces the closed-loop comparison of issue #3 (BENCHMARKS.md, "Closed loop"): every
+# Reproduces the closed-loop comparison of issue #3 (docs/log/2026-11.md, "Closed loop"): every
 # controller (Koopman MPC with both solvers, the clamped closed form, LQR, random shooting on the
 # NNDM and on the true system, zero input) on the SPEC tasks, with the models that exist, and one
 # markdown table per run. Needs the models of scripts/reproduce-core.sh (damped pendulum, aligned

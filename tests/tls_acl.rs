@@ -333,7 +333,7 @@ fn steps_exactly(sim: &mut SimClient, n: u64) {
 }
 
 /// The cost of TLS on the lockstep round trip through a router: 1000 steps over TLS, then the
-/// same topology over plain TCP (BENCHMARKS.md, "Reliability and security"). A measurement, not
+/// same topology over plain TCP (BENCHMARKS.md, "Reliability"). A measurement, not
 /// a check, and kept out of CI: zenoh-link-tls 1.10.2 reads and writes one TLS stream from two
 /// tasks at once through an `UnsafeCell` (upstream eclipse-zenoh/zenoh#2557, open), which under
 /// sustained two-way traffic has aborted this process with a corrupted `rustls` error (seen in

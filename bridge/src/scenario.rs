@@ -193,7 +193,7 @@ pub struct ControlSpec {
     /// `feedforward_file`): at every step the orchestrator corrects the planned velocities — in
     /// the feed-forward window and in the planned state alike — by `−gain · (q − q_plan)`, and
     /// the error-state MPC plans about the corrected plan. What corrects an actuator mismatch
-    /// that no MPC weighting of the model does (BENCHMARKS.md, session 8).
+    /// that no MPC weighting of the model does (docs/log/2026-12.md, session 8).
     #[serde(default)]
     pub position_loop: Option<PositionLoopSpec>,
     /// Closed-loop steps.

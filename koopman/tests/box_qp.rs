@@ -551,8 +551,8 @@ fn closed_loop_plans_equal_the_certified_optimum_warm_or_cold() {
     );
     // Recorded, not asserted: on this loop (7 inputs acting on 2 states, R = 1e-3) the optimal
     // plan chatters from step to step, so the shifted previous plan's bounds are a poor first
-    // working set (notes/h5-qp.md) and the unshifted previous working set a good one
-    // (notes/h6-qp.md).
+    // working set and the unshifted previous working set a good one
+    // (docs/decisions/0001-box-qp-solver.md).
     eprintln!(
         "working-set changes over {} steps: warm {its}, cold {its_cold}",
         steps - 1

@@ -30,7 +30,7 @@ pub struct BenchMpcArgs {
     /// Receding-horizon steps per case (each timed for both solvers).
     #[arg(long, default_value_t = 200)]
     pub steps: usize,
-    /// Diagonal input weight R (R = 0 makes H singular when H·nu > H·nx; see BENCHMARKS.md).
+    /// Diagonal input weight R (R = 0 makes H singular when H·nu > H·nx; see docs/log/2026-11.md, "MPC").
     #[arg(long, default_value_t = 1e-3)]
     pub r: f64,
     /// Random seed of the models and initial states.

@@ -74,7 +74,7 @@ pub struct TrainArgs {
     pub seed: u64,
     /// Turn the inverse-control loss off. On data paired as x_{t+1} = f(x_t, u_t) (--pairing
     /// aligned) it costs the damped pendulum 75% of prediction error for a 7x better-conditioned
-    /// latent space (BENCHMARKS.md, "Regulariser table").
+    /// latent space (BENCHMARKS.md, "Training › Regulariser table").
     #[arg(long)]
     pub no_ctrl: bool,
     /// Turn the covariance loss off. Keep it whenever the inverse-control loss is on: alone, that

@@ -202,7 +202,7 @@ impl<'m> MpcController<'m> {
                     cfg.time_limit,
                 )?;
                 // The previous solve's working set is a far better first guess than the bounds
-                // the shifted plan touches on chattering loops (notes/h6-qp.md).
+                // the shifted plan touches on chattering loops (docs/decisions/0001-box-qp-solver.md).
                 s.set_warm_start(WarmStart::Previous);
                 let g = ustar_map(&condensed, s.hessian_inverse());
                 (

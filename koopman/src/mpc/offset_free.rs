@@ -64,8 +64,8 @@ pub struct OffsetFreeConfig {
 }
 
 impl OffsetFreeConfig {
-    /// The settings that worked on the damped pendulum for `mode` (see BENCHMARKS.md, "Session
-    /// 6"): integral and disturbance: radius 0.3, gain 0.1 on the angles and 0 elsewhere;
+    /// The settings that worked on the damped pendulum for `mode` (see docs/log/2026-12.md,
+    /// "Session 6"): integral and disturbance: radius 0.3, gain 0.1 on the angles and 0 elsewhere;
     /// trajectory: radius 1.0, α = 0.5 on every component.
     pub fn defaults(mode: OffsetMode, nx: usize, angles: Vec<usize>) -> Self {
         let (radius, gain) = match mode {

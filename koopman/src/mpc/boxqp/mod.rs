@@ -282,7 +282,7 @@ impl QpSolver for BoxQp {
         // The whole solve is compiled for the CPU's vector extension (AVX2 where there is
         // one): wider vectors, and VEX-encoded instructions, which do not stall when other code
         // has left the upper halves of the vector registers dirty (legacy SSE code ran the
-        // same solve 2.4× slower inside the bench binary, notes/h6-qp.md).
+        // same solve 2.4× slower inside the bench binary, docs/decisions/0001-box-qp-solver.md).
         pulp::Arch::new().dispatch(Run {
             qp: self,
             q: Some(q),
