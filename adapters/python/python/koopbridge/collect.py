@@ -17,7 +17,23 @@ import numpy as np
 from ._native import InvalidInput, Unsupported
 from .simulator import SimInfo, Simulator
 
-__all__ = ["Collector", "PlannedPolicy", "Policy", "UniformPolicy", "Windows", "collect_windows", "policy_from_json", "window_rng"]
+__all__ = [
+    "SIMULATOR_POLICY_KINDS",
+    "Collector",
+    "PlannedPolicy",
+    "Policy",
+    "SimulatorPolicy",
+    "UniformPolicy",
+    "Windows",
+    "collect_windows",
+    "policy_from_json",
+    "window_rng",
+]
+
+#: Policy kinds that only a simulator with its own ``collect`` runs (``SimulatorPolicy``): a
+#: legged robot's expert walking policy, alone or with Gaussian noise on its joint targets
+#: (``koopbridge.adapters.legged_collect``).
+SIMULATOR_POLICY_KINDS = ("expert", "expert+noise")
 
 
 class Policy(Protocol):
@@ -105,14 +121,36 @@ class PlannedPolicy:
         return PlannedPolicy(k, float(dither))
 
 
+@dataclass(frozen=True)
+class SimulatorPolicy:
+    """A policy the simulator runs itself (a kind of ``SIMULATOR_POLICY_KINDS`` and its settings,
+    e.g. ``{"kind": "expert", "windows_per_episode": 50}``): the simulator's own ``collect``
+    checks the settings and runs it; ``collect_windows`` and every other simulator answer
+    ``Unsupported``."""
+
+    kind: str
+    settings: tuple[tuple[str, Any], ...] = ()
+
+    def inputs(self, rng: np.random.Generator, T: int, info: SimInfo) -> np.ndarray:
+        """Not a per-window input draw: raises ``Unsupported``."""
+        raise Unsupported(f"the {self.kind!r} collect policy needs a simulator that runs it itself (a legged robot with an expert, e.g. the Go2 adapter)")
+
+    def to_json(self) -> dict[str, Any]:
+        return {"kind": self.kind, **dict(self.settings)}
+
+
 def policy_from_json(d: Mapping[str, Any]) -> Policy:
     """The policy a JSON object describes (``{"kind": "uniform", "low": [...], "high": [...]}``,
-    a scalar bound applying to every input, or ``{"kind": "planned", "windows_per_plan": K}``)."""
+    a scalar bound applying to every input, ``{"kind": "planned", "windows_per_plan": K}``, or
+    a ``SimulatorPolicy`` of a kind in ``SIMULATOR_POLICY_KINDS``)."""
     kind = d.get("kind")
     if kind == "planned":
         return PlannedPolicy.from_json(d)
+    if kind in SIMULATOR_POLICY_KINDS:
+        return SimulatorPolicy(str(kind), tuple(sorted((str(k), v) for k, v in d.items() if k != "kind")))
     if kind != "uniform":
-        raise InvalidInput(f"policy kind {kind!r}: only 'uniform' and 'planned' are known")
+        kinds = ", ".join(repr(k) for k in SIMULATOR_POLICY_KINDS)
+        raise InvalidInput(f"policy kind {kind!r}: only 'uniform' and 'planned' are known (and {kinds} for a simulator that runs them)")
     unknown = set(d) - {"kind", "low", "high"}
     if unknown:
         raise InvalidInput(f"uniform policy: unknown fields {sorted(unknown)}")
@@ -184,7 +222,7 @@ def collect_windows(
     here once). Any simulator error propagates (the block is then incomplete)."""
     if n_windows < 0 or T < 1:
         raise InvalidInput(f"collect: n_windows must be >= 0 and T >= 1, got {n_windows}, {T}")
-    if isinstance(policy, PlannedPolicy):
+    if isinstance(policy, (PlannedPolicy, SimulatorPolicy)):
         policy.inputs(np.random.default_rng(0), T, sim.info())  # raises Unsupported
     info = sim.info()
     step = step or sim.step
