@@ -77,6 +77,7 @@ class Go2Simulator:
         self.go2 = g.build_go2(model, fitted=fitted)
         self.model = self.go2.model
         self.data = mujoco.MjData(self.model)
+        self._probe = mujoco.MjData(self.model)
         self.layout = self.go2.layout
         self.substeps = self.go2.substeps
         self.dt = self.substeps * float(self.model.opt.timestep)
@@ -230,26 +231,31 @@ class Go2Simulator:
             raise InvalidInput(f"x0: {g.JOINTS[i]} = {q[i]:.6g} rad is outside its range [{self.q_min[i]:.6g}, {self.q_max[i]:.6g}] (+-{JOINT_SLACK})")
         if height <= 0:
             raise InvalidInput(f"x0: base height {height:.6g} m puts the base under the floor (z = 0)")
-        mj.mj_resetData(m, d)
+        # Checked on a scratch MjData first: a refused state leaves the episode as it was.
+        probe = self._probe
+        mj.mj_resetData(m, probe)
         b, v = lay.base_qpos, lay.base_dof
-        d.qpos[b : b + 3] = [0.0, 0.0, height]
-        d.qpos[b + 3 : b + 7] = quat
-        d.qpos[lay.qpos] = q
-        d.qvel[v : v + 3] = quat_to_matrix(quat) @ v_body
-        d.qvel[v + 3 : v + 6] = w_body
-        d.qvel[lay.dofs] = qd
-        mj.mj_forward(m, d)
-        if d.ncon:
-            deepest = int(np.argmin(d.contact.dist[: d.ncon]))
-            depth = -float(d.contact.dist[deepest])
+        probe.qpos[b : b + 3] = [0.0, 0.0, height]
+        probe.qpos[b + 3 : b + 7] = quat
+        probe.qpos[lay.qpos] = q
+        probe.qvel[v : v + 3] = quat_to_matrix(quat) @ v_body
+        probe.qvel[v + 3 : v + 6] = w_body
+        probe.qvel[lay.dofs] = qd
+        mj.mj_forward(m, probe)
+        if probe.ncon:
+            deepest = int(np.argmin(probe.contact.dist[: probe.ncon]))
+            depth = -float(probe.contact.dist[deepest])
             if depth > MAX_PENETRATION:
-                geoms = [int(gid) for gid in d.contact.geom[deepest]]
+                geoms = [int(gid) for gid in probe.contact.geom[deepest]]
                 bodies = [m.body(int(m.geom_bodyid[gid])).name or "world" for gid in geoms]
-                self.ready = False
                 raise InvalidInput(
                     f"x0 puts the robot {depth:.3g} m into the floor (contact {bodies[0]}/{bodies[1]}; base height {height:.4g} m, "
                     f"at most {MAX_PENETRATION} m allowed)"
                 )
+        mj.mj_resetData(m, d)
+        d.qpos[:] = probe.qpos
+        d.qvel[:] = probe.qvel
+        mj.mj_forward(m, d)
         self.drive.reset()
         return self._start()
 
