@@ -10,8 +10,9 @@ last one ordered by session) and checks, against the working tree:
    is a verbatim copy, so a count below the old one means a figure was dropped or altered);
 3. every non-blank line of the old file, except its title, occurs verbatim in docs/log/ (so each
    figure still stands beside its command, machine and load);
-4. with --notes (default on when docs/decisions/ exists): every non-blank line of notes/*.md and
-   notes/unlanded/*.md of the same revision occurs verbatim in docs/decisions/*.md.
+4. unless --no-notes (and when docs/decisions/ exists): every non-blank line of notes/*.md and
+   notes/unlanded/*.md of the same revision, notes/README.md excepted (replaced by a pointer to
+   docs/), occurs verbatim in docs/decisions/*.md (headings may have moved down a level).
 
 It also lists, for review, the numeric tokens of the new BENCHMARKS.md that occur neither in the
 old file nor in docs/decisions/ (a typo in a copied figure shows up there; dates and decision
@@ -53,6 +54,11 @@ def git_ls(rev: str, prefix: str) -> list[str]:
 def tokens(text: str) -> collections.Counter:
     """Multiset of the numeric tokens of `text`."""
     return collections.Counter(m.group(0) for m in NUMBER.finditer(text))
+
+
+def heading_free(line: str) -> str:
+    """`line` without trailing blanks and without a leading Markdown heading marker."""
+    return re.sub(r"^#+\s+", "", line.rstrip())
 
 
 def read_all(paths) -> str:
@@ -119,15 +125,15 @@ def main() -> int:
     decisions_dir = root / "docs/decisions"
     decisions = read_all(sorted(decisions_dir.glob("*.md"))) if decisions_dir.is_dir() else ""
     if not args.no_notes and decisions_dir.is_dir():
-        dec_lines = set(line.rstrip() for line in decisions.splitlines())
-        notes = git_ls(args.rev, "notes")
+        dec_lines = set(heading_free(line) for line in decisions.splitlines())
+        notes = [p for p in git_ls(args.rev, "notes") if p != "notes/README.md"]
         lost = []
         total = 0
         for path in notes:
             for n, line in enumerate(git_show(args.rev, path).splitlines(), 1):
                 if line.strip():
                     total += 1
-                    if line.rstrip() not in dec_lines:
+                    if heading_free(line) not in dec_lines:
                         lost.append((path, n, line))
         print(f"4. non-blank lines of {len(notes)} notes files@{args.rev}: {total}; "
               f"not verbatim in docs/decisions/: {len(lost)}")
