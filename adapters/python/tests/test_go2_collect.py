@@ -60,6 +60,11 @@ def test_expert_noise_records_the_targets_applied(sim):
     lo, hi = np.array(sim.info().u_min), np.array(sim.info().u_max)
     assert np.all((noisy.u >= lo) & (noisy.u <= hi))
     assert np.any(noisy.u == hi) or np.any(noisy.u == lo)  # some targets end up clipped at a limit
+    # A window's start is remembered: replaying its recorded inputs from it reproduces its states.
+    for i in (1, 3):
+        np.testing.assert_array_equal(sim.reset(x0=noisy.x[i, 0]), noisy.x[i, 0])
+        replay = np.array([sim.step(u) for u in noisy.u[i]])
+        np.testing.assert_array_equal(replay, noisy.x[i, 1:])
 
 
 def test_pushes_land_between_windows(sim):

@@ -10,7 +10,8 @@ base height (m); joints in the policy's order FR, FL, RR, RL × (hip, thigh, cal
 
 ``reset(x0=x)``: the state leaves out the base's x, y position (irrelevant on flat ground), the
 motors' lagged torques and the contact solver's warm start. A state this simulator returned
-among its last ``memory`` ones is restored exactly, all of that included; any other is placed
+or started a collected window at, among its last ``memory`` ones, is restored exactly, all of
+that included (replaying the window's recorded inputs reproduces it bit for bit); any other is placed
 at x = y = 0 with the quaternion (normalised) as the orientation, the body-frame velocities
 rotated to the world frame, zero lagged torques and a cold solver (as a fresh reset).
 """
@@ -150,7 +151,7 @@ class Go2Simulator:
                         defaults=ExpertPolicy().to_json(),
                     ),
                     x0="base x = y = 0, orientation from the quaternion, body-frame velocities rotated to the world; "
-                    f"a state among the last {self.memory} returned restores the lagged torques and solver warm start exactly, "
+                    f"a state among the last {self.memory} returned (or collected window starts) restores the lagged torques and solver warm start exactly, "
                     "any other starts them at zero",
                 )
             ),
@@ -165,6 +166,11 @@ class Go2Simulator:
         """Whether the robot is fallen now (``go2_model.FALL``)."""
         lay, d = self.layout, self.data
         return g.FALL.fallen(lay.quat(d), lay.height(d))
+
+    def remember(self, x: np.ndarray) -> None:
+        """Keeps the full physics state (base x/y, lagged torques, solver warm start) under the
+        current state ``x``, for an exact ``reset(x0=x)`` later (the last ``memory`` ones)."""
+        self._remember(x)
 
     def _remember(self, x: np.ndarray) -> None:
         if self.memory <= 0:

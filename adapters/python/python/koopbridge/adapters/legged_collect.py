@@ -52,6 +52,7 @@ class ExpertRobot(Protocol):
     def advance(self, targets: np.ndarray) -> np.ndarray: ...
     def is_fallen(self) -> bool: ...
     def push(self, dv_xy: np.ndarray) -> None: ...
+    def remember(self, x: np.ndarray) -> None: ...
 
 
 def _vec3(v: Any, what: str) -> tuple[float, float, float]:
@@ -194,6 +195,8 @@ def collect_expert(robot: ExpertRobot, policy: ExpertPolicy, seed: int, n_window
             w_x = np.empty((T + 1, robot.nx))
             w_u = np.empty((T, robot.nu))
             w_x[0] = x
+            if j >= j0:
+                robot.remember(x)  # a later reset(x0=x) restores the hidden state too
             fell = False
             for t in range(T):
                 w_x[t + 1], w_u[t] = ep.step()
