@@ -67,6 +67,16 @@ def test_expert_noise_records_the_targets_applied(sim):
         np.testing.assert_array_equal(replay, noisy.x[i, 1:])
 
 
+def test_a_target_margin_widens_the_bounds_and_leaves_the_expert_unclipped(sim):
+    wide = Go2Simulator(target_margin=1.5)
+    info = wide.info()
+    np.testing.assert_allclose(info.u_max, np.array(sim.info().u_max) + 1.5, rtol=0, atol=1e-15)
+    w = wide.collect(ExpertPolicy.from_json(SHORT), 9, 4, 10)
+    # The expert asks for calf targets past the calf's upper limit (-0.83776 rad), now applied.
+    assert w.u[:, :, 2::3].max() > -0.83776 and wide.clipped_targets == 0
+    assert not np.array_equal(w.u, sim.collect(ExpertPolicy.from_json(SHORT), 9, 4, 10).u)
+
+
 def test_pushes_land_between_windows(sim):
     pushed = sim.collect(ExpertPolicy.from_json({**SHORT, "push": 1.0, "push_every": 0.1}), 2, 4, 5)
     plain = sim.collect(ExpertPolicy.from_json(SHORT), 2, 4, 5)

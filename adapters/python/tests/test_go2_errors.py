@@ -133,7 +133,7 @@ def test_bad_collect_settings(sim):
             SimulatorAdapter(sim).collect(policy, 1, 1, 5)
     with pytest.raises(Unsupported, match="no planner"):
         sim.collect(PlannedPolicy(), 1, 1, 5)
-    with pytest.raises(InvalidInput, match="within the joint limits"):
+    with pytest.raises(InvalidInput, match="within its input bounds"):
         sim.collect(UniformPolicy((-5.0,), (5.0,)), 1, 1, 5)
     # Another simulator cannot run the expert.
     from koopbridge.collect import collect_windows

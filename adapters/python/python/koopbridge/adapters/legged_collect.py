@@ -11,8 +11,8 @@ velocity command ``U(command_low, command_high)`` at the start and every ``comma
 seconds (the robot's command follows it through its slew limit), the noise ``N(0, noise²)`` on
 each step's joint targets (``expert+noise``), and a push (``U(±push)`` m/s added to the base's
 horizontal world velocity) every ``push_every`` seconds, at a window boundary only, so that
-every recorded transition is the robot's own dynamics. Targets are clipped to the joint limits
-and the recorded inputs are the targets applied. A fall inside a window discards it and the
+every recorded transition is the robot's own dynamics. Targets are clipped to the input bounds
+(``u_lo``, ``u_hi``) and the recorded inputs are the targets applied. A fall inside a window discards it and the
 episode restarts (a new reset from the same generator, warm-up again) at that window; a window
 depends only on ``(policy, seed, window)`` still, so blocks resume bit for bit.
 """
@@ -41,8 +41,8 @@ class ExpertRobot(Protocol):
     dt: float
     nx: int
     nu: int
-    q_min: np.ndarray
-    q_max: np.ndarray
+    u_lo: np.ndarray
+    u_hi: np.ndarray
     command_slew: np.ndarray
 
     def reset(self, seed: int | None = None, x0: Any = None) -> np.ndarray: ...
@@ -168,7 +168,7 @@ class _Episode:
         targets = r.expert_targets(self.command)
         if self.policy.noise > 0:
             targets = targets + self.rng.normal(0.0, self.policy.noise, targets.shape)
-        targets = np.clip(targets, r.q_min, r.q_max)
+        targets = np.clip(targets, r.u_lo, r.u_hi)
         self.k += 1
         return r.advance(targets), targets
 

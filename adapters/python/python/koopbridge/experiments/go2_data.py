@@ -33,10 +33,10 @@ __all__ = ["collect_block", "main", "parser", "policy_json"]
 _WORKER_SIM: Any = None
 
 
-def _sim() -> Any:
+def _sim(target_margin: float = 0.0) -> Any:
     from ..adapters.go2_sim import Go2Simulator
 
-    return Go2Simulator()
+    return Go2Simulator(target_margin=target_margin)
 
 
 def policy_json(a: argparse.Namespace) -> dict[str, Any]:
@@ -46,14 +46,14 @@ def policy_json(a: argparse.Namespace) -> dict[str, Any]:
     return p
 
 
-def collect_block(policy: dict[str, Any], seed: int, start: int, n: int, T: int, path: str) -> tuple[str, float, int]:
+def collect_block(policy: dict[str, Any], seed: int, start: int, n: int, T: int, path: str, target_margin: float = 0.0) -> tuple[str, float, int]:
     """Collects windows ``start .. start + n - 1`` into the block file ``path`` (atomically);
     returns the path, the seconds spent collecting and the falls (restarts) on the way."""
     from ..collect import policy_from_json
 
     global _WORKER_SIM
-    if _WORKER_SIM is None:
-        _WORKER_SIM = _sim()
+    if _WORKER_SIM is None or _WORKER_SIM.target_margin != target_margin:
+        _WORKER_SIM = _sim(target_margin)
     falls = _WORKER_SIM.falls
     t0 = time.perf_counter()
     w = _WORKER_SIM.collect(policy_from_json(policy), seed, n, T, start=start)
@@ -86,6 +86,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--windows-per-episode", type=int, default=50, help="windows cut back to back from one episode (default: %(default)s)")
     p.add_argument("--noise", type=float, default=0.0, help="sigma of Gaussian noise on the expert's targets, rad: 'expert+noise' (default: none)")
     p.add_argument("--push", type=float, default=0.0, help="largest push, m/s, every 4 s at a window boundary (default: none)")
+    p.add_argument("--target-margin", type=float, default=0.0, metavar="RAD", help="input bounds = joint ranges widened by RAD "
+                   "(the adapter's --target-margin; default: %(default)s, the joint limits)")
     p.add_argument("--block", type=int, default=2000, help="windows per block file, a multiple of --windows-per-episode (default: %(default)s)")
     p.add_argument("--procs", type=int, default=1, help="collecting processes (default: %(default)s)")
     p.add_argument("--keep-blocks", action="store_true", help="keep DIR/.blocks after writing the splits")
@@ -126,11 +128,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     if a.procs == 1:
         for s, n, path in todo:
-            report(n, collect_block(policy, a.seed, s, n, a.steps, path)[2])
+            report(n, collect_block(policy, a.seed, s, n, a.steps, path, a.target_margin)[2])
     else:
         # spawn: the workers share nothing with this process (no MuJoCo or onnxruntime state forked).
         with ProcessPoolExecutor(a.procs, mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = [pool.submit(collect_block, policy, a.seed, s, n, a.steps, path) for s, n, path in todo]
+            futures = [pool.submit(collect_block, policy, a.seed, s, n, a.steps, path, a.target_margin) for s, n, path in todo]
             for f, (_, n, _) in zip(futures, todo, strict=True):
                 report(n, f.result()[2])
     wall = time.perf_counter() - t0
@@ -142,6 +144,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     u = np.concatenate([b.u for b in blocks if b is not None])
     _write_splits(a, policy, x, u, {"train": (0, n_train), "val": (n_train, n_train + n_val), "test": (n_train + n_val, a.windows)})
     summary = dict(windows=a.windows, train=n_train, val=n_val, test=n_test, steps=a.steps, seed=a.seed, procs=a.procs, policy=policy,
+                   target_margin=a.target_margin,
                    collected=sum(n for _, n, _ in todo), falls=falls, wall_s=round(wall, 1),
                    windows_per_s=round(sum(n for _, n, _ in todo) / wall, 1) if todo else None)
     with open(os.path.join(a.out, "collect.json"), "w") as f:
@@ -156,7 +159,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _write_splits(a: argparse.Namespace, policy: dict[str, Any], x: np.ndarray, u: np.ndarray, cuts: dict[str, tuple[int, int]]) -> None:
     """Writes ``OUT/{name}.npz`` for each ``name: (lo, hi)`` window range of ``x``/``u``."""
-    info = _sim().info()
+    info = _sim(a.target_margin).info()
     mj = info.extra["mujoco"]
     meta = dict(
         env=info.env,
@@ -166,7 +169,8 @@ def _write_splits(a: argparse.Namespace, policy: dict[str, Any], x: np.ndarray, 
         seed=a.seed,
         source=f"koopbridge.adapters.go2_sim collect (MuJoCo {mj['version']}, {mj['source']})",
         policy=f"{json.dumps(policy)}: the rl_sar expert under U([-0.5,-0.3,-0.8],[1,0.3,0.8]) velocity commands every 2 s, "
-        f"{a.windows_per_episode} windows back to back per episode after 1 s of warm-up; inputs = the joint targets applied",
+        f"{a.windows_per_episode} windows back to back per episode after 1 s of warm-up; inputs = the joint targets applied "
+        f"(clipped to the joint ranges widened by {a.target_margin} rad)",
     )
     for name, (lo, hi) in cuts.items():
         save_dataset_npz(os.path.join(a.out, f"{name}.npz"), x[lo:hi], u[lo:hi], DatasetMeta(**meta))
