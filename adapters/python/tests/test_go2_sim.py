@@ -196,6 +196,7 @@ def test_a_fall_is_detected_counted_and_a_reset_recovers():
     for _ in range(50):
         sim.step(folded)
     assert sim.fallen and sim.falls == 1 and len(messages) == 1 and "fell at step" in messages[0]
+    assert sim.status()["fallen"] is True and sim.status()["falls"] == 1
     assert sim.state()[34] < 0.15
     x = sim.reset(seed=5)
     assert not sim.fallen and np.all(np.isfinite(sim.step(np.array(g.DEFAULT_POSE))))

@@ -354,6 +354,11 @@ class Go2Simulator:
         """``steps``, ``falls``, ``clipped_targets``."""
         return {"steps": self.steps, "falls": self.falls, "clipped_targets": self.clipped_targets}
 
+    def status(self) -> dict[str, bool | int]:
+        """The last step's status (``fallen``) and the counters: what a step reply's status
+        would carry (the protocol's step reply has no status field yet)."""
+        return {"fallen": self.fallen, **self.counters()}
+
     def close(self) -> None:
         """Prints the counters to standard error when there was a fall or a clipped target."""
         if self.falls or self.clipped_targets:
