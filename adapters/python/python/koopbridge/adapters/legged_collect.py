@@ -33,6 +33,8 @@ __all__ = ["ExpertPolicy", "ExpertRobot", "collect_expert"]
 
 #: Restarts after falls allowed in one episode before the collection gives up.
 MAX_RESTARTS = 50
+#: The settings of an expert policy's JSON form (besides ``kind``).
+SETTINGS = ("noise", "command_low", "command_high", "command_every", "push", "push_every", "warmup", "windows_per_episode")
 
 
 class ExpertRobot(Protocol):
@@ -86,7 +88,6 @@ class ExpertPolicy:
     push_every: float = 4.0
     warmup: float = 1.0
     windows_per_episode: int = 50
-    _keys: tuple[str, ...] = field(default=("noise", "command_low", "command_high", "command_every", "push", "push_every", "warmup", "windows_per_episode"), repr=False, compare=False)
 
     @staticmethod
     def from_json(d: Mapping[str, Any]) -> ExpertPolicy:
@@ -95,7 +96,7 @@ class ExpertPolicy:
         kind = d.get("kind")
         if kind not in ("expert", "expert+noise"):
             raise InvalidInput(f"expert policy: kind must be 'expert' or 'expert+noise', got {kind!r}")
-        keys = set(ExpertPolicy()._keys)
+        keys = set(SETTINGS)
         unknown = set(d) - keys - {"kind"}
         if unknown:
             raise InvalidInput(f"expert policy: unknown fields {sorted(unknown)} (known: {sorted(keys)})")
@@ -123,7 +124,7 @@ class ExpertPolicy:
 
     def to_json(self) -> dict[str, Any]:
         """All settings as JSON."""
-        return {"kind": self.kind, **{k: (list(getattr(self, k)) if isinstance(getattr(self, k), tuple) else getattr(self, k)) for k in self._keys}}
+        return {"kind": self.kind, **{k: (list(v) if isinstance(v, tuple) else v) for k in SETTINGS for v in [getattr(self, k)]}}
 
 
 @dataclass
