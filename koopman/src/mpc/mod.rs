@@ -19,6 +19,8 @@
 //!   switches on an offset-free correction near the target (disturbance estimate or integral).
 //! - On solver failure the controller returns the shifted previous plan clamped to the bounds
 //!   ([`SolveStatus::Fallback`]), never NaN; bad input is a typed [`crate::Error`].
+//! - [`served`]: a saved model directory + [`MpcConfig`] → [`ModelController`], the one path from
+//!   "model + settings" to a command shared by the MPC service and the exported FMU.
 
 pub mod bilinear;
 pub mod boxqp;
@@ -35,6 +37,7 @@ pub mod metrics;
 pub mod offset_free;
 pub mod policy;
 pub mod qp;
+pub mod served;
 pub mod shooting;
 
 pub use bilinear::{BilinearMpc, BilinearSolution, ScpOptions, ScpStatus};
@@ -45,6 +48,7 @@ pub use lqr::Lqr;
 pub use offset_free::{OffsetFree, OffsetFreeConfig, OffsetMode};
 pub use policy::{Action, ConstantPolicy, LqrPolicy, Policy, ShootingPolicy};
 pub use qp::{QpOutcome, QpSolver, QpStatus};
+pub use served::{LoadedModel, ModelController, ModelPlan, PlanStatus};
 pub use shooting::{OneStepModel, RandomShooting, SystemAsModel};
 
 #[cfg(test)]

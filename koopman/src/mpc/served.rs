@@ -1,0 +1,333 @@
+//! A saved model directory + [`MpcConfig`] → the controller that turns a measured state and a
+//! reference into an input plan: the one code path shared by the MPC service (`bridge`) and
+//! the exported FMU (`koopbridge-fmu`).
+//!
+//! [`LoadedModel::load`] dispatches on the model's kind (`koopman`/`edmd`: Koopman MPC,
+//! `bilinear`: sequential convex MPC with an optional offset-free correction, `nndm`:
+//! random-shooting MPC); [`ModelController::solve`] plans. Consecutive solves of one
+//! controller are one closed loop (warm starts, the bilinear offset-free estimate).
+
+use std::path::Path;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use super::bilinear::{BilinearMpc, ScpOptions, ScpStatus};
+use super::config::MpcConfig;
+use super::controller::{MpcController, SolveStatus};
+use super::controllers::{SHOOTING_SAMPLES, SHOOTING_SEED};
+use super::offset_free::OffsetFreeConfig;
+use super::shooting::{OneStepModel, RandomShooting};
+use crate::error::{ensure_finite, Error, Result};
+use crate::model::bilinear::BilinearModel;
+use crate::model::LiftedModel;
+
+/// A loaded model, before its controller's settings are known.
+#[derive(Clone)]
+pub enum LoadedModel {
+    /// A lifted model (`koopman`, `edmd`).
+    Lifted(Arc<dyn LiftedModel>),
+    /// A bilinear model.
+    Bilinear(Arc<BilinearModel>),
+    /// A one-step model `x⁺ = f(x, u)` (an NNDM).
+    OneStep(Arc<dyn OneStepModel>),
+}
+
+impl LoadedModel {
+    /// Loads the model saved in `dir`, dispatching on its kind (`koopman`, `edmd`, `bilinear`,
+    /// `nndm`).
+    pub fn load(dir: &Path) -> Result<Self> {
+        match crate::model::store::read_kind(dir)?.as_str() {
+            "bilinear" => Ok(LoadedModel::Bilinear(Arc::new(BilinearModel::load(dir)?))),
+            "nndm" => Ok(LoadedModel::OneStep(Arc::from(
+                crate::model::load_one_step(dir)?,
+            ))),
+            _ => Ok(LoadedModel::Lifted(Arc::from(crate::model::load_lifted(
+                dir,
+            )?))),
+        }
+    }
+
+    /// The model's kind in words (`lifted-linear`, `bilinear`, `a one-step NNDM`).
+    pub fn kind(&self) -> &'static str {
+        match self {
+            LoadedModel::Lifted(_) => "lifted-linear",
+            LoadedModel::Bilinear(_) => "bilinear",
+            LoadedModel::OneStep(_) => "a one-step NNDM",
+        }
+    }
+
+    /// State dimension nx.
+    pub fn nx(&self) -> usize {
+        match self {
+            LoadedModel::Lifted(m) => m.nx(),
+            LoadedModel::Bilinear(m) => m.nx(),
+            LoadedModel::OneStep(m) => m.nx(),
+        }
+    }
+
+    /// Input dimension nu.
+    pub fn nu(&self) -> usize {
+        match self {
+            LoadedModel::Lifted(m) => m.nu(),
+            LoadedModel::Bilinear(m) => m.nu(),
+            LoadedModel::OneStep(m) => m.nu(),
+        }
+    }
+
+    /// The controller of this model with `cfg`; `offset_free` only for a bilinear model (a
+    /// lifted model with one is refused: its controller has no such correction). A one-step
+    /// model gets random-shooting MPC, which needs finite input bounds and honours the
+    /// horizon and the state weight `q` only (other settings it cannot honour are refused).
+    pub fn controller(
+        &self,
+        cfg: &MpcConfig,
+        offset_free: Option<&OffsetFreeConfig>,
+    ) -> Result<ModelController> {
+        match self {
+            LoadedModel::Lifted(m) => {
+                if offset_free.is_some() {
+                    return Err(Error::InvalidArgument(
+                        "offset_free needs a bilinear model (this one is lifted-linear)".into(),
+                    ));
+                }
+                Ok(ModelController::Lifted(Box::new(
+                    MpcController::from_shared(m.clone(), cfg)?,
+                )))
+            }
+            LoadedModel::Bilinear(m) => {
+                let mut c = BilinearMpc::from_shared(m.clone(), cfg, ScpOptions::default())?;
+                c.set_offset_free(offset_free.cloned())?;
+                Ok(ModelController::Bilinear(Box::new(c)))
+            }
+            LoadedModel::OneStep(m) => {
+                if offset_free.is_some() {
+                    return Err(Error::InvalidArgument(
+                        "offset_free needs a bilinear model (this one is a one-step NNDM)".into(),
+                    ));
+                }
+                Ok(ModelController::Shooting(Box::new(Shooting {
+                    planner: shooting_planner(m.as_ref(), cfg)?,
+                    model: m.clone(),
+                })))
+            }
+        }
+    }
+}
+
+/// One model's controller.
+pub enum ModelController {
+    /// Koopman MPC on a lifted model (stateless between solves but for its warm start).
+    Lifted(Box<MpcController<'static>>),
+    /// Sequential convex MPC on a bilinear model. With an offset-free correction, consecutive
+    /// solves are one closed loop: each measured state updates the correction before the plan,
+    /// and the plan's first input is recorded as applied.
+    Bilinear(Box<BilinearMpc<'static>>),
+    /// Random-shooting MPC on a one-step model (SHOOTING_SAMPLES sequences per solve, seeded
+    /// once when the controller is built, so an episode is reproducible).
+    Shooting(Box<Shooting>),
+}
+
+/// A random-shooting planner and the one-step model it plans on.
+pub struct Shooting {
+    planner: RandomShooting,
+    model: Arc<dyn OneStepModel>,
+}
+
+/// How a [`ModelPlan`] was obtained, whatever the controller.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PlanStatus {
+    /// Optimal within the solver's tolerances (a converged linearisation for bilinear MPC;
+    /// always for random shooting).
+    Solved,
+    /// Optimal to reduced accuracy.
+    Inaccurate,
+    /// Feasible but not proven optimal (an iteration or time limit, or a linearisation cap).
+    Suboptimal,
+    /// The solver failed; the plan is the shifted previous one clamped to the bounds.
+    Fallback,
+}
+
+/// What one solve returns.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ModelPlan {
+    /// The input plan, H·nu values, first input first (always finite).
+    pub u: Vec<f64>,
+    /// How it was obtained.
+    pub status: PlanStatus,
+    /// QP iterations (summed over linearisations for the bilinear MPC; samples for shooting).
+    pub iterations: usize,
+    /// Solve wall time.
+    pub solve_time: Duration,
+}
+
+impl ModelController {
+    /// State dimension.
+    pub fn nx(&self) -> usize {
+        match self {
+            ModelController::Lifted(c) => c.nx(),
+            ModelController::Bilinear(c) => c.nx(),
+            ModelController::Shooting(s) => s.model.nx(),
+        }
+    }
+
+    /// Input dimension.
+    pub fn nu(&self) -> usize {
+        match self {
+            ModelController::Lifted(c) => c.nu(),
+            ModelController::Bilinear(c) => c.nu(),
+            ModelController::Shooting(s) => s.model.nu(),
+        }
+    }
+
+    /// Horizon H.
+    pub fn horizon(&self) -> usize {
+        match self {
+            ModelController::Lifted(c) => c.horizon(),
+            ModelController::Bilinear(c) => c.horizon(),
+            ModelController::Shooting(s) => s.planner.horizon,
+        }
+    }
+
+    /// The kind of model it plans on, in words (`lifted-linear`, `bilinear`, `a one-step NNDM`).
+    pub fn kind(&self) -> &'static str {
+        match self {
+            ModelController::Lifted(_) => "lifted-linear",
+            ModelController::Bilinear(_) => "bilinear",
+            ModelController::Shooting(_) => "a one-step NNDM",
+        }
+    }
+
+    /// True if the controller can plan about a feed-forward ([`ModelController::solve_about_plan`]).
+    pub fn takes_feedforward(&self) -> bool {
+        matches!(self, ModelController::Lifted(_))
+    }
+
+    /// Plans from `x` towards `reference` (nx values, or the stacked H·nx).
+    ///
+    /// Errors: wrong lengths, non-finite values, a failed QP without fallback.
+    pub fn solve(&mut self, x: &[f64], reference: &[f64]) -> Result<ModelPlan> {
+        match self {
+            ModelController::Lifted(c) => {
+                let s = c.solve(x, reference)?;
+                Ok(lifted_plan(s))
+            }
+            ModelController::Shooting(s) => {
+                let (nx, h) = (s.model.nx(), s.planner.horizon);
+                // One state is held over the horizon; the stacked x_1..x_H is used as it is.
+                let stacked = if reference.len() == nx {
+                    reference.repeat(h)
+                } else if reference.len() == h * nx {
+                    reference.to_vec()
+                } else {
+                    return Err(Error::dimension(
+                        "reference (nx or horizon·nx)",
+                        h * nx,
+                        reference.len(),
+                    ));
+                };
+                ensure_finite("reference", &stacked)?;
+                let t = Instant::now();
+                let (u, _) = s.planner.plan_sequence(s.model.as_ref(), x, &stacked)?;
+                Ok(ModelPlan {
+                    status: PlanStatus::Solved,
+                    iterations: s.planner.samples,
+                    solve_time: t.elapsed(),
+                    u,
+                })
+            }
+            ModelController::Bilinear(c) => {
+                let nx = c.nx();
+                if reference.len() < nx {
+                    return Err(Error::dimension("reference", nx, reference.len()));
+                }
+                c.observe(x, &reference[..nx])?;
+                let s = c.solve(x, reference)?;
+                c.record(x, &s.u[..c.nu()]);
+                Ok(ModelPlan {
+                    status: match s.status {
+                        ScpStatus::Converged => PlanStatus::Solved,
+                        ScpStatus::NotConverged => PlanStatus::Suboptimal,
+                        ScpStatus::Fallback(_) => PlanStatus::Fallback,
+                    },
+                    iterations: s.qp_iterations,
+                    solve_time: s.solve_time,
+                    u: s.u,
+                })
+            }
+        }
+    }
+
+    /// The error-state MPC about the plan whose state at this step is `reference` (nx values)
+    /// with feed-forward `feedforward` (H·nu values; [`MpcController::solve_about_plan`]).
+    ///
+    /// Errors: as [`ModelController::solve`]; a controller that is not on a lifted-linear model
+    /// ([`ModelController::takes_feedforward`]) refuses with [`Error::InvalidArgument`].
+    pub fn solve_about_plan(
+        &mut self,
+        x: &[f64],
+        reference: &[f64],
+        feedforward: &[f64],
+    ) -> Result<ModelPlan> {
+        match self {
+            ModelController::Lifted(c) => Ok(lifted_plan(c.solve_about_plan(
+                x,
+                reference,
+                feedforward,
+            )?)),
+            other => Err(Error::InvalidArgument(format!(
+                "a feed-forward (error-state MPC) needs a lifted-linear model; this one is {}",
+                other.kind()
+            ))),
+        }
+    }
+}
+
+fn lifted_plan(s: super::MpcSolution) -> ModelPlan {
+    ModelPlan {
+        status: match s.status {
+            SolveStatus::Solved => PlanStatus::Solved,
+            SolveStatus::Inaccurate => PlanStatus::Inaccurate,
+            SolveStatus::Suboptimal => PlanStatus::Suboptimal,
+            SolveStatus::Fallback(_) => PlanStatus::Fallback,
+        },
+        iterations: s.iterations,
+        solve_time: s.solve_time,
+        u: s.u,
+    }
+}
+
+/// The random-shooting planner for `model` with `cfg` (horizon, `q`, the input bounds); the
+/// settings it cannot honour (input weight, terminal weight, rate and state bounds) are refused
+/// rather than ignored.
+fn shooting_planner(model: &dyn OneStepModel, cfg: &MpcConfig) -> Result<RandomShooting> {
+    let (nx, nu) = (model.nx(), model.nu());
+    let refuse = |what: &str| {
+        Err(Error::InvalidArgument(format!(
+            "random-shooting MPC on a one-step NNDM: {what}"
+        )))
+    };
+    if cfg.r.as_ref().is_some_and(|r| r.iter().any(|&v| v != 0.0)) {
+        return refuse("no input weight r (the paper's cost is on the states only)");
+    }
+    if cfg.terminal.is_some() || cfg.has_general_constraints() {
+        return refuse("no terminal weight, rate or state bounds (input bounds only)");
+    }
+    let q = cfg.q.clone().unwrap_or_else(|| vec![1.0; nx]);
+    if q.len() != nx {
+        return Err(Error::dimension("q", nx, q.len()));
+    }
+    let (Some(lo), Some(hi)) = (&cfg.u_min, &cfg.u_max) else {
+        return refuse("it samples inputs within the bounds: set u_min and u_max");
+    };
+    if lo.len() != nu || hi.len() != nu {
+        return Err(Error::dimension("input bounds", nu, lo.len().min(hi.len())));
+    }
+    RandomShooting::new(
+        SHOOTING_SAMPLES,
+        cfg.horizon,
+        q,
+        lo.clone(),
+        hi.clone(),
+        SHOOTING_SEED,
+    )
+}
