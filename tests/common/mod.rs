@@ -12,6 +12,7 @@ use bridge::session::ZenohOptions;
 
 pub mod faults;
 pub mod netns;
+pub mod pki;
 
 /// Generous timeout for a loaded 2-core machine.
 pub const READY: Duration = Duration::from_secs(90);
