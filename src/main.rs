@@ -39,6 +39,8 @@ enum Command {
     Run(cli::run::RunArgs),
     /// Run a plain Zenoh router (scale-out: services and simulators on several hosts).
     Router(cli::router::RouterArgs),
+    /// Export a trained model and its MPC as an FMI 3.0 / 2.0 co-simulation FMU (controller.fmu).
+    ExportFmu(cli::export_fmu::ExportFmuArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -57,6 +59,7 @@ fn main() -> std::process::ExitCode {
         Command::Serve(a) => cli::serve::run(a),
         Command::Run(a) => cli::run::run(a),
         Command::Router(a) => cli::router::run(a),
+        Command::ExportFmu(a) => cli::export_fmu::run(a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

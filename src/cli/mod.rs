@@ -11,6 +11,7 @@ pub mod control_plot;
 pub mod control_table;
 pub mod data;
 pub mod eval;
+pub mod export_fmu;
 pub mod learning_curve;
 pub mod plan;
 pub mod router;

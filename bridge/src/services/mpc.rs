@@ -138,7 +138,7 @@ fn model_dir(client: &Client, store: &Path, name: &str) -> Result<PathBuf> {
 /// Loads model `name` (local store, else fetched from the model store).
 fn load_model(client: &Client, store: &Path, name: &str) -> Result<LoadedModel> {
     let dir = model_dir(client, store, name)?;
-    LoadedModel::load(&dir)
+    Ok(LoadedModel::load(&dir)?)
 }
 
 fn build(
@@ -149,7 +149,7 @@ fn build(
     let t = Instant::now();
     let model = load_model(client, store, &req.model)?;
     let cfg = req.mpc.clone().unwrap_or_default();
-    let c = model.controller(&cfg, req.offset_free.as_ref())?;
+    let c = ServiceController::build(&model, &cfg, req.offset_free.as_ref())?;
     let reply = ConfigureReply {
         model: req.model.clone(),
         nx: c.nx(),
