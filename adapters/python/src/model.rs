@@ -76,7 +76,9 @@ macro_rules! model_methods {
 /// A neural Koopman model ``z = [x, ψ(x)]``, ``z⁺ = A z + B u``, ``x = P z`` (f64 weights).
 ///
 /// Load a saved model with ``KoopmanModel.load(dir)`` (the directory holding
-/// ``model.safetensors`` and ``config.json`` written by ``koopbridge train``).
+/// ``model.safetensors`` and ``config.json`` written by ``koopbridge train``). A model trained
+/// with ``--normalise`` has a ``normalisation``: ``A``, ``B``, ``P`` and ``encode`` are then in
+/// its z-scored coordinates, while ``predict`` takes and returns raw units (as the MPC does).
 #[pyclass(module = "koopbridge._native", frozen)]
 pub struct KoopmanModel {
     pub(crate) inner: Arc<Inner>,
@@ -146,8 +148,22 @@ model_methods!(KoopmanModel, Inner, {
         }
     }
 
+    /// The z-scoring the model was trained with (``--normalise``), as a dict of lists
+    /// ``x_mean``, ``x_std``, ``u_mean``, ``u_std``; None for a model in raw units.
+    #[getter]
+    fn normalisation(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
+        match self.inner.normalisation() {
+            Some(n) => to_py_json(
+                py,
+                &serde_json::to_value(n).map_err(|e| PyValueError::new_err(e.to_string()))?,
+            ),
+            None => Ok(py.None()),
+        }
+    }
+
     /// Forecasts from ``x0`` (nx,) under the inputs ``u_seq`` (T, nu): encodes once, rolls out
-    /// ``z⁺ = A z + B u`` and returns the predicted states x_1..x_T, shape (T, nx).
+    /// ``z⁺ = A z + B u`` and returns the predicted states x_1..x_T, shape (T, nx). In raw units
+    /// also for a normalised model (normalised on the way in and back on the way out).
     fn predict<'py>(
         &self,
         py: Python<'py>,
@@ -155,9 +171,16 @@ model_methods!(KoopmanModel, Inner, {
         u_seq: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let (nx, nu) = (self.inner.nx(), self.inner.nu());
-        let (x0, t, u) = predict_inputs(x0, u_seq, nx, nu)?;
+        let (mut x0, t, mut u) = predict_inputs(x0, u_seq, nx, nu)?;
+        let norm = self.inner.normalisation().cloned();
+        if let Some(n) = &norm {
+            n.state_in_place(&mut x0);
+            if nu > 0 {
+                u.chunks_exact_mut(nu).for_each(|r| n.input_in_place(r));
+            }
+        }
         let inner = self.inner.clone();
-        let out = py.detach(move || {
+        let mut out = py.detach(move || {
             let (a, b) = (inner.a_ref(), inner.b_ref());
             rollout(inner.lift(&x0), t, nx, nu, &u, |z, ut, next| {
                 for (i, next_i) in next.iter_mut().enumerate() {
@@ -172,6 +195,10 @@ model_methods!(KoopmanModel, Inner, {
                 }
             })
         });
+        if let Some(n) = &norm {
+            out.chunks_exact_mut(nx)
+                .for_each(|x| n.raw_state_in_place(x));
+        }
         array2(py, t, nx, &out)
     }
 });

@@ -106,6 +106,13 @@ impl Normalisation {
         }
     }
 
+    /// Maps one normalised state back to raw units in place.
+    pub fn raw_state_in_place(&self, x: &mut [f64]) {
+        for ((v, m), s) in x.iter_mut().zip(&self.x_mean).zip(&self.x_std) {
+            *v = *v * s + m;
+        }
+    }
+
     /// Normalises one input in place.
     pub fn input_in_place(&self, u: &mut [f64]) {
         for ((v, m), s) in u.iter_mut().zip(&self.u_mean).zip(&self.u_std) {
@@ -190,6 +197,9 @@ mod tests {
         assert!(mean.abs() < 1e-15 && (var - 1.0).abs() < 1e-12);
         assert!(z.x.iter().skip(1).step_by(2).all(|v| *v == 0.0));
         assert_eq!(z.u, vec![1.0, -1.0]);
+        let mut back = z.state(3, 0).to_vec();
+        n.raw_state_in_place(&mut back);
+        assert!((back[0] - 7.0).abs() < 1e-14 && (back[1] - 10.0).abs() < 1e-14);
     }
 
     #[test]
