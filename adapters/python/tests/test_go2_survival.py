@@ -140,7 +140,7 @@ def test_bad_input_a_missing_model_or_a_wrong_nx(tmp_path, capsys):
     KoopmanModel.init(2, 1, hidden=[8], n_mult=1).save(tmp_path / "pendulum")
     rc = go2_survival.main(["--model", str(tmp_path / "pendulum"), "--out", str(out), "--references", "1", "--steps", "3"])
     err = capsys.readouterr().err
-    assert rc == 2 and "is 2/1-D (nx/nu); the Go2 is 35/12-D" in err, err
+    assert rc == 2 and "is 2/1-D (nx/nu, its config.json); the Go2 is 35/12-D" in err, err
 
 
 def test_the_pipeline_on_a_tiny_model(tmp_path):

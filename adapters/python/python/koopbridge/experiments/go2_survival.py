@@ -91,7 +91,7 @@ def stats(v: Sequence[float], cap: int | None = None) -> dict[str, Any]:
     if a.size == 0:
         return dict(n=0)
     sd = float(a.std(ddof=1)) if a.size > 1 else 0.0
-    d = dict(n=int(a.size), mean=round(float(a.mean()), 3), std=round(sd, 3), sem=round(sd / np.sqrt(a.size), 3),
+    d = dict(n=int(a.size), mean=round(float(a.mean()), 3), std=round(sd, 3), sem=round(sd / float(np.sqrt(a.size)), 3),
              median=float(np.median(a)), q25=float(np.percentile(a, 25)), q75=float(np.percentile(a, 75)),
              min=float(a.min()), max=float(a.max()))
     if cap is not None:
@@ -212,6 +212,10 @@ def run(a: argparse.Namespace, refs: list[Reference] | None = None) -> dict[str,
     models = model_entries(a.model)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
+    for m in models:
+        dims = (m.config.get("nx"), m.config.get("nu"))
+        if None not in dims and dims != (35, 12):
+            raise SetupError(f"model {m.path} is {dims[0]}/{dims[1]}-D (nx/nu, its config.json); the Go2 is 35/12-D")
     refs = refs or make_references(a.references, a.steps, a.seed)
     ref_s = time.perf_counter() - t0
     with Bridge(models, out / "logs", a.session) as br:
@@ -235,29 +239,38 @@ def run(a: argparse.Namespace, refs: list[Reference] | None = None) -> dict[str,
             conf = br.configure(m, **mpc_cfg)
             if conf.get("nx") != nx or conf.get("nu") != nu:
                 raise SetupError(f"model {m.path} is {conf.get('nx')}/{conf.get('nu')}-D (nx/nu); the Go2 is {nx}/{nu}-D")
-            t = time.perf_counter()
-            rs = []
-            for i, r in enumerate(refs):
-                rs.append(track(c, SIM_ID, MPC_ID, m.label, r, fallen, horizon=a.horizon, threshold=a.threshold,
-                                stop_at_failure=not a.continue_after_failure, solve_timeout=a.solve_timeout))
-                if a.verbose:
-                    print(f"go2_survival: {m.label} reference {i}: survival {rs[-1].survival} (floor {floor[i].survival})", file=sys.stderr, flush=True)
-            runs[m.label] = rs
-            surv = [r.survival for r in rs]
-            statuses: dict[str, int] = {}
-            for r in rs:
-                for k, v in r.statuses.items():
-                    statuses[k] = statuses.get(k, 0) + v
-            fl = np.array([f.survival for f in floor])
-            results[m.label] = dict(
-                dir=str(m.path), kind=m.kind, normalised=bool(m.config.get("normalisation")), configure=conf,
-                survival=stats(surv, a.steps), survivals=surv, falls=int(sum(r.fell for r in rs)),
-                above_floor=int(np.sum(np.array(surv) > fl)), below_floor=int(np.sum(np.array(surv) < fl)),
-                solve=_us([s for r in rs for s in r.solve_s]), round_trip=_us([s for r in rs for s in r.round_trip_s]),
-                statuses=statuses, sim_errors=[e for r in rs for e in r.errors][:10], wall_s=round(time.perf_counter() - t, 1))
-            print(f"go2_survival: {m.label} ({m.kind}) {results[m.label]['survival']}", file=sys.stderr, flush=True)
+            modes = [False] + ([True] if a.error_state and m.kind in ("koopman", "edmd") else [])
+            for es in modes:
+                label = f"{m.label}+error-state" if es else m.label
+                t = time.perf_counter()
+                rs = []
+                for i, r in enumerate(refs):
+                    rs.append(track(c, SIM_ID, MPC_ID, m.label, r, fallen, horizon=a.horizon, threshold=a.threshold,
+                                    stop_at_failure=not a.continue_after_failure, solve_timeout=a.solve_timeout, error_state=es))
+                    if a.verbose:
+                        print(f"go2_survival: {label} reference {i}: survival {rs[-1].survival} (floor {floor[i].survival})", file=sys.stderr, flush=True)
+                runs[label] = rs
+                results[label] = _entry(m, conf, rs, floor, a.steps, time.perf_counter() - t, es)
+                print(f"go2_survival: {label} ({m.kind}) {results[label]['survival']}", file=sys.stderr, flush=True)
     report = _report(a, models, refs, floor, results, runs, info, q, ref_s)
     return report
+
+
+def _entry(m: ModelEntry, conf: dict[str, Any], rs: list[Rollout], floor: list[Rollout], cap: int, wall: float, error_state: bool) -> dict[str, Any]:
+    """The report entry of one model's runs over every reference."""
+    surv = np.array([r.survival for r in rs])
+    fl = np.array([f.survival for f in floor])
+    statuses: dict[str, int] = {}
+    for r in rs:
+        for k, v in r.statuses.items():
+            statuses[k] = statuses.get(k, 0) + v
+    return dict(
+        dir=str(m.path), kind=m.kind, normalised=bool(m.config.get("normalisation")), configure=conf,
+        mpc="error-state about the reference, expert targets as feed-forward" if error_state else "SPEC (reference window)",
+        survival=stats(surv.tolist(), cap), survivals=surv.tolist(), falls=int(sum(r.fell for r in rs)),
+        above_floor=int(np.sum(surv > fl)), below_floor=int(np.sum(surv < fl)),
+        solve=_us([s for r in rs for s in r.solve_s]), round_trip=_us([s for r in rs for s in r.round_trip_s]),
+        statuses=statuses, sim_errors=[e for r in rs for e in r.errors][:10], wall_s=round(wall, 1))
 
 
 def _report(a: argparse.Namespace, models: list[ModelEntry], refs: list[Reference], floor: list[Rollout], results: dict[str, Any],
@@ -337,6 +350,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--q", default="identity", help="diagonal of Q: identity (SPEC, raw units), zscore (Q = I on the z-scored state: "
                    "1/std^2 of the first normalised model) or nx comma-separated weights (default: %(default)s)")
     p.add_argument("--r", type=float, default=0.0, help="R = r I (default: %(default)s, SPEC)")
+    p.add_argument("--error-state", action="store_true", help="also run, for each Koopman/EDMD model, the error-state MPC about the "
+                   "reference (its state as the plan, the expert's targets as feed-forward): not SPEC's formulation, a row beside it")
     p.add_argument("--continue-after-failure", action="store_true", help="run each reference to its end (or a fall) after the error "
                    "threshold is crossed: more on-policy data (survival is the same)")
     p.add_argument("--window-steps", type=int, default=15, help="transitions per on-policy window (default: %(default)s, the data's T)")

@@ -129,11 +129,6 @@ def reference_window(ref: np.ndarray, k: int, horizon: int) -> np.ndarray:
     return ref[idx]
 
 
-def _score(x: np.ndarray, ref: Reference, fallen: Callable[[np.ndarray, float], bool], threshold: float) -> tuple[int, bool]:
-    fell = fallen_mask(x, fallen)
-    return survival(joint_errors(x, ref.x), fell, ref.steps, threshold), bool(fell.any())
-
-
 def _failed(x: np.ndarray, ref_row: np.ndarray, fallen: Callable[[np.ndarray, float], bool], threshold: float) -> tuple[bool, bool]:
     e = float(np.mean(np.abs(x[Q_SLICE] - ref_row[Q_SLICE])))
     f = bool(fallen(x[QUAT_SLICE], float(x[HEIGHT_INDEX])))
@@ -141,12 +136,15 @@ def _failed(x: np.ndarray, ref_row: np.ndarray, fallen: Callable[[np.ndarray, fl
 
 
 def track(client: Any, sim_id: str, mpc_id: str, model: str, ref: Reference, fallen: Callable[[np.ndarray, float], bool], *,
-          horizon: int = 15, threshold: float = 0.16, stop_at_failure: bool = True, solve_timeout: float = 60.0) -> Rollout:
+          horizon: int = 15, threshold: float = 0.16, stop_at_failure: bool = True, solve_timeout: float = 60.0,
+          error_state: bool = False) -> Rollout:
     """Resets simulator ``sim_id`` to the reference's first state and lets MPC service ``mpc_id``
     (model ``model``, configured already) choose every input from the state and the next
-    ``horizon`` reference states; stops at the first failing step (``stop_at_failure``), a fall
-    or the reference's end. A step the simulator refuses (``sim_failure``) ends the run as a
-    fall, and is noted."""
+    ``horizon`` reference states (SPEC's formulation); stops at the first failing step
+    (``stop_at_failure``), a fall or the reference's end. A step the simulator refuses
+    (``sim_failure``) ends the run as a fall, and is noted. ``error_state``: instead the
+    error-state MPC about the reference as a plan (its state at step k, the expert's targets
+    k .. k+H−1 as feed-forward; lifted-linear models only), not SPEC's formulation."""
     from .. import KoopbridgeError
 
     nu = ref.u.shape[1]
@@ -155,7 +153,11 @@ def track(client: Any, sim_id: str, mpc_id: str, model: str, ref: Reference, fal
     out = Rollout(x=np.empty(0), u=np.empty(0), survival=0)
     for k in range(ref.steps):
         t = time.perf_counter()
-        sol = client.solve(mpc_id, x, reference_window(ref.x, k, horizon), model=model, nu=nu, timeout=solve_timeout)
+        if error_state:
+            ff = ref.u[np.minimum(np.arange(k, k + horizon), ref.steps - 1)]
+            sol = client.solve(mpc_id, x, ref.x[k], model=model, nu=nu, timeout=solve_timeout, feedforward=ff)
+        else:
+            sol = client.solve(mpc_id, x, reference_window(ref.x, k, horizon), model=model, nu=nu, timeout=solve_timeout)
         out.round_trip_s.append(time.perf_counter() - t)
         out.solve_s.append(float(sol["solve_time"]))
         out.statuses[str(sol["status"])] = out.statuses.get(str(sol["status"]), 0) + 1
