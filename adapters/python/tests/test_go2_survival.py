@@ -100,6 +100,17 @@ def test_reference_windows_and_on_policy_windows():
     assert not fallen_mask(wx.reshape(-1, 35), FALL.fallen).any()
 
 
+def test_q_zscore_is_identity_on_the_models_normalised_state(tmp_path):
+    std = np.linspace(0.5, 4.0, 35)
+    m = go2_survival.ModelEntry(tmp_path, "m", {"kind": "koopman", "normalisation": {"x_std": std.tolist()}})
+    raw = go2_survival.ModelEntry(tmp_path, "e", {"kind": "edmd", "normalisation": None})
+    q, source = go2_survival.q_weights("zscore", [raw, m], 35)
+    # (x - r)^T diag(q) (x - r) = |(x - r) / std|^2: Q = I on the z-scored state.
+    d = np.arange(35.0)
+    assert np.isclose(d @ (np.asarray(q) * d), np.sum((d / std) ** 2)) and "m's normalisation" in source
+    assert go2_survival.q_weights("1," * 34 + "2", [], 35)[0][-1] == 2.0
+
+
 def test_the_replay_floor_through_the_adapter_equals_the_replay_in_process(tmp_path, session_id):
     from koopbridge import Client
     from koopbridge.adapters.go2_sim import Go2Simulator
@@ -134,6 +145,7 @@ def test_bad_input_a_missing_model_or_a_wrong_nx(tmp_path, capsys):
     assert "no config.json" in capsys.readouterr().err
     with pytest.raises(go2_survival.SetupError, match="35 finite"):
         go2_survival.q_weights("1,2", [], 35)
+    assert go2_survival.q_weights("identity", [], 35)[0] is None
     koopbridge_binary_or_skip()
     from koopbridge import KoopmanModel
 

@@ -92,7 +92,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--iterations", type=int, help="training iterations (budget's default)")
     p.add_argument("--references", type=int, help="held-out references (budget's default)")
     p.add_argument("--steps", type=int, help="reference length, steps (budget's default)")
-    p.add_argument("--q", default="identity", help="go2_survival --q (default: %(default)s)")
+    p.add_argument("--q", default="zscore", help="go2_survival --q (default: %(default)s)")
     p.add_argument("--threads", type=int, default=2, help="training threads (default: %(default)s)")
     return p
 

@@ -184,26 +184,30 @@ def _fall_rule(info: dict[str, Any]) -> Any:
     return rule.fallen
 
 
-def q_weights(spec: str, models: list[ModelEntry], nx: int) -> list[float] | None:
-    """The diagonal of Q: ``identity`` (None: SPEC's Q = I on the raw state), ``zscore``
-    (1/σ² of the first model's normalisation: Q = I on the z-scored state the Koopman model is
-    trained on, the same Q for every model) or ``nx`` comma-separated weights."""
+def q_weights(spec: str, models: list[ModelEntry], nx: int, refs: Sequence[Reference] = ()) -> tuple[list[float] | None, str]:
+    """The diagonal of Q and where it comes from: ``identity`` (None: Q = I on the raw state),
+    ``zscore`` (Q = I on the z-scored state: 1/σ² with σ the first ``--normalise`` model's state
+    statistics, else the references' own; the same Q for every model) or ``nx`` comma-separated
+    weights."""
     if spec == "identity":
-        return None
+        return None, "identity (raw units)"
     if spec == "zscore":
         for m in models:
             norm = m.config.get("normalisation")
             if norm:
                 std = np.asarray(norm["x_std"], float)
-                return (1.0 / np.maximum(std, 1e-8) ** 2).tolist()
-        raise SetupError("--q zscore needs a model trained with --normalise among the --model folders")
+                return (1.0 / np.maximum(std, 1e-8) ** 2).tolist(), f"zscore: 1/std^2 of {m.label}'s normalisation (its train pool)"
+        if refs:
+            std = np.concatenate([r.x for r in refs]).std(axis=0)
+            return (1.0 / np.maximum(std, 1e-8) ** 2).tolist(), "zscore: 1/std^2 of the reference states (no normalised model given)"
+        raise SetupError("--q zscore needs a model trained with --normalise or references")
     try:
         w = [float(v) for v in spec.split(",")]
     except ValueError as e:
         raise SetupError(f"--q {spec!r}: expected identity, zscore or {nx} comma-separated numbers") from e
     if len(w) != nx or not all(np.isfinite(w)) or min(w) < 0:
         raise SetupError(f"--q: {len(w)} weights given, expected {nx} finite numbers >= 0")
-    return w
+    return w, "given"
 
 
 def run(a: argparse.Namespace, refs: list[Reference] | None = None) -> dict[str, Any]:
@@ -216,7 +220,8 @@ def run(a: argparse.Namespace, refs: list[Reference] | None = None) -> dict[str,
         dims = (m.config.get("nx"), m.config.get("nu"))
         if None not in dims and dims != (35, 12):
             raise SetupError(f"model {m.path} is {dims[0]}/{dims[1]}-D (nx/nu, its config.json); the Go2 is 35/12-D")
-    refs = refs or make_references(a.references, a.steps, a.seed)
+    skipped: list[dict[str, Any]] = []
+    refs = refs or make_references(a.references, a.steps, a.seed, skipped=skipped)
     ref_s = time.perf_counter() - t0
     with Bridge(models, out / "logs", a.session) as br:
         assert br.client is not None
@@ -225,7 +230,7 @@ def run(a: argparse.Namespace, refs: list[Reference] | None = None) -> dict[str,
         if refs[0].x.shape[1] != nx or refs[0].u.shape[1] != nu:
             raise SetupError(f"the references are {refs[0].x.shape[1]}/{refs[0].u.shape[1]}-D, the adapter {nx}/{nu}-D")
         fallen = _fall_rule(info)
-        q = q_weights(a.q, models, nx)
+        q, q_source = q_weights(a.q, models, nx, refs)
         mpc_cfg: dict[str, Any] = dict(horizon=a.horizon, u_min=list(info["u_min"]), u_max=list(info["u_max"]))
         if q is not None:
             mpc_cfg["q"] = q
@@ -252,7 +257,9 @@ def run(a: argparse.Namespace, refs: list[Reference] | None = None) -> dict[str,
                 runs[label] = rs
                 results[label] = _entry(m, conf, rs, floor, a.steps, time.perf_counter() - t, es)
                 print(f"go2_survival: {label} ({m.kind}) {results[label]['survival']}", file=sys.stderr, flush=True)
-    report = _report(a, models, refs, floor, results, runs, info, q, ref_s)
+    report = _report(a, models, refs, floor, results, runs, info, q_source, ref_s)
+    report["task"]["skipped_rollouts"] = skipped
+    write_atomic(str(out / "report.json"), lambda f: f.write(json.dumps(report, indent=2).encode()))  # type: ignore[attr-defined]
     return report
 
 
@@ -274,7 +281,7 @@ def _entry(m: ModelEntry, conf: dict[str, Any], rs: list[Rollout], floor: list[R
 
 
 def _report(a: argparse.Namespace, models: list[ModelEntry], refs: list[Reference], floor: list[Rollout], results: dict[str, Any],
-            runs: dict[str, list[Rollout]], info: dict[str, Any], q: list[float] | None, ref_s: float) -> dict[str, Any]:
+            runs: dict[str, list[Rollout]], info: dict[str, Any], q_source: str, ref_s: float) -> dict[str, Any]:
     out = Path(a.out)
     fallen = _fall_rule(info)
     floor_s = [f.survival for f in floor]
@@ -315,12 +322,12 @@ def _report(a: argparse.Namespace, models: list[ModelEntry], refs: list[Referenc
         figures["mcap"] = f"tracking.mcap ({first}, reference {shown})"
     report = dict(
         task=dict(
-            references=len(refs), steps=a.steps, dt=float(info["dt"]), reference_seed=a.seed,
+            references=len(refs), reference_rollouts=[r.index for r in refs], steps=a.steps, dt=float(info["dt"]), reference_seed=a.seed,
             held_out=f"expert rollouts (collect 'expert', one episode per reference, 1 s warm-up, command U([-0.5,-0.3,-0.8],[1,0.3,0.8]) "
             f"every 2 s) drawn from default_rng([{a.seed}, i, 1]); the expert data draw from default_rng([data seed (42), e, 1])",
             start="reset(x0 = reference's first 35-D state) on an adapter that never saw it: lagged torques zero, base at x = y = 0",
             metric=f"survival = steps until mean_j |q_j - q_ref_j| > {a.threshold} rad or a fall (base < min height or tilted), capped at {a.steps}",
-            horizon=a.horizon, q="identity (raw units)" if q is None else (a.q if a.q == "zscore" else "given"), r=a.r,
+            horizon=a.horizon, q=q_source, r=a.r,
             bounds="the joint limits (the adapter's u_min/u_max)", stop_at_failure=not a.continue_after_failure, references_s=round(ref_s, 1)),
         table=table,
         floor=dict(survival=stats(floor_s, a.steps), survivals=floor_s, falls=int(sum(f.fell for f in floor)),
@@ -347,8 +354,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--horizon", type=int, default=15, help="MPC horizon H (default: %(default)s)")
     p.add_argument("--threshold", type=float, default=0.16, help="mean joint-position error ending survival, rad (default: %(default)s, Go2)")
-    p.add_argument("--q", default="identity", help="diagonal of Q: identity (SPEC, raw units), zscore (Q = I on the z-scored state: "
-                   "1/std^2 of the first normalised model) or nx comma-separated weights (default: %(default)s)")
+    p.add_argument("--q", default="zscore", help="diagonal of Q: zscore (Q = I on the z-scored state the Koopman models are trained on: "
+                   "1/std^2 of the first normalised model's statistics, else of the references), identity (Q = I on the raw state, "
+                   "dominated by the joint velocities) or nx comma-separated weights (default: %(default)s)")
     p.add_argument("--r", type=float, default=0.0, help="R = r I (default: %(default)s, SPEC)")
     p.add_argument("--error-state", action="store_true", help="also run, for each Koopman/EDMD model, the error-state MPC about the "
                    "reference (its state as the plan, the expert's targets as feed-forward): not SPEC's formulation, a row beside it")

@@ -105,21 +105,40 @@ def survival(errors: np.ndarray, fell: np.ndarray, length: int, threshold: float
 
 
 def make_references(n: int, steps: int, seed: int = REFERENCE_SEED, *, warmup: float = 1.0, command_every: float = 2.0,
-                    sim: Any = None) -> list[Reference]:
+                    sim: Any = None, skipped: list[dict[str, Any]] | None = None) -> list[Reference]:
     """``n`` held-out expert references of ``steps`` transitions, in-process on a fresh
-    ``Go2Simulator`` (the adapter's defaults): reference i is the expert collection's window i
+    ``Go2Simulator`` (the adapter's defaults): rollout i is the expert collection's window i
     with one window per episode (``windows_per_episode`` 1, T = ``steps``), under ``seed``: a
     seeded reset, ``warmup`` s of walking unrecorded, then ``steps`` recorded steps under a
-    random velocity command changed every ``command_every`` s."""
+    random velocity command changed every ``command_every`` s. The references are the first
+    ``n`` rollouts whose first state a fresh simulator accepts as ``reset(x0)`` (the adapter
+    refuses a state with a foot or leg deeper than 2 cm in the floor, which the expert's soft
+    contacts reach now and then); the refused ones are appended to ``skipped``."""
+    from .._native import InvalidInput
     from ..adapters.go2_sim import Go2Simulator
     from ..adapters.legged_collect import ExpertPolicy
 
     if n < 1 or steps < 1:
         raise ValueError(f"references: need n >= 1 and steps >= 1, got {n}, {steps}")
     sim = sim or Go2Simulator(on_fall=None)
+    probe = Go2Simulator(on_fall=None, memory=0)
     policy = ExpertPolicy(windows_per_episode=1, warmup=warmup, command_every=command_every)
-    w = sim.collect(policy, seed, n, steps)
-    return [Reference(x=w.x[i].copy(), u=w.u[i].copy(), index=i, seed=seed) for i in range(n)]
+    out: list[Reference] = []
+    start = 0
+    while len(out) < n:
+        if start > 2 * n + 20:
+            raise ValueError(f"references: {start - len(out)} of {start} expert rollouts start in states the simulator refuses")
+        w = sim.collect(policy, seed, n - len(out), steps, start=start)
+        for j in range(len(w.x)):
+            try:
+                probe.reset(x0=w.x[j, 0])
+            except InvalidInput as e:
+                if skipped is not None:
+                    skipped.append(dict(index=start + j, reason=str(e)))
+                continue
+            out.append(Reference(x=w.x[j].copy(), u=w.u[j].copy(), index=start + j, seed=seed))
+        start += len(w.x)
+    return out
 
 
 def reference_window(ref: np.ndarray, k: int, horizon: int) -> np.ndarray:
