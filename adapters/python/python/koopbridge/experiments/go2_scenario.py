@@ -90,9 +90,13 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--models", help=f"models to train and track, comma separated, from {', '.join(VARIANTS)} (budget's default)")
     p.add_argument("--aggregate", type=int, default=0, help="rounds of on-policy aggregation after the first tracking (default: %(default)s)")
     p.add_argument("--iterations", type=int, help="training iterations (budget's default)")
+    p.add_argument("--n-mult", type=int, help="encoder width n_mult (budget's default)")
+    p.add_argument("--hidden", help="encoder hidden widths, comma separated (budget's default)")
+    p.add_argument("--validate-every", type=int, help="iterations between validations (budget's default)")
     p.add_argument("--references", type=int, help="held-out references (budget's default)")
     p.add_argument("--steps", type=int, help="reference length, steps (budget's default)")
     p.add_argument("--q", default="zscore", help="go2_survival --q (default: %(default)s)")
+    p.add_argument("--error-state", action="store_true", help="go2_survival --error-state: also the error-state MPC rows")
     p.add_argument("--threads", type=int, default=2, help="training threads (default: %(default)s)")
     return p
 
@@ -106,12 +110,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     a = parser().parse_args(argv)
     b = dict(BUDGETS["full" if a.full else "smoke"])
-    for k in ("iterations", "references", "steps"):
+    for k in ("iterations", "references", "steps", "n_mult", "hidden", "validate_every"):
         if getattr(a, k) is not None:
             b[k] = getattr(a, k)
     models = (a.models or b["models"]).split(",")
     bad = [m for m in models if m not in VARIANTS]
-    if bad or a.aggregate < 0 or min(b["iterations"], b["references"], b["steps"]) < 1:
+    if bad or a.aggregate < 0 or min(b["iterations"], b["references"], b["steps"], b["n_mult"], b["validate_every"]) < 1:
         print(f"go2_scenario: unknown models {bad} (known: {list(VARIANTS)}) or a count < 1", file=sys.stderr)
         return 2
     out = Path(a.out).resolve()
@@ -128,7 +132,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                   "--block", str(b["block"]), "--procs", str(b["procs"])], out / "logs" / "collect.log")
         summary["data"] = str(data)
         summary["collect_s"] = round(time.perf_counter() - t0, 1)
-        refs = make_references(b["references"], b["steps"])
+        skipped: list[dict[str, Any]] = []
+        refs = make_references(b["references"], b["steps"], skipped=skipped)
+        summary["references"] = dict(rollouts=[r.index for r in refs], skipped=skipped)
         for rnd in range(a.aggregate + 1):
             rdir = out / f"round{rnd}"
             t = time.perf_counter()
@@ -142,7 +148,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 [arg for d in dirs for arg in ("--model", str(d))]
                 + ["--references", str(b["references"]), "--steps", str(b["steps"]), "--out", str(rdir / "track"), "--q", a.q]
                 # Aggregation wants the whole closed loop (recovery data), not only its part before the first failure.
-                + (["--continue-after-failure"] if a.aggregate > 0 else []))
+                + (["--continue-after-failure"] if a.aggregate > 0 else []) + (["--error-state"] if a.error_state else []))
             rep = run(sargs, refs)
             entry = dict(round=rnd, data=str(data), train_s=round(train_s, 1),
                          table=[dict(r, test_pred=_test_pred(Path(rep["models"][r["controller"].split(" ")[0]]["dir"])))
