@@ -28,6 +28,10 @@ u_min = [-8.0]
 u_max = [8.0]
 """
 MPC_SETTINGS = {"horizon": 30, "r": [1e-4], "u_min": [-8.0], "u_max": [8.0]}
+# The bilinear MPC with the offset-free correction: stateful across solves (each measured state
+# updates the correction), so the FMU and the service must see the same sequence of states.
+OFFSET_FREE = {"mode": "trajectory", "radius": 1.0, "gain": [0.5, 0.5]}
+OFFSET_FREE_TOML = '\n[offset_free]\nmode = "trajectory"\nradius = 1.0\ngain = [0.5, 0.5]\n'
 
 
 def run(cmd: list, **kw) -> subprocess.CompletedProcess:
@@ -49,13 +53,15 @@ def models(tmp_path_factory) -> dict[str, Path]:
     run([exe, "train", *common, "--out", d / "koopman"])
     run([exe, "train", "--model", "bilinear", *common, "--out", d / "bilinear"])
     (d / "mpc.toml").write_text(MPC_TOML)
+    (d / "mpc-offset-free.toml").write_text(MPC_TOML + OFFSET_FREE_TOML)
     return {"exe": exe, "dir": d, "koopman": d / "koopman", "bilinear": d / "bilinear", "mpc": d / "mpc.toml"}
 
 
-def export(models, kind: str, fmi: str, name: str) -> Path:
+def export(models, kind: str, fmi: str, name: str, offset_free: bool = False) -> Path:
     out = models["dir"] / name
     flag = "--bilinear" if kind == "bilinear" else "--model"
-    run([models["exe"], "export-fmu", flag, models[kind], "--mpc", models["mpc"], "--fmi", fmi, "--out", out,
+    mpc = models["dir"] / "mpc-offset-free.toml" if offset_free else models["mpc"]
+    run([models["exe"], "export-fmu", flag, models[kind], "--mpc", mpc, "--fmi", fmi, "--out", out,
          "--unit", "theta=rad", "--unit", "theta_dot=rad/s", "--unit", "u=N.m"])
     return out
 
@@ -136,7 +142,7 @@ class Service:
     """`koopbridge serve mpc` with the model in its store, configured with the MPC file's
     settings, and a Client."""
 
-    def __init__(self, models, kind: str, tmp: Path, session: str) -> None:
+    def __init__(self, models, kind: str, tmp: Path, session: str, offset_free: bool = False) -> None:
         store = tmp / "store"
         shutil.copytree(models[kind], store / "pend")
         self.ep = free_endpoint()
@@ -147,7 +153,8 @@ class Service:
         t_end = time.monotonic() + 30
         while True:
             try:
-                self.client.configure_mpc("s0", "pend", **MPC_SETTINGS)
+                extra = {"offset_free": OFFSET_FREE} if offset_free else {}
+                self.client.configure_mpc("s0", "pend", **MPC_SETTINGS, **extra)
                 break
             except koopbridge.BridgeTimeout:
                 assert time.monotonic() < t_end, self.child.output()
@@ -209,11 +216,13 @@ def test_export_writes_both_fmi_versions_and_fmpy_validates_them(models):
     assert not [p for p in models["dir"].iterdir() if ".tmp-" in p.name]
 
 
-@pytest.mark.parametrize("kind, fmi", [("koopman", "3"), ("bilinear", "3"), ("bilinear", "2")])
-def test_fmpy_closed_loop_reproduces_the_service_closed_loop(models, damped_fmu, tmp_path, session_id, kind, fmi):
-    controller = export(models, kind, fmi, f"{kind}{fmi}.fmu")
+@pytest.mark.parametrize(
+    "kind, fmi, offset_free", [("koopman", "3", False), ("bilinear", "3", False), ("bilinear", "2", False), ("bilinear", "3", True)]
+)
+def test_fmpy_closed_loop_reproduces_the_service_closed_loop(models, damped_fmu, tmp_path, session_id, kind, fmi, offset_free):
+    controller = export(models, kind, fmi, f"{kind}{fmi}{'-of' * offset_free}.fmu", offset_free)
     xs, us = fmpy_closed_loop(controller, damped_fmu)
-    service = Service(models, kind, tmp_path, session_id)
+    service = Service(models, kind, tmp_path, session_id, offset_free)
     try:
         xs_s, us_s = service_closed_loop(service, damped_fmu)
     finally:
