@@ -185,14 +185,17 @@ pub fn run(args: ExportFmuArgs) -> anyhow::Result<()> {
 }
 
 /// `libkoopbridge_fmu.so` next to the running executable (cargo puts both in target/<profile>/),
-/// else in its `deps/` folder.
+/// or in its `deps/` folder, whichever is newer.
 fn default_library() -> anyhow::Result<PathBuf> {
     let exe = std::env::current_exe().context("locating the koopbridge executable")?;
     let dir = exe.parent().context("the executable's folder")?;
-    // `cargo build` puts it next to the executable; a dependency's build leaves it in deps/.
+    // `cargo build` puts it next to the executable; `cargo test` and a dependency's build leave
+    // it in deps/ only: the newer of the two.
+    let modified = |p: &PathBuf| std::fs::metadata(p).and_then(|m| m.modified()).ok();
     let lib = [dir.join(LIBRARY), dir.join("deps").join(LIBRARY)]
         .into_iter()
-        .find(|p| p.is_file())
+        .filter(|p| p.is_file())
+        .max_by_key(modified)
         .unwrap_or_else(|| dir.join(LIBRARY));
     if !lib.is_file() {
         bail!(
