@@ -186,9 +186,20 @@ def test_the_pipeline_on_a_tiny_model(tmp_path):
     np.testing.assert_array_equal(x1[: len(x0)], x0)
     assert u1.shape == (len(x1), 15, 12) and "on-policy" in meta["policy"]
     # The MCAP holds the recorder's three channels, Foxglove's JSON + jsonschema.
+    import jsonschema
     from mcap.reader import make_reader
 
     with open(out / "round0" / "track" / "tracking.mcap", "rb") as f:
-        summary = make_reader(f).get_summary()
-    assert {c.topic for c in summary.channels.values()} == {"/koopbridge/go2/state", "/koopbridge/go2/input", "/koopbridge/go2/reference"}
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        msgs: dict[str, list[dict]] = {c.topic: [] for c in summary.channels.values()}
+        for schema, channel, message in reader.iter_messages():
+            m = json.loads(message.data)
+            jsonschema.validate(m, json.loads(schema.data))
+            msgs[channel.topic].append(m)
+    assert set(msgs) == {"/koopbridge/go2/state", "/koopbridge/go2/input", "/koopbridge/go2/reference"}
+    states, inputs, refs = (msgs[f"/koopbridge/go2/{k}"] for k in ("state", "input", "reference"))
+    assert len(states) == len(refs) == len(inputs) + 1 > 1
+    np.testing.assert_allclose(states[0]["x"], refs[0]["x_ref"], atol=1e-9)  # the run starts at the reference's first state
+    assert states[1]["state"]["base_height"] == states[1]["x"][34]
     assert exe.exists()
