@@ -176,7 +176,7 @@ def test_the_pipeline_on_a_tiny_model(tmp_path):
             assert len(m["survivals"]) == 3 and all(0 <= v <= 30 for v in m["survivals"])
             assert sum(m["statuses"].values()) > 0
         assert rep["models"]["go2-both"]["normalised"] and not rep["models"]["go2-edmd"]["normalised"]
-        for f in ("survival.png", "tracking.png", "tracking.mcap"):
+        for f in ("survival.png", "tracking.png", "tracking.mcap", "table.md"):
             assert (out / f"round{rnd['round']}" / "track" / f).stat().st_size > 0
     # Round 1 trained on the expert windows plus round 0's on-policy ones.
     agg = s["rounds"][0]["aggregated"]

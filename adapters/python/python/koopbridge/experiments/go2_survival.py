@@ -5,7 +5,7 @@ for Koopman and EDMD models, random shooting with 1000 sequences for an NNDM) wi
 adapter in lockstep in a child process; beside each model the open-loop replay floor (the
 expert's recorded targets replayed from the same start). Writes ``report.json`` (the survival
 table), ``survival.png`` (histograms), ``tracking.png`` (joint tracking of one reference),
-``tracking.mcap`` (that reference's run of the first model, for Foxglove) and
+``tracking.mcap`` (that reference's run of the first model, for Foxglove), ``table.md`` and
 ``onpolicy/{model}.npz`` (the closed loops as training windows, for on-policy aggregation).
 
     python -m koopbridge.experiments.go2_survival --model DIR [--model DIR2 ...] --references 50 --out OUT
@@ -338,7 +338,26 @@ def _report(a: argparse.Namespace, models: list[ModelEntry], refs: list[Referenc
         plot_reference=shown,
     )
     write_atomic(str(out / "report.json"), lambda f: f.write(json.dumps(report, indent=2).encode()))  # type: ignore[attr-defined]
+    write_atomic(str(out / "table.md"), lambda f: f.write(markdown_table(report).encode()))  # type: ignore[attr-defined]
     return report
+
+
+def markdown_table(report: dict[str, Any]) -> str:
+    """The survival table of ``report`` as Markdown (one row per controller, the floor first)."""
+    t = report["task"]
+    lines = [f"Survival steps over {t['references']} held-out references of {t['steps']} steps ({t['metric']}; Q {t['q']}, "
+             f"H {t['horizon']}, R = {t['r']})", "",
+             "| controller | mean | std | sem | median | q25-q75 | min-max | at cap | above / below floor | solve median (p99) us |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    models = report["models"]
+    for r in report["table"]:
+        m = models.get(r["controller"].split(" ")[0])
+        solve = m.get("solve") if m else None
+        floor = f"{m['above_floor']} / {m['below_floor']}" if m else "-"
+        timing = f"{solve['median_us']} ({solve['p99_us']})" if solve else "-"
+        lines.append(f"| {r['controller']} | {r['mean']} | {r['std']} | {r['sem']} | {r['median']:g} | {r['q25']:g}-{r['q75']:g} | "
+                     f"{r['min']:g}-{r['max']:g} | {r.get('at_cap', '')} | {floor} | {timing} |")
+    return "\n".join(lines) + "\n"
 
 
 def parser() -> argparse.ArgumentParser:
