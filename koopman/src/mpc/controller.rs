@@ -1,6 +1,7 @@
 //! The receding-horizon Koopman MPC controller: lifts the state, forms `q = M1 z_0 + M2 r`,
 //! solves the QP warm-started from the shifted previous plan (the dedicated solver: from its
-//! previous working set), and falls back safely on failure.
+//! previous working set), and falls back safely on failure; optionally with the offset-free
+//! correction of the bilinear MPC ([`offset`]).
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -19,6 +20,7 @@ use crate::linalg::kernels::gemv_simd;
 use crate::model::LiftedModel;
 
 mod error_state;
+mod offset;
 
 /// Why the controller returned its fallback plan instead of a solver's answer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -137,6 +139,14 @@ pub struct MpcController<'m> {
     plan_in: Vec<f64>,
     /// True while `zr`'s reference part waits for the rollout of `plan_in`.
     rollout_pending: bool,
+    /// The offset-free correction, if on ([`MpcController::set_offset_free`]).
+    offset: Option<super::offset_free::OffsetFree>,
+    /// `S = [S_0; …; S_{H−1}]` (row-major, H·nx × nx): the offset of the predicted `x_{τ+1}`
+    /// per unit of the constant state disturbance, `S_τ = Σ_{j≤τ} P A^j E`.
+    disturbance_map: Vec<f64>,
+    /// The offset the correction adds to the predicted states `x_1..x_H` in the last solve
+    /// (H·nx values; empty when none).
+    pred_offset: Vec<f64>,
 }
 
 impl<'m> MpcController<'m> {
@@ -248,6 +258,9 @@ impl<'m> MpcController<'m> {
             pull: Vec::new(),
             plan_in: Vec::new(),
             rollout_pending: false,
+            offset: None,
+            disturbance_map: Vec::new(),
+            pred_offset: Vec::new(),
             condensed,
         })
     }
@@ -321,7 +334,9 @@ impl<'m> MpcController<'m> {
     /// Expands a reference of nx values (held over the horizon) or H·nx values (stacked).
     fn set_reference(&mut self, reference: &[f64]) -> Result<()> {
         let (nx, hz) = (self.nx(), self.horizon());
-        expand_reference(&mut self.r, reference, nx, hz)
+        expand_reference(&mut self.r, reference, nx, hz)?;
+        self.shift_for_offset();
+        Ok(())
     }
 
     /// Plans from state `x` (nx values) towards `reference` (nx values held over the horizon,
@@ -393,6 +408,10 @@ impl<'m> MpcController<'m> {
         if let Some(c) = &self.constraints {
             let mut free = vec![0.0; self.condensed.horizon * self.condensed.nx];
             super::condensed::gemv_acc(self.condensed.phi.as_ref(), z0, &mut free);
+            // The correction's offset moves the predictions the state bounds apply to.
+            free.iter_mut()
+                .zip(&self.pred_offset)
+                .for_each(|(f, p)| *f += p);
             c.rhs(&free, &self.u_prev, &mut self.h);
         }
         let mut u = self.shifted_plan();

@@ -33,13 +33,22 @@ pub trait Policy {
 
 impl Policy for MpcController<'_> {
     fn name(&self) -> String {
-        format!("koopman-mpc/{}", self.config().solver.name())
+        let offset = self.offset_free().map_or("", |o| match o.config().mode {
+            super::OffsetMode::Disturbance => "+disturbance",
+            super::OffsetMode::Integral => "+integral",
+            super::OffsetMode::Trajectory => "+trajectory",
+        });
+        format!("koopman-mpc/{}{offset}", self.config().solver.name())
     }
     fn horizon(&self) -> usize {
         MpcController::horizon(self)
     }
-    fn act(&mut self, x: &[f64], _current: &[f64], future: &[f64]) -> Result<Action> {
+    /// With an offset-free correction on, the state `x` and the current reference update it
+    /// before the solve, and the applied input is recorded after it.
+    fn act(&mut self, x: &[f64], current: &[f64], future: &[f64]) -> Result<Action> {
+        self.observe(x, current)?;
         let s = self.solve(x, future)?;
+        self.record(x, s.first(self.nu()));
         Ok(Action {
             u: s.first(self.nu()).to_vec(),
             solve_time: s.solve_time,

@@ -74,9 +74,9 @@ impl LoadedModel {
         }
     }
 
-    /// The controller of this model with `cfg`; `offset_free` only for a bilinear model (a
-    /// lifted model with one is refused: its controller has no such correction). A one-step
-    /// model gets random-shooting MPC, which needs finite input bounds and honours the
+    /// The controller of this model with `cfg`; `offset_free` for a lifted-linear or a bilinear
+    /// model (a one-step NNDM with one is refused: its planner has no such correction). A
+    /// one-step model gets random-shooting MPC, which needs finite input bounds and honours the
     /// horizon and the state weight `q` only (other settings it cannot honour are refused).
     pub fn controller(
         &self,
@@ -85,14 +85,9 @@ impl LoadedModel {
     ) -> Result<ModelController> {
         match self {
             LoadedModel::Lifted(m) => {
-                if offset_free.is_some() {
-                    return Err(Error::InvalidArgument(
-                        "offset_free needs a bilinear model (this one is lifted-linear)".into(),
-                    ));
-                }
-                Ok(ModelController::Lifted(Box::new(
-                    MpcController::from_shared(m.clone(), cfg)?,
-                )))
+                let mut c = MpcController::from_shared(m.clone(), cfg)?;
+                c.set_offset_free(offset_free.cloned())?;
+                Ok(ModelController::Lifted(Box::new(c)))
             }
             LoadedModel::Bilinear(m) => {
                 let mut c = BilinearMpc::from_shared(m.clone(), cfg, ScpOptions::default())?;
@@ -102,7 +97,9 @@ impl LoadedModel {
             LoadedModel::OneStep(m) => {
                 if offset_free.is_some() {
                     return Err(Error::InvalidArgument(
-                        "offset_free needs a bilinear model (this one is a one-step NNDM)".into(),
+                        "offset_free needs a lifted-linear or bilinear model (this one is a \
+                         one-step NNDM)"
+                            .into(),
                     ));
                 }
                 Ok(ModelController::Shooting(Box::new(Shooting {
@@ -116,7 +113,9 @@ impl LoadedModel {
 
 /// One model's controller.
 pub enum ModelController {
-    /// Koopman MPC on a lifted model (stateless between solves but for its warm start).
+    /// Koopman MPC on a lifted model (stateless between solves but for its warm start; with
+    /// an offset-free correction consecutive solves are one closed loop, as for the bilinear
+    /// MPC).
     Lifted(Box<MpcController<'static>>),
     /// Sequential convex MPC on a bilinear model. With an offset-free correction, consecutive
     /// solves are one closed loop: each measured state updates the correction before the plan,
@@ -208,7 +207,15 @@ impl ModelController {
     pub fn solve(&mut self, x: &[f64], reference: &[f64]) -> Result<ModelPlan> {
         match self {
             ModelController::Lifted(c) => {
+                let nx = c.nx();
+                if c.offset_free().is_some() {
+                    if reference.len() < nx {
+                        return Err(Error::dimension("reference", nx, reference.len()));
+                    }
+                    c.observe(x, &reference[..nx])?;
+                }
                 let s = c.solve(x, reference)?;
+                c.record(x, s.first(c.nu()));
                 Ok(lifted_plan(s))
             }
             ModelController::Shooting(s) => {

@@ -22,7 +22,8 @@ impl MpcController<'_> {
     /// (nx values). Returns the absolute inputs `u`.
     ///
     /// Errors: as [`MpcController::solve`]; a feed-forward of another length than H·nu
-    /// (`InvalidArgument`) or with a non-finite value (`NonFinite`).
+    /// (`InvalidArgument`) or with a non-finite value (`NonFinite`); an offset-free correction
+    /// is on (`InvalidArgument`).
     pub fn solve_about_plan(
         &mut self,
         x: &[f64],
@@ -30,6 +31,12 @@ impl MpcController<'_> {
         feedforward: &[f64],
     ) -> Result<MpcSolution> {
         let start = Instant::now();
+        if self.offset.is_some() {
+            return Err(Error::InvalidArgument(
+                "the error-state MPC (a feed-forward) does not take an offset-free correction"
+                    .into(),
+            ));
+        }
         let (nx, n) = (self.nx(), self.condensed.n_vars());
         for (what, v) in [("state", x), ("reference state", reference_now)] {
             if v.len() != nx {
