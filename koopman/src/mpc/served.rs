@@ -338,3 +338,93 @@ fn shooting_planner(model: &dyn OneStepModel, cfg: &MpcConfig) -> Result<RandomS
         SHOOTING_SEED,
     )
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::arch::Arch;
+    use crate::model::koopman::KoopmanModel;
+    use std::path::PathBuf;
+
+    fn scratch(name: &str) -> PathBuf {
+        let dir =
+            std::env::temp_dir().join(format!("koopman-served-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        dir
+    }
+
+    fn cfg() -> MpcConfig {
+        MpcConfig {
+            horizon: 8,
+            r: Some(vec![1e-3]),
+            ..MpcConfig::with_bounds(vec![-1.0], vec![1.0])
+        }
+    }
+
+    #[test]
+    fn a_lifted_model_dir_gives_the_mpc_controller_with_or_without_offset_free() {
+        let dir = scratch("lifted");
+        KoopmanModel::init(Arch::new(2, 1, &[16, 16], 2).unwrap(), 5)
+            .unwrap()
+            .save(&dir)
+            .unwrap();
+        let loaded = LoadedModel::load(&dir).unwrap();
+        assert_eq!(
+            (loaded.kind(), loaded.nx(), loaded.nu()),
+            ("lifted-linear", 2, 1)
+        );
+        let mut c = loaded.controller(&cfg(), None).unwrap();
+        assert!(c.takes_feedforward());
+        let model: Arc<dyn LiftedModel> = Arc::from(crate::model::load_lifted(&dir).unwrap());
+        let mut direct = MpcController::from_shared(model, &cfg()).unwrap();
+        for x in [[0.5, -0.2], [0.3, 0.1], [-0.4, 0.0]] {
+            let (got, want) = (
+                c.solve(&x, &[0.0, 0.0]).unwrap(),
+                direct.solve(&x, &[0.0, 0.0]).unwrap(),
+            );
+            assert_eq!(got.u, want.u);
+            assert_eq!(got.status, PlanStatus::Solved);
+        }
+        let of = OffsetFreeConfig::defaults(super::super::OffsetMode::Trajectory, 2, vec![0]);
+        // The linear MPC takes the offset-free correction too (koopman/tests/linear_offset_free.rs).
+        loaded.controller(&cfg(), Some(&of)).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_bilinear_model_dir_with_zero_n_plans_as_the_linear_mpc_and_refuses_a_feedforward() {
+        let dir = scratch("bilinear");
+        let linear = KoopmanModel::init(Arch::new(2, 1, &[16, 16], 2).unwrap(), 6).unwrap();
+        let latent = linear.arch().latent_dim();
+        let lin_dir = scratch("bilinear-linear");
+        linear.save(&lin_dir).unwrap();
+        BilinearModel::from_parts(linear, vec![0.0; latent * latent])
+            .unwrap()
+            .save(&dir)
+            .unwrap();
+        let loaded = LoadedModel::load(&dir).unwrap();
+        assert_eq!(loaded.kind(), "bilinear");
+        let mut c = loaded.controller(&cfg(), None).unwrap();
+        let mut lin = LoadedModel::load(&lin_dir)
+            .unwrap()
+            .controller(&cfg(), None)
+            .unwrap();
+        // With every N_i = 0 the sequential convex MPC solves the linear MPC's QP.
+        let x = [0.6, -0.3];
+        let (b, l) = (
+            c.solve(&x, &[0.0, 0.0]).unwrap(),
+            lin.solve(&x, &[0.0, 0.0]).unwrap(),
+        );
+        for (ub, ul) in b.u.iter().zip(&l.u) {
+            assert!((ub - ul).abs() < 1e-6, "{:?} vs {:?}", b.u, l.u);
+        }
+        assert!(!c.takes_feedforward());
+        let err = c
+            .solve_about_plan(&x, &[0.0, 0.0], &[0.0; 8])
+            .err()
+            .expect("refused");
+        assert!(err.to_string().contains("this one is bilinear"), "{err}");
+        let _ = std::fs::remove_dir_all(&dir);
+        let _ = std::fs::remove_dir_all(&lin_dir);
+    }
+}
