@@ -1,8 +1,9 @@
 """The Go2 survival scenario end to end (issue 25 §3): collect expert data (``go2_data``) → train
 (``koopbridge train --normalise --gamma 0.99``; EDMD and NNDM on raw units) → track held-out
 references through the bridge (``go2_survival``) → report; with ``--aggregate R``, R rounds of
-on-policy aggregation (the first model's closed loops join the training data, ``go2_union``,
-every model is retrained on the union and tracks again). The default budget is CI's (about a
+on-policy aggregation (the first model's closed loops on references of their own, never the
+held-out ones, join the training data, ``go2_union``; every model is retrained on the union and
+tracks the held-out references again). The default budget is CI's (about a
 minute); ``--full`` is the paper's (SPEC: 180k windows, 20k iterations, n_mult 16, 50
 references, the six models).
 
@@ -10,7 +11,8 @@ references, the six models).
 
 Writes ``OUT/scenario.json`` (every round's survival table with the models' test L_pred),
 ``OUT/data`` (unless ``--data``), ``OUT/round{r}/models/{name}``, ``OUT/round{r}/track``
-(``go2_survival``'s report, figures and MCAP) and ``OUT/round{r}/data`` (the union, r ≥ 1).
+(``go2_survival``'s report, figures and MCAP), ``OUT/round{r}/aggregate`` (the closed loops aggregated after
+round r) and ``OUT/round{r}/data`` (the union, r ≥ 1).
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from typing import Any
 from .dataset_npz import write_atomic
 from .figure8 import koopbridge_cli
 
-__all__ = ["BUDGETS", "VARIANTS", "main", "parser", "train_command"]
+__all__ = ["AGGREGATION_SEED", "BUDGETS", "VARIANTS", "main", "parser", "train_command"]
 
 #: The models a scenario can train: ``koopbridge train`` flags of each.
 VARIANTS: dict[str, list[str]] = {
@@ -38,6 +40,10 @@ VARIANTS: dict[str, list[str]] = {
     "edmd": ["--model", "edmd"],
     "nndm": ["--model", "nndm"],
 }
+
+#: Seed of the references whose closed loops are aggregated in round r: ``AGGREGATION_SEED + r``
+#: (the expert data use 42, the held-out references ``go2_track.REFERENCE_SEED``).
+AGGREGATION_SEED = 190_042
 
 #: Budgets: CI's smoke run and the paper's (``--full``).
 BUDGETS: dict[str, dict[str, Any]] = {
@@ -146,9 +152,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             train_s = time.perf_counter() - t
             sargs = survival_parser().parse_args(
                 [arg for d in dirs for arg in ("--model", str(d))]
-                + ["--references", str(b["references"]), "--steps", str(b["steps"]), "--out", str(rdir / "track"), "--q", a.q]
-                # Aggregation wants the whole closed loop (recovery data), not only its part before the first failure.
-                + (["--continue-after-failure"] if a.aggregate > 0 else []) + (["--error-state"] if a.error_state else []))
+                + ["--references", str(b["references"]), "--steps", str(b["steps"]), "--out", str(rdir / "track"), "--q", a.q,
+                   "--no-onpolicy"] + (["--error-state"] if a.error_state else []))
             rep = run(sargs, refs)
             entry = dict(round=rnd, data=str(data), train_s=round(train_s, 1),
                          table=[dict(r, test_pred=_test_pred(Path(rep["models"][r["controller"].split(" ")[0]]["dir"])))
@@ -156,12 +161,21 @@ def main(argv: Sequence[str] | None = None) -> int:
                          report=str(rdir / "track" / "report.json"))
             summary["rounds"].append(entry)
             if rnd < a.aggregate:
-                first = rep["onpolicy"][f"go2-{models[0]}"] if rep.get("onpolicy") else None
+                # The on-policy data come from references of their own (seed AGGREGATION_SEED + round), never
+                # from the held-out ones the survival is measured on; each run goes on past the error
+                # threshold until the reference ends or the robot falls (recovery data).
+                seed = AGGREGATION_SEED + rnd
+                aargs = survival_parser().parse_args(
+                    ["--model", str(dirs[0]), "--references", str(b["references"]), "--steps", str(b["steps"]), "--seed", str(seed),
+                     "--out", str(rdir / "aggregate"), "--q", a.q, "--continue-after-failure", "--no-plot", "--no-mcap"])
+                arep = run(aargs)
+                first = (arep.get("onpolicy") or {}).get(f"go2-{models[0]}")
                 if not first or not first.get("path"):
-                    raise RuntimeError(f"round {rnd}: go2-{models[0]} left no on-policy window of {sargs.window_steps} steps to aggregate")
+                    raise RuntimeError(f"round {rnd}: go2-{models[0]} left no on-policy window of {aargs.window_steps} steps to aggregate")
                 new = out / f"round{rnd + 1}" / "data"
                 u = union(str(data), [first["path"]], str(new))
-                entry["aggregated"] = dict(windows=first["windows"], union_train=u["train"], data=str(new))
+                entry["aggregated"] = dict(model=f"go2-{models[0]}", reference_seed=seed, windows=first["windows"], union_train=u["train"],
+                                           data=str(new), survival_on_them=arep["models"][f"go2-{models[0]}"]["survival"])
                 data = new
             write_atomic(str(out / "scenario.json"), lambda f: f.write(json.dumps(summary, indent=2).encode()))  # type: ignore[attr-defined]
     except (SetupError, RuntimeError, FileNotFoundError, ValueError) as e:
