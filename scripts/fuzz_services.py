@@ -3,7 +3,8 @@ random, mutated, truncated and oversized payloads to every queryable (simulator 
 trainer jobs, MPC configure/solve/attach, recorder, model store, recordings). Counts replies that
 are missing, error replies that are not typed (`{"code", "message"}` with a known code),
 `internal` errors, processes that died, and the resident memory of each process before, at every
-tenth of the run and after. Exit code 0 only with 0 dead, 0 missing and 0 untyped.
+tenth of the run, right after it and after a second of idle. Exit code 0 only with 0 dead, 0
+missing and 0 untyped.
 
 Usage: python scripts/fuzz_services.py --exe target/release/koopbridge --queries N [--seed S]
 (scripts/fuzz-services.sh N runs it with the repository's venv and binary)."""
@@ -193,6 +194,9 @@ def main() -> int:
     elapsed = time.monotonic() - t0
     dead = [n for n, p in procs.items() if p.poll() is not None]
     rss1 = {n: (rss_kib(p.pid) if p.poll() is None else -1) for n, p in procs.items()}
+    # Again after a second without queries: what the processes keep, not what is in flight.
+    time.sleep(1.0)
+    rss_idle = {n: (rss_kib(p.pid) if p.poll() is None else -1) for n, p in procs.items()}
     s.close()
     for p in procs.values():
         if p.poll() is None:
@@ -208,6 +212,7 @@ def main() -> int:
         "dead": dead,
         "rss_kib_before": rss0,
         "rss_kib_after": rss1,
+        "rss_kib_after_idle": rss_idle,
         "rss_kib_every_tenth": samples,
         "by_leaf": by_leaf,
         "examples": examples,

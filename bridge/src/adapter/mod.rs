@@ -177,7 +177,8 @@ pub fn serve(
                     f.command(&mut sim, &bytes);
                 }
             }
-            Err(mpsc::RecvTimeoutError::Timeout) => {}
+            // Idle: the heap pages of a refused oversized query go back to the system.
+            Err(mpsc::RecvTimeoutError::Timeout) => crate::services::trim_after_oversized(),
             Err(mpsc::RecvTimeoutError::Disconnected) => break,
         }
         if let (Some(f), Some(p)) = (free.as_mut(), publisher.as_ref()) {

@@ -30,17 +30,22 @@ pub fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 /// Largest request payload a service accepts by default (1 MiB).
 pub const DEFAULT_MAX_PAYLOAD: usize = 1 << 20;
 
-/// A queryable whose queries arrive on a channel, tagged with `T`.
+/// Most queries a service holds waiting for its thread (PROTOCOL.md, "Limits"): one more is
+/// answered `busy` at once. Payloads above [`DEFAULT_MAX_PAYLOAD`] are answered `too_large`
+/// on arrival and never queued, so the waiting queries hold at most 256 MiB of payload.
+pub const INBOX_CAPACITY: usize = 256;
+
+/// A queryable whose queries arrive on a bounded channel ([`INBOX_CAPACITY`]), tagged with `T`.
 pub struct Inbox<T> {
     rx: mpsc::Receiver<(T, Query)>,
-    tx: mpsc::Sender<(T, Query)>,
+    tx: mpsc::SyncSender<(T, Query)>,
     queryables: Vec<zenoh::query::Queryable<()>>,
 }
 
 impl<T: Copy + Send + Sync + 'static> Inbox<T> {
     /// An inbox with no queryable yet.
     pub fn new() -> Self {
-        let (tx, rx) = mpsc::channel();
+        let (tx, rx) = mpsc::sync_channel(INBOX_CAPACITY);
         Inbox {
             rx,
             tx,
@@ -48,13 +53,21 @@ impl<T: Copy + Send + Sync + 'static> Inbox<T> {
         }
     }
 
-    /// Declares a queryable on `key` whose queries arrive tagged `tag`.
+    /// Declares a queryable on `key` whose queries arrive tagged `tag`. A query whose payload
+    /// is larger than [`DEFAULT_MAX_PAYLOAD`] is answered `too_large`, and one that finds
+    /// [`INBOX_CAPACITY`] queries waiting `busy`, in the Zenoh callback: neither is kept.
     pub fn declare(&mut self, session: &Session, key: &str, tag: T) -> Result<()> {
         let tx = self.tx.clone();
         let q = session
             .declare_queryable(key)
             .callback(move |q| {
-                let _ = tx.send((tag, q));
+                if let Err(e) = payload_len(&q, DEFAULT_MAX_PAYLOAD) {
+                    return respond(&q, Err(e));
+                }
+                if let Err(mpsc::TrySendError::Full((_, q))) = tx.try_send((tag, q)) {
+                    let e = format!("{INBOX_CAPACITY} queries are already waiting; try again");
+                    respond(&q, Err(ErrorReply::new(ErrorCode::Busy, e)));
+                }
             })
             .wait()
             .map_err(Error::zenoh)?;
@@ -74,19 +87,44 @@ impl<T: Copy + Send + Sync + 'static> Default for Inbox<T> {
     }
 }
 
-/// The request payload, or a `too_large` error if it exceeds `max` bytes.
-pub fn payload(q: &Query, max: usize) -> std::result::Result<Vec<u8>, ErrorReply> {
-    let p = q
-        .payload()
-        .map(|p| p.to_bytes().into_owned())
-        .unwrap_or_default();
-    if p.len() > max {
+/// Set when a query above [`DEFAULT_MAX_PAYLOAD`] arrived (any service of the process).
+static OVERSIZED_SEEN: AtomicBool = AtomicBool::new(false);
+
+/// After an oversized query, once a service (or an adapter) is idle: hands the heap's free
+/// pages back to the system. Zenoh receives such a message whole, in batch buffers spread over its threads' malloc
+/// arenas, before the service refuses it; glibc keeps those freed pages (measured: +16 MB per
+/// receiving thread after 17 MB queries, BENCHMARKS.md "Reliability"). `malloc_trim` is glibc's.
+pub(crate) fn trim_after_oversized() {
+    if OVERSIZED_SEEN.swap(false, Ordering::Relaxed) {
+        #[cfg(all(target_os = "linux", target_env = "gnu"))]
+        // SAFETY: malloc_trim only releases free memory of the allocator; no pointer is touched.
+        unsafe {
+            libc::malloc_trim(0);
+        }
+    }
+}
+
+/// The request payload's length, or a `too_large` error if it exceeds `max` bytes (nothing
+/// is copied; [`trim_after_oversized`] will trim).
+fn payload_len(q: &Query, max: usize) -> std::result::Result<usize, ErrorReply> {
+    let n = q.payload().map_or(0, |p| p.len());
+    if n > max {
+        OVERSIZED_SEEN.store(true, Ordering::Relaxed);
         return Err(ErrorReply::new(
             ErrorCode::TooLarge,
-            format!("{} bytes, this service accepts at most {max}", p.len()),
+            format!("{n} bytes, this service accepts at most {max}"),
         ));
     }
-    Ok(p)
+    Ok(n)
+}
+
+/// The request payload, or a `too_large` error if it exceeds `max` bytes (checked before the
+/// payload is copied).
+pub fn payload(q: &Query, max: usize) -> std::result::Result<Vec<u8>, ErrorReply> {
+    payload_len(q, max)?;
+    Ok(q.payload()
+        .map(|p| p.to_bytes().into_owned())
+        .unwrap_or_default())
 }
 
 /// Parses a JSON request body into `T`, or a `bad_request` error.
@@ -176,6 +214,7 @@ pub fn serve_queries_handing_on<T: Copy + Send + Sync + 'static>(
     tracing::info!("{role:?} service '{id}' ready");
     while !stop.load(Ordering::Relaxed) {
         let Some((tag, q)) = inbox.next(Duration::from_millis(100)) else {
+            trim_after_oversized();
             continue;
         };
         let result = match payload(&q, DEFAULT_MAX_PAYLOAD) {

@@ -202,6 +202,7 @@ pub fn serve(
                         req.model.clone()
                     };
                     if !solvers.has(&name) {
+                        solvers.admit(&name)?;
                         let creq = ConfigureRequest {
                             model: name.clone(),
                             mpc: None,
@@ -217,6 +218,7 @@ pub fn serve(
             }
             Op::Configure => Some((|| {
                 let req: ConfigureRequest = parse_json("configure", &body)?;
+                solvers.admit(&req.model)?;
                 let (c, reply) = build(&client, store, &req).map_err(|e| e.to_reply())?;
                 solvers.install(&req.model, c)?;
                 configs.insert(req.model.clone(), req.clone());
@@ -243,6 +245,12 @@ pub fn serve(
                     return Err(ErrorReply::new(
                         ErrorCode::Busy,
                         format!("already attached to '{}'", req.sim),
+                    ));
+                }
+                if attached.len() >= attach::MAX_ATTACHED {
+                    return Err(ErrorReply::new(
+                        ErrorCode::Busy,
+                        format!("attached to {} simulators (the most)", attached.len()),
                     ));
                 }
                 // The configured settings of the model (SPEC defaults if none), with the

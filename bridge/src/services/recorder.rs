@@ -5,7 +5,7 @@
 
 use std::collections::HashMap;
 use std::path::Path;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -58,6 +58,26 @@ pub struct RecordSummary {
     /// state was received.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mcap: Option<String>,
+    /// States received but not kept because the recordings held [`MAX_RECORDED_BYTES`]
+    /// (absent when none).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub dropped: u64,
+}
+
+fn is_zero(n: &u64) -> bool {
+    *n == 0
+}
+
+/// Most recordings a recorder runs at once (PROTOCOL.md, "Limits"): another `start` is `busy`.
+pub const MAX_RECORDINGS: usize = 64;
+/// Most state data all running recordings of a recorder keep together (512 MiB, counted as
+/// [`state_cost`]): a state past it is dropped and counted in [`RecordSummary::dropped`].
+pub const MAX_RECORDED_BYTES: usize = 512 << 20;
+
+/// What keeping state `m` costs against [`MAX_RECORDED_BYTES`]: its values and a fixed
+/// overhead for the message and its vectors.
+pub fn state_cost(m: &StateMsg) -> usize {
+    96 + 8 * (m.x.len() + m.u.len())
 }
 
 /// Asks recorder `id` to start recording simulator `sim`'s state stream in windows of
@@ -110,6 +130,10 @@ pub fn record_stop(
 struct Recording {
     states: Vec<StateMsg>,
     bad: u64,
+    /// What `states` cost against the recorder's budget ([`state_cost`]).
+    bytes: usize,
+    /// States dropped because the budget was spent.
+    dropped: u64,
 }
 
 /// Turns a sequence of state messages into windows of `steps` transitions. Windows never span
@@ -220,6 +244,8 @@ pub fn serve(
     inbox.declare(session, &keys.recorder(id)?, Op::Record)?;
     inbox.declare(session, &keys.under(&["data", "*"]), Op::Data)?;
     let mut active: HashMap<String, Active> = HashMap::new();
+    // The state data every running recording keeps, against MAX_RECORDED_BYTES.
+    let budget = Arc::new(AtomicUsize::new(0));
     serve_queries(
         session,
         keys,
@@ -246,13 +272,19 @@ pub fn serve(
                                 format!("already recording '{}'", req.sim),
                             ));
                         }
+                        if active.len() >= MAX_RECORDINGS {
+                            return Err(ErrorReply::new(
+                                ErrorCode::Busy,
+                                format!("{MAX_RECORDINGS} recordings are running (the most)"),
+                            ));
+                        }
                         if let Some(r) = &req.reference {
                             // Whole rows of some nx, finite; against the simulator's nx below
                             // when it answers (else at stop, when the MCAP file is written).
                             check_reference(r, r.len()).map_err(|e| e.to_reply())?;
                         }
                         let rec = Arc::new(Mutex::new(Recording::default()));
-                        let r2 = rec.clone();
+                        let (r2, spent) = (rec.clone(), budget.clone());
                         // Subscribed before `info` is asked: a free-running adapter that waits
                         // for a subscriber (`--wait-subscriber`) answers queries only once it
                         // runs.
@@ -264,7 +296,17 @@ pub fn serve(
                             .callback(move |s| {
                                 let mut r = super::lock(&r2);
                                 match StateMsg::decode(&s.payload().to_bytes()) {
-                                    Ok(m) => r.states.push(m),
+                                    Ok(m) => {
+                                        let c = state_cost(&m);
+                                        let before = spent.fetch_add(c, Ordering::Relaxed);
+                                        if before + c > MAX_RECORDED_BYTES {
+                                            spent.fetch_sub(c, Ordering::Relaxed);
+                                            r.dropped += 1;
+                                        } else {
+                                            r.bytes += c;
+                                            r.states.push(m);
+                                        }
+                                    }
                                     Err(_) => r.bad += 1,
                                 }
                             })
@@ -304,6 +346,8 @@ pub fn serve(
                             )
                         })?;
                         drop(sub);
+                        // The states are freed when this arm ends; their budget now.
+                        budget.fetch_sub(super::lock(&rec).bytes, Ordering::Relaxed);
                         let info = match info {
                             Some(i) => i,
                             None => sim_info(&client, keys, &req.sim)?,
@@ -356,6 +400,7 @@ pub fn serve(
                             out_of_order: ooo,
                             windows: n,
                             mcap,
+                            dropped: rec.dropped,
                         })
                     }
                     other => Err(ErrorReply::new(

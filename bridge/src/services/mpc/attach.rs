@@ -54,6 +54,10 @@ pub struct AttachStats {
     pub latency_p99_us: f64,
 }
 
+/// Most simulators an MPC service controls at once (a thread each; PROTOCOL.md, "Limits"):
+/// another `attach` is `busy`.
+pub const MAX_ATTACHED: usize = 64;
+
 /// A running attachment: its stop flag and its thread (which returns the statistics).
 pub(super) struct Attached {
     /// Set to stop the thread.

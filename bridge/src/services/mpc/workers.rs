@@ -21,6 +21,10 @@ enum Job {
     Replace(Box<ServiceController>),
 }
 
+/// Most models an MPC service keeps configured (a controller and a solver thread each;
+/// PROTOCOL.md, "Limits"): configuring or solving for another model past it is `busy`.
+pub const MAX_MODELS: usize = 32;
+
 /// A model's solver thread.
 struct Worker {
     jobs: mpsc::Sender<Job>,
@@ -41,8 +45,10 @@ impl SolveWorkers {
 
     /// Gives `model` the controller `c`: a new thread for a new model; for a known one, solves
     /// queued before this call still use the old controller, every later one the new.
-    /// `internal` if no thread could be started.
+    /// `internal` if no thread could be started; `busy` for a new model when [`MAX_MODELS`]
+    /// are configured.
     pub fn install(&mut self, model: &str, c: ServiceController) -> Result<(), ErrorReply> {
+        self.admit(model)?;
         let c = match self.by_model.get(model) {
             None => c,
             Some(w) => match w.jobs.send(Job::Replace(Box::new(c))) {
@@ -74,6 +80,18 @@ impl SolveWorkers {
         self.by_model
             .insert(model.to_string(), Worker { jobs, thread });
         Ok(())
+    }
+
+    /// `busy` when `model` is new and [`MAX_MODELS`] models are configured (checked before a
+    /// controller is built for it).
+    pub fn admit(&self, model: &str) -> Result<(), ErrorReply> {
+        if self.has(model) || self.by_model.len() < MAX_MODELS {
+            return Ok(());
+        }
+        Err(ErrorReply::new(
+            ErrorCode::Busy,
+            format!("{MAX_MODELS} models are configured (the most); model '{model}' is not"),
+        ))
     }
 
     /// Hands query `q` (request `req`) to `model`'s thread, which answers it. `Err` (answered

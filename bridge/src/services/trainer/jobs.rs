@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Error, Result};
+use crate::error::{Error, ErrorCode, ErrorReply, Result};
 
 /// Where a job's dataset comes from.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -153,6 +153,21 @@ pub struct Submitted {
     pub superseded: Vec<String>,
 }
 
+/// Most unfinished (queued or running) jobs a trainer holds (PROTOCOL.md, "Limits"): a
+/// submission of another spec past it is refused with `busy`.
+pub const MAX_UNFINISHED_JOBS: usize = 64;
+/// Most finished (done, failed, cancelled) job records a trainer keeps: past it the oldest
+/// (lowest job number) is forgotten, in memory and on disk, and its status is `not_found`.
+pub const MAX_FINISHED_JOBS: usize = 256;
+
+/// The number in a job id (`j0042-…` → 42), by which records are aged.
+fn job_number(job: &str) -> usize {
+    job.strip_prefix('j')
+        .and_then(|j| j.split('-').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or(0)
+}
+
 /// The jobs of one trainer: records by id, the queue of job ids, the folder they persist in.
 pub struct Jobs {
     dir: PathBuf,
@@ -178,11 +193,13 @@ impl Jobs {
             .filter_map(|e| serde_json::from_slice(&std::fs::read(e.path()).ok()?).ok())
             .collect();
         found.sort_by(|a, b| a.job.cmp(&b.job));
+        // Job numbers go on from the highest found (records may have been forgotten).
+        let counter = found.iter().map(|r| job_number(&r.job)).max().unwrap_or(0);
         let mut jobs = Jobs {
             dir: dir.to_path_buf(),
             records: HashMap::new(),
             queue: VecDeque::new(),
-            counter: found.len(),
+            counter: counter.max(found.len()),
         };
         for mut r in found {
             if r.state.unfinished() {
@@ -193,7 +210,44 @@ impl Jobs {
             }
             jobs.records.insert(r.job.clone(), r);
         }
+        jobs.forget_oldest_finished();
         Ok(jobs)
+    }
+
+    /// Whether `spec` may be submitted: always when it equals an unfinished job's spec (that
+    /// job is returned), else `busy` when [`MAX_UNFINISHED_JOBS`] are unfinished.
+    pub fn admit(&self, spec: &JobSpec) -> std::result::Result<(), ErrorReply> {
+        let unfinished = self.records.values().filter(|r| r.state.unfinished());
+        let (mut n, mut same) = (0, false);
+        for r in unfinished {
+            n += 1;
+            same |= r.spec == *spec;
+        }
+        if same || n < MAX_UNFINISHED_JOBS {
+            return Ok(());
+        }
+        Err(ErrorReply::new(
+            ErrorCode::Busy,
+            format!("{n} jobs are queued or running (at most {MAX_UNFINISHED_JOBS}); submit later"),
+        ))
+    }
+
+    /// Forgets the oldest finished records (memory and file) past [`MAX_FINISHED_JOBS`].
+    fn forget_oldest_finished(&mut self) {
+        let mut done: Vec<(usize, String)> = self
+            .records
+            .values()
+            .filter(|r| !r.state.unfinished())
+            .map(|r| (job_number(&r.job), r.job.clone()))
+            .collect();
+        if done.len() <= MAX_FINISHED_JOBS {
+            return;
+        }
+        done.sort();
+        for (_, job) in &done[..done.len() - MAX_FINISHED_JOBS] {
+            self.records.remove(job);
+            let _ = std::fs::remove_file(self.dir.join(format!("{job}.json")));
+        }
     }
 
     /// The folder the records persist in.
@@ -264,6 +318,7 @@ impl Jobs {
         self.persist(&r);
         self.records.insert(job.clone(), r);
         self.queue.push_back(job.clone());
+        self.forget_oldest_finished();
         Submitted {
             reply: SubmitReply {
                 job,
@@ -317,7 +372,7 @@ impl Jobs {
         job: &str,
         outcome: std::result::Result<serde_json::Value, (bool, String)>,
     ) -> Option<JobRecord> {
-        self.update(job, |r| match outcome {
+        let r = self.update(job, |r| match outcome {
             Ok(metrics) => {
                 r.state = JobState::Done;
                 r.metrics = Some(metrics);
@@ -330,7 +385,9 @@ impl Jobs {
                 r.state = JobState::Failed;
                 r.error = Some(message);
             }
-        })
+        });
+        self.forget_oldest_finished();
+        r
     }
 
     /// Applies `f` to the record of `job` and persists it; returns the new record.
@@ -493,6 +550,44 @@ mod tests {
         let fresh = jobs.submit(spec("m9", 10)).reply.job;
         assert!(jobs.list().iter().filter(|r| r.job == fresh).count() == 1);
         assert!(fresh.starts_with("j0005-"), "{fresh}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// A peer cannot make a trainer keep more than the limits: `busy` past
+    /// [`MAX_UNFINISHED_JOBS`] (a repeated spec still finds its job), and the oldest finished
+    /// records forgotten past [`MAX_FINISHED_JOBS`], in memory and on disk, numbers going on.
+    #[test]
+    fn unfinished_jobs_and_finished_records_are_bounded() {
+        let dir = scratch("limits");
+        let mut jobs = Jobs::open(&dir).unwrap();
+        let ids: Vec<String> = (0..MAX_UNFINISHED_JOBS)
+            .map(|i| jobs.submit(spec(&format!("m{i}"), 10)).reply.job)
+            .collect();
+        let e = jobs.admit(&spec("another", 10)).unwrap_err();
+        assert_eq!(e.code, ErrorCode::Busy);
+        assert!(jobs.admit(&spec("m3", 10)).is_ok(), "the same spec again");
+        // Finish them all and more: only the newest MAX_FINISHED_JOBS records stay.
+        let total = MAX_FINISHED_JOBS + 10;
+        for i in 0..total {
+            let job = if i < ids.len() {
+                ids[i].clone()
+            } else {
+                jobs.admit(&spec(&format!("m{i}"), 10)).unwrap();
+                jobs.submit(spec(&format!("m{i}"), 10)).reply.job
+            };
+            jobs.start_next().unwrap();
+            jobs.finish(&job, Ok(serde_json::json!({})));
+        }
+        assert_eq!(jobs.list().len(), MAX_FINISHED_JOBS);
+        assert!(jobs.get(&ids[0]).is_none() && jobs.get(&ids[9]).is_none());
+        assert!(jobs.get(&ids[10]).is_some());
+        assert!(!dir.join(format!("{}.json", ids[0])).exists());
+        let files = std::fs::read_dir(&dir).unwrap().count();
+        assert_eq!(files, MAX_FINISHED_JOBS);
+        // Reopened: the numbers go on after the highest, not after the count.
+        let mut jobs = Jobs::open(&dir).unwrap();
+        let next = jobs.submit(spec("z", 1)).reply.job;
+        assert_eq!(job_number(&next), total + 1, "{next}");
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

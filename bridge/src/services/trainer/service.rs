@@ -92,6 +92,11 @@ pub fn serve_with(
     served
 }
 
+/// Largest job spec (JSON) a trainer accepts (PROTOCOL.md, "Limits"): every job's spec is kept
+/// with its record, so this and [`super::jobs::MAX_FINISHED_JOBS`] bound what a peer can make
+/// the trainer keep.
+pub const MAX_JOB_SPEC: usize = 64 << 10;
+
 /// `…/jobs/{job}`: the record, after an optional `{"cancel": true}`.
 fn job_query(shared: &Shared, job: &str, body: &[u8]) -> Reply {
     if !body.is_empty() {
@@ -122,11 +127,21 @@ fn submit(
     id: &str,
     body: &[u8],
 ) -> Reply {
+    if body.len() > MAX_JOB_SPEC {
+        return Err(ErrorReply::new(
+            ErrorCode::TooLarge,
+            format!(
+                "a job spec of {} bytes (at most {MAX_JOB_SPEC})",
+                body.len()
+            ),
+        ));
+    }
     let spec: JobSpec = parse_json("job", body)?;
     validate_chunk("model name", &spec.model).map_err(|e| e.to_reply())?;
     let spec = super::confine(data_root, spec)?;
     trainer.validate(&spec)?;
     let mut jobs = lock(&shared.jobs);
+    jobs.admit(&spec)?;
     let s = jobs.submit(spec);
     if s.existing {
         tracing::info!(
