@@ -219,3 +219,10 @@ def test_reset_to_a_recorded_state(sim):
     nxt = other.step(stand)
     assert np.abs(nxt[34] - xs[5][34]) < 0.01 and not other.fallen
     assert x[34] > 0.3
+    # Every state the expert walks through is accepted, the feet's soft contacts sunk in included.
+    w = sim.collect(ExpertPolicy(windows_per_episode=20, warmup=0.5), 4, 20, 15)
+    deepest = 0.0
+    for state in w.x.reshape(-1, 35):
+        other.reset(x0=state)
+        deepest = max(deepest, -min(other.data.contact.dist[: other.data.ncon], default=0.0))
+    assert deepest > 0.02, deepest  # deeper than any other geom may go
