@@ -58,7 +58,11 @@ fn aggregation_retrains_on_the_recorded_rollouts_and_controls_again() {
     let sc = dir.join("agg.toml");
     std::fs::write(&sc, TINY).unwrap();
     let out = dir.join("out");
-    common::run_scenario(&sc, &out, &["--aggregate", "2"]);
+    let o = common::run_scenario(&sc, &out, &["--aggregate", "2"]);
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr),
+    );
     let r: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
     let rounds = r["aggregation"].as_array().unwrap();
@@ -102,6 +106,47 @@ fn aggregation_retrains_on_the_recorded_rollouts_and_controls_again() {
         assert_eq!(a["control"]["model"], format!("agg-pend-agg{n}"));
         assert_eq!(a["control"]["x"][0], serde_json::json!([-1.0, 0.1]));
         previous_after = a["error_after"].as_f64().unwrap();
+        // Each round beside the previous one; a round that made control worse is a warning.
+        let before = if i == 0 {
+            &r["control"]
+        } else {
+            &rounds[i - 1]["sims"][0]["control"]
+        };
+        for (field, of) in [
+            ("time_to_goal", "time_to_goal_steps"),
+            ("not_solved", "not_solved"),
+            ("final_error", "final_error"),
+        ] {
+            assert_eq!(a[format!("{field}_before")], before[of], "{field}");
+            assert_eq!(a[format!("{field}_after")], a["control"][of], "{field}");
+        }
+        let (fb, fa) = (
+            a["final_error_before"].as_f64().unwrap(),
+            a["final_error_after"].as_f64().unwrap(),
+        );
+        if fa > fb * 1.1 + 1e-3 {
+            assert!(
+                a["regression"].as_str().unwrap().contains("final error"),
+                "{a}"
+            );
+        }
+        let warned = format!("aggregation round {n} made control of 'pend' worse");
+        assert_eq!(
+            a.get("regression").is_some(),
+            stderr.contains(&format!("warning: {warned}")),
+            "{stderr}"
+        );
+        assert_eq!(
+            a.get("regression").is_some(),
+            r["warnings"]
+                .as_array()
+                .is_some_and(|w| w.iter().any(|w| w.as_str().unwrap().starts_with(&warned))),
+        );
+        assert!(
+            stdout.contains(&format!("aggregation round {n} 'pend'"))
+                && stdout.contains("previous round -> this round"),
+            "{stdout}"
+        );
     }
     assert!(out.join("aggregation.png").is_file());
 }

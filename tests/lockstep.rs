@@ -137,7 +137,7 @@ fn collection_is_bit_for_bit_repeatable_and_equals_local_stepping() {
         SimClient::connect(&c.client, "b", common::READY).unwrap(),
     ];
     let job = CollectJob {
-        policy: &Policy::Uniform,
+        policy: &Policy::uniform(),
         windows: 6,
         steps: 5,
         seed: 42,

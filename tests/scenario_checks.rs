@@ -85,10 +85,10 @@ fn bad_settings_fail_before_collection() {
             &["reference has 1 values"][..],
         ),
         (
-            "offset_free on a linear model",
+            "offset_free gains on a linear model",
             "mpc = { horizon = 10 }",
-            "mpc = { horizon = 10 }\noffset_free = { mode = \"trajectory\", radius = 1.0, gain = [0.5, 0.5] }",
-            &["offset_free", "needs a bilinear model"][..],
+            "mpc = { horizon = 10 }\noffset_free = { mode = \"trajectory\", radius = 1.0, gain = [0.5] }",
+            &["offset_free", "expected 2, got 1"][..],
         ),
         (
             "offset_free gains",

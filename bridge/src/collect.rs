@@ -9,7 +9,7 @@ use koopman::rng::Rng;
 
 use crate::client::{step_all, Liveliness, SimClient};
 use crate::error::{Error, Result};
-use crate::messages::ResetRequest;
+use crate::messages::{InputBound, ResetRequest, SimInfo};
 use crate::scenario::Policy;
 
 /// Which split a set of windows is for (keeps the seeds of the three splits independent).
@@ -83,6 +83,8 @@ pub fn collect(
         );
     }
     let mut out: Vec<Dataset> = Vec::with_capacity(sims.len());
+    // Per simulator, the uniform policy's bounds (`nu` values each).
+    let mut bounds: Vec<(Vec<f64>, Vec<f64>)> = Vec::with_capacity(sims.len());
     for s in sims.iter() {
         let info = &s.info.sim;
         if let Policy::Scripted { inputs } = policy {
@@ -95,13 +97,19 @@ pub fn collect(
                 )));
             }
         }
+        let b = match policy {
+            Policy::Uniform { low, high } => uniform_bounds(low, high, info)
+                .map_err(|m| Error::Config(format!("simulator '{}': {m}", s.id)))?,
+            _ => (Vec::new(), Vec::new()),
+        };
         let kind = match policy {
-            Policy::Uniform => "uniform",
-            Policy::Scripted { .. } => "scripted",
-            Policy::Adapter { .. } => "adapter",
+            Policy::Uniform { .. } => format!("uniform low={:?} high={:?}", b.0, b.1),
+            Policy::Scripted { .. } => "scripted".into(),
+            Policy::Adapter { .. } => "adapter".into(),
         };
         let source = format!("zenoh:sim/{}", s.id);
-        out.push(empty_dataset(info, windows, steps, seed, source, kind));
+        out.push(empty_dataset(info, windows, steps, seed, source, &kind));
+        bounds.push(b);
     }
     for i in 0..windows {
         let mut rngs = Vec::with_capacity(sims.len());
@@ -115,16 +123,13 @@ pub fn collect(
             rngs.push(Rng::new(ws ^ 0x5EED_u64));
         }
         for t in 0..steps {
-            let inputs: Vec<Vec<f64>> = sims
+            let inputs: Vec<Vec<f64>> = bounds
                 .iter()
                 .zip(rngs.iter_mut())
-                .map(|(s, r)| match policy {
-                    Policy::Uniform => s
-                        .info
-                        .sim
-                        .u_min
+                .map(|((lo, hi), r)| match policy {
+                    Policy::Uniform { .. } => lo
                         .iter()
-                        .zip(&s.info.sim.u_max)
+                        .zip(hi)
                         .map(|(&lo, &hi)| r.uniform(lo, hi))
                         .collect(),
                     Policy::Scripted { inputs } => inputs[(i * steps + t) % inputs.len()].clone(),
@@ -140,6 +145,50 @@ pub fn collect(
         progress(i + 1, windows);
     }
     Ok(out)
+}
+
+/// The bounds (`nu` values each) of the lockstep uniform policy on the simulator `info`
+/// describes: `low`/`high` as given (one value for every input, or `nu`), else the simulator's
+/// `u_min`/`u_max`. The error says what does not fit: a length other than 1 or `nu`, a
+/// non-finite bound (an unbounded simulator needs `low` and `high`), `low > high`, or a bound
+/// outside the simulator's (it cannot take more).
+pub fn uniform_bounds(
+    low: &Option<InputBound>,
+    high: &Option<InputBound>,
+    info: &SimInfo,
+) -> std::result::Result<(Vec<f64>, Vec<f64>), String> {
+    let nu = info.nu();
+    let resolve = |b: &Option<InputBound>, default: &[f64], what: &str| match b {
+        Some(b) => b.resolve(nu).ok_or_else(|| {
+            format!("collect.policy: `{what}` must have 1 or {nu} values (one per input)")
+        }),
+        None => Ok(default.to_vec()),
+    };
+    let lo = resolve(low, &info.u_min, "low")?;
+    let hi = resolve(high, &info.u_max, "high")?;
+    for i in 0..nu {
+        let name = info.input_names.get(i).map_or("?", String::as_str);
+        let (l, h) = (lo[i], hi[i]);
+        if !(l.is_finite() && h.is_finite()) {
+            return Err(format!(
+                "collect.policy: input {i} ({name}) has no finite bounds [{l}, {h}]; set `low` and \
+                 `high` in the uniform policy"
+            ));
+        }
+        if l > h {
+            return Err(format!(
+                "collect.policy: input {i} ({name}) has low {l} > high {h}"
+            ));
+        }
+        if l < info.u_min[i] || h > info.u_max[i] {
+            return Err(format!(
+                "collect.policy: input {i} ({name}) bounds [{l}, {h}] exceed the simulator's \
+                 [{}, {}]",
+                info.u_min[i], info.u_max[i]
+            ));
+        }
+    }
+    Ok((lo, hi))
 }
 
 /// An empty aligned dataset for `windows` windows of `steps` transitions of the simulator `info`

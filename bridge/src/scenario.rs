@@ -107,8 +107,17 @@ impl SimSpec {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum Policy {
-    /// A fresh uniform random input within the simulator's bounds every step (SPEC.md).
-    Uniform,
+    /// A fresh uniform random input `u ~ U(low, high)` every step (SPEC.md); absent bounds are
+    /// the simulator's `info` bounds (checked against them and `nu` before collection:
+    /// [`crate::collect::uniform_bounds`]).
+    Uniform {
+        /// Lower bounds: one value for every input or `nu` values (default `info.u_min`).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        low: Option<crate::messages::InputBound>,
+        /// Upper bounds: one value for every input or `nu` values (default `info.u_max`).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        high: Option<crate::messages::InputBound>,
+    },
     /// A fixed input sequence (each entry `nu` values), cycled.
     Scripted {
         /// The inputs.
@@ -125,6 +134,16 @@ pub enum Policy {
         #[serde(default = "default_block")]
         block: u32,
     },
+}
+
+impl Policy {
+    /// The uniform policy within the simulator's bounds (no `low`/`high`).
+    pub fn uniform() -> Self {
+        Policy::Uniform {
+            low: None,
+            high: None,
+        }
+    }
 }
 
 fn default_block() -> u32 {
@@ -204,8 +223,8 @@ pub struct ControlSpec {
     /// Which simulator to control (default: the first).
     #[serde(default)]
     pub sim: Option<String>,
-    /// Offset-free correction of the MPC (a bilinear model's only: `[train] config = {
-    /// bilinear = true }`), `koopman::mpc::OffsetFreeConfig` fields: `mode` (`trajectory`,
+    /// Offset-free correction of the MPC (a bilinear or a lifted-linear model; not with
+    /// `feedforward_file`), `koopman::mpc::OffsetFreeConfig` fields: `mode` (`trajectory`,
     /// `disturbance` or `integral`), `radius`, `gain` (nx values), `angles`.
     #[serde(default)]
     pub offset_free: Option<koopman::mpc::OffsetFreeConfig>,
@@ -257,6 +276,7 @@ impl Scenario {
     pub fn parse(text: &str) -> Result<Self> {
         let s: Scenario = toml::from_str(text).map_err(|e| Error::Config(e.to_string()))?;
         s.validate()?;
+        s.check_settings()?;
         Ok(s)
     }
 
@@ -349,6 +369,69 @@ impl Scenario {
             }
         }
         extras::validate(&self.hooks, &self.participants)?;
+        Ok(())
+    }
+
+    /// Checks the free-form settings tables against the settings they override, so that an
+    /// unknown key is refused (naming it and the valid ones) when the file is read:
+    /// `[train].config` and `[full].train_config` (`TrainConfig`), every `[control].mpc`
+    /// (`MpcConfig`), and the uniform policy's `low`/`high` (finite, `low ≤ high`; their length
+    /// against `nu` is checked with the simulators' `info`).
+    pub fn check_settings(&self) -> Result<()> {
+        use crate::services::koopman_trainer::train_config;
+        let config = |what: &str, e: Error| {
+            let m = match e {
+                Error::Protocol { message, .. } => message,
+                e => e.to_string(),
+            };
+            Error::Config(format!("{what}: {m}"))
+        };
+        if let Some(t) = &self.train {
+            train_config(&t.config).map_err(|e| config("[train].config", e))?;
+        }
+        if let Some(f) = &self.full {
+            train_config(&f.train_config).map_err(|e| config("[full].train_config", e))?;
+        }
+        for ctrl in &self.control {
+            serde_json::from_value::<koopman::mpc::MpcConfig>(serde_json::Value::Object(
+                ctrl.mpc.clone(),
+            ))
+            .map_err(|e| {
+                Error::Config(format!(
+                    "[control].mpc for '{}': {e}",
+                    self.controlled_id(ctrl)
+                ))
+            })?;
+        }
+        if let Policy::Uniform { low, high } = &self.collect.policy {
+            let values = |b: &Option<crate::messages::InputBound>| match b {
+                Some(crate::messages::InputBound::All(v)) => vec![*v],
+                Some(crate::messages::InputBound::Each(v)) => v.clone(),
+                None => Vec::new(),
+            };
+            let (lo, hi) = (values(low), values(high));
+            if let Some(v) = lo.iter().chain(&hi).find(|v| !v.is_finite()) {
+                return Err(Error::Config(format!(
+                    "collect.policy: `low` and `high` must be finite, got {v}"
+                )));
+            }
+            let pairs: Vec<(f64, f64)> = match (lo.len(), hi.len()) {
+                (0, _) | (_, 0) => Vec::new(),
+                (1, _) => hi.iter().map(|&h| (lo[0], h)).collect(),
+                (_, 1) => lo.iter().map(|&l| (l, hi[0])).collect(),
+                (a, b) if a == b => lo.iter().copied().zip(hi.iter().copied()).collect(),
+                (a, b) => {
+                    return Err(Error::Config(format!(
+                        "collect.policy: `low` has {a} values and `high` {b}"
+                    )))
+                }
+            };
+            if let Some((l, h)) = pairs.iter().find(|(l, h)| l > h) {
+                return Err(Error::Config(format!(
+                    "collect.policy: `low` {l} > `high` {h}"
+                )));
+            }
+        }
         Ok(())
     }
 

@@ -20,7 +20,10 @@ use bridge::scenario::Scenario;
     naming it. Running the same scenario again into the same output folder needs no cleaning:\n\
     data and models whose sections are unchanged are reused (and it says so), and an\n\
     interrupted training resumes from its checkpoint (results/{scenario}/state/trainer/jobs/).\n\
-    External simulator commands run in the repository of the scenario file."
+    External simulator commands run in the repository of the scenario file.\n\n\
+    Warnings (on stderr, and in report.json's `warnings`): an MPC that did not solve every\n\
+    step (`not_solved`, by status: suboptimal, inaccurate, fallback), an aggregation round that\n\
+    made control worse. They do not change the exit code."
 )]
 pub struct RunArgs {
     /// The scenario file (TOML, see scenarios/).
@@ -51,7 +54,9 @@ pub struct RunArgs {
     /// On-policy aggregation: after the first control run, ROUNDS times retrain every
     /// controlled simulator's model on the collected data plus the closed-loop rollouts the
     /// recorder recorded so far, and control again (`aggregation` in report.json, plot
-    /// aggregation.png).
+    /// aggregation.png). Each round's control result is printed beside the previous round's,
+    /// and a round that made it worse (final error or tracking RMS up by more than 10% and
+    /// 0.001, the goal lost, more unsolved MPC steps) is a warning.
     #[arg(long, value_name = "ROUNDS", default_value_t = 0)]
     pub aggregate: usize,
     #[command(flatten)]
@@ -136,6 +141,13 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             bar.set_position(k as u64);
             log_progress("control (steps)", k as u64, n as u64);
         }
+        Event::Warning(w) => {
+            if bar.is_hidden() {
+                eprintln!("warning: {w}");
+            } else {
+                bar.println(format!("warning: {w}"));
+            }
+        }
     })?;
     bar.finish_and_clear();
     let path = out_dir.join("report.json");
@@ -180,11 +192,12 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             Err(e) => eprintln!("warning: could not draw {}: {e:#}", png.display()),
         }
         println!(
-            "  control of '{}': final error {:.4}, tracking RMS {:.4}, time to goal {}, solve median {:.0} µs, round trip median {:.0} µs",
+            "  control of '{}': final error {:.4}, tracking RMS {:.4}, time to goal {}, not solved {}, solve median {:.0} µs, round trip median {:.0} µs",
             c.sim,
             c.final_error,
             c.tracking_rms_total,
             time_to_goal(c.time_to_goal_steps),
+            not_solved(c),
             c.solve_median_us,
             c.solve_round_trip_median_us
         );
@@ -210,7 +223,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         for r in &report.aggregation {
             for a in &r.sims {
                 println!(
-                    "  aggregation round {} '{}': {} training windows ({} recorded), tracking RMS {:.4} -> {:.4}, final error {:.4} -> {:.4}",
+                    "  aggregation round {} '{}': {} training windows ({} recorded); previous round -> this round: tracking RMS {:.4} -> {:.4}, final error {:.4} -> {:.4}, time to goal {} -> {}, not solved {} -> {}{}",
                     r.round,
                     a.sim,
                     a.train_windows,
@@ -218,7 +231,12 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                     a.error_before,
                     a.error_after,
                     a.final_error_before,
-                    a.final_error_after
+                    a.final_error_after,
+                    time_to_goal(a.time_to_goal_before),
+                    time_to_goal(a.time_to_goal_after),
+                    a.not_solved_before,
+                    a.not_solved_after,
+                    if a.regression.is_some() { "  [WORSE]" } else { "" }
                 );
             }
         }
@@ -229,7 +247,24 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         }
     }
     println!("  report: {}", path.display());
+    // Repeated at the end, where they are not lost among the progress lines.
+    for w in &report.warnings {
+        eprintln!("warning: {w}");
+    }
     Ok(())
+}
+
+/// `"0"`, or the count with its statuses: `"500 of 500 (fallback 500)"`.
+fn not_solved(c: &bridge::orchestrator::ControlReport) -> String {
+    if c.not_solved == 0 {
+        return "0".into();
+    }
+    let by: Vec<String> = c
+        .not_solved_by_status
+        .iter()
+        .map(|(k, v)| format!("{k} {v}"))
+        .collect();
+    format!("{} of {} ({})", c.not_solved, c.u.len(), by.join(", "))
 }
 
 /// `"N steps"`, or `"never"` when the goal was not reached and held.

@@ -1,7 +1,8 @@
 //! On-policy aggregation (`koopbridge run --aggregate ROUNDS`, the paper's Strategy III): the
 //! recorder records every controlled simulator's closed-loop rollout, the trainer retrains that
 //! simulator's model on the union of the collected training windows and every rollout so far
-//! (windows of the scenario's T), and control runs again; the error before and after each round.
+//! (windows of the scenario's T), and control runs again; each round's control result beside the
+//! previous one's, and a warning when a round made control worse ([`regression`]).
 
 use std::path::Path;
 use std::time::Duration;
@@ -39,6 +40,21 @@ pub struct AggregatedSim {
     pub final_error_before: f64,
     /// Final error with the retrained model.
     pub final_error_after: f64,
+    /// Time to goal (steps) before the round; `None` = never.
+    #[serde(default)]
+    pub time_to_goal_before: Option<usize>,
+    /// Time to goal (steps) with the retrained model; `None` = never.
+    #[serde(default)]
+    pub time_to_goal_after: Option<usize>,
+    /// Solves that were not `solved` before the round.
+    #[serde(default)]
+    pub not_solved_before: usize,
+    /// Solves that were not `solved` with the retrained model.
+    #[serde(default)]
+    pub not_solved_after: usize,
+    /// What got worse in this round ([`regression`]); absent when nothing did.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub regression: Option<String>,
     /// The control run with the retrained model.
     pub control: ControlReport,
 }
@@ -50,6 +66,71 @@ pub struct AggregationRound {
     pub round: usize,
     /// Per controlled simulator (in `[control]` order).
     pub sims: Vec<AggregatedSim>,
+}
+
+/// A figure counts as worse after a round when it grew by more than this fraction …
+pub const REGRESSION_RELATIVE: f64 = 0.1;
+/// … and by more than this amount (errors so small that their change is noise are not
+/// regressions).
+pub const REGRESSION_ABSOLUTE: f64 = 1e-3;
+
+/// What got worse from the control run `before` a round to the one `after` it, in words
+/// (`None` when nothing did): the final error or the tracking RMS grew by more than
+/// [`REGRESSION_RELATIVE`] and [`REGRESSION_ABSOLUTE`], the goal reached before is no longer
+/// reached, or more solves failed to solve.
+pub fn regression(before: &ControlReport, after: &ControlReport) -> Option<String> {
+    let worse = |b: f64, a: f64| a > b * (1.0 + REGRESSION_RELATIVE) + REGRESSION_ABSOLUTE;
+    let mut what = Vec::new();
+    for (name, b, a) in [
+        ("final error", before.final_error, after.final_error),
+        (
+            "tracking RMS",
+            before.tracking_rms_total,
+            after.tracking_rms_total,
+        ),
+    ] {
+        if worse(b, a) || (b.is_finite() && !a.is_finite()) {
+            what.push(format!(
+                "{name} {b:.4} -> {a:.4} ({:.1}x)",
+                a / b.max(1e-300)
+            ));
+        }
+    }
+    if let (Some(b), None) = (before.time_to_goal_steps, after.time_to_goal_steps) {
+        what.push(format!("time to goal {b} steps -> never"));
+    }
+    if after.not_solved > before.not_solved {
+        what.push(format!(
+            "unsolved MPC steps {} -> {}",
+            before.not_solved, after.not_solved
+        ));
+    }
+    (!what.is_empty()).then(|| what.join(", "))
+}
+
+/// The warnings of one aggregation round: every simulator whose control got worse than with the
+/// previous round's model ([`AggregatedSim::regression`]), and every control run of the round
+/// whose MPC did not solve every step.
+pub fn round_warnings(round: &AggregationRound) -> Vec<String> {
+    let mut out = Vec::new();
+    for a in &round.sims {
+        if let Some(what) = &a.regression {
+            out.push(format!(
+                "aggregation round {} made control of '{}' worse than {} ({what}); model '{}' \
+                 is the retrained one",
+                round.round,
+                a.sim,
+                if round.round == 1 {
+                    "the model trained on the collected data".to_string()
+                } else {
+                    format!("round {}", round.round - 1)
+                },
+                a.control.model
+            ));
+        }
+        out.extend(a.control.not_solved_warning());
+    }
+    out
 }
 
 /// The name of the recording of simulator `sim`'s control run before round `round`.
@@ -213,11 +294,20 @@ pub fn aggregate(
                     error_after: after.tracking_rms_total,
                     final_error_before: before.final_error,
                     final_error_after: after.final_error,
+                    time_to_goal_before: before.time_to_goal_steps,
+                    time_to_goal_after: after.time_to_goal_steps,
+                    not_solved_before: before.not_solved,
+                    not_solved_after: after.not_solved,
+                    regression: regression(before, after),
                     control: after.clone(),
                 },
             )
             .collect();
-        out.push(AggregationRound { round, sims });
+        let done = AggregationRound { round, sims };
+        for w in round_warnings(&done) {
+            on(Event::Warning(&w));
+        }
+        out.push(done);
         current = next;
     }
     Ok(out)
@@ -248,6 +338,118 @@ mod tests {
                 region: None,
             },
         }
+    }
+
+    fn control(
+        final_error: f64,
+        rms: f64,
+        goal: Option<usize>,
+        not_solved: usize,
+    ) -> ControlReport {
+        ControlReport {
+            sim: "pend".into(),
+            model: "m-agg1".into(),
+            state_names: vec!["x".into()],
+            input_names: vec!["u".into()],
+            dt: 0.1,
+            reference: vec![0.0],
+            reference_trajectory: None,
+            x: vec![vec![0.0]; 3],
+            u: vec![vec![0.0]; 2],
+            final_error,
+            time_to_goal_steps: goal,
+            error: Vec::new(),
+            tracking_rms: vec![rms],
+            tracking_rms_total: rms,
+            solve_median_us: 0.0,
+            solve_round_trip_median_us: 0.0,
+            step_round_trip_median_us: 0.0,
+            not_solved,
+            not_solved_by_status: if not_solved > 0 {
+                [("fallback".to_string(), not_solved)].into()
+            } else {
+                Default::default()
+            },
+            offset_free: None,
+            mpc: None,
+            error_state: false,
+            position_loop: None,
+        }
+    }
+
+    #[test]
+    fn a_round_that_makes_control_worse_is_a_regression_and_a_warning() {
+        let before = control(0.040, 0.2, Some(30), 0);
+        // The issue's round: final error 0.040 -> 0.444.
+        let worse = control(0.444, 0.2, Some(30), 0);
+        let what = regression(&before, &worse).unwrap();
+        assert!(
+            what.contains("final error 0.0400 -> 0.4440 (11.1x)"),
+            "{what}"
+        );
+        assert!(!what.contains("tracking RMS"), "{what}");
+        // Within 10 % and 0.001: noise, not a regression; better is not one either.
+        assert_eq!(
+            regression(&before, &control(0.0449, 0.2209, Some(30), 0)),
+            None
+        );
+        assert_eq!(regression(&before, &control(0.001, 0.1, Some(5), 0)), None);
+        // Each figure on its own: tracking RMS, the goal lost, unsolved steps, a NaN.
+        let w = regression(&before, &control(0.04, 0.3, Some(30), 0)).unwrap();
+        assert!(w.starts_with("tracking RMS 0.2000 -> 0.3000"), "{w}");
+        let w = regression(&before, &control(0.04, 0.2, None, 0)).unwrap();
+        assert_eq!(w, "time to goal 30 steps -> never");
+        let w = regression(&before, &control(0.04, 0.2, Some(30), 2)).unwrap();
+        assert_eq!(w, "unsolved MPC steps 0 -> 2");
+        assert!(regression(&before, &control(f64::NAN, 0.2, Some(30), 0)).is_some());
+        // The round's warnings: the regression, naming the round and what it compares with,
+        // and the unsolved steps of its control run.
+        let sim = |after: ControlReport| AggregatedSim {
+            sim: "pend".into(),
+            recorded: RecordSummary::default(),
+            train_windows: 3,
+            train: TrainReport {
+                sim: "pend".into(),
+                model: after.model.clone(),
+                job: "j".into(),
+                metrics: serde_json::Value::Null,
+                reused: false,
+            },
+            error_before: before.tracking_rms_total,
+            error_after: after.tracking_rms_total,
+            final_error_before: before.final_error,
+            final_error_after: after.final_error,
+            time_to_goal_before: before.time_to_goal_steps,
+            time_to_goal_after: after.time_to_goal_steps,
+            not_solved_before: before.not_solved,
+            not_solved_after: after.not_solved,
+            regression: regression(&before, &after),
+            control: after,
+        };
+        let round = AggregationRound {
+            round: 1,
+            sims: vec![sim(control(0.444, 0.2, Some(30), 2))],
+        };
+        let w = round_warnings(&round);
+        assert_eq!(w.len(), 2, "{w:?}");
+        assert!(
+            w[0].starts_with(
+                "aggregation round 1 made control of 'pend' worse than the model \
+                              trained on the collected data (final error 0.0400 -> 0.4440"
+            ),
+            "{}",
+            w[0]
+        );
+        assert!(
+            w[1].contains("did not solve 2 of 2 steps (fallback 2)"),
+            "{}",
+            w[1]
+        );
+        let round = AggregationRound {
+            round: 2,
+            sims: vec![sim(control(0.02, 0.1, Some(30), 0))],
+        };
+        assert!(round_warnings(&round).is_empty());
     }
 
     #[test]

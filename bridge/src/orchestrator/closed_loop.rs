@@ -2,6 +2,7 @@
 //! solve → apply the first input → step, with the SPEC metrics of `koopman::mpc::metrics`
 //! ([`ControlRun`] is one simulator's loop, driven step by step by [`super::control_loop`]).
 
+use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
 use koopman::mpc::metrics::{final_error, quantile, time_to_goal, wrapped_error, GoalSpec};
@@ -59,8 +60,17 @@ pub struct ControlReport {
     /// Median step round trip (query to reply) in µs.
     #[serde(default)]
     pub step_round_trip_median_us: f64,
-    /// Solves whose status was not `solved`.
+    /// Solves whose status was not `solved` (the sum of `not_solved_by_status`).
     pub not_solved: usize,
+    /// The solves that were not `solved`, by the status the MPC service answered:
+    /// `suboptimal` (an iteration or time limit, a feasible plan), `inaccurate` (optimal to
+    /// reduced accuracy) or `fallback` (the solver failed: the previous plan shifted and
+    /// clamped to the bounds was applied); statuses that did not occur are absent.
+    #[serde(default)]
+    pub not_solved_by_status: BTreeMap<String, usize>,
+    /// The offset-free correction the MPC applied (`[control] offset_free`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub offset_free: Option<koopman::mpc::OffsetFreeConfig>,
     /// The MPC settings the service solved with (the scenario's `[control].mpc` over SPEC's
     /// defaults, bounds intersected with the simulator's).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -108,7 +118,7 @@ pub struct ControlRun<'a> {
     solve_us: Vec<f64>,
     rt_us: Vec<f64>,
     step_us: Vec<f64>,
-    not_solved: usize,
+    not_solved: BTreeMap<String, usize>,
     publisher: Option<zenoh::pubsub::Publisher<'static>>,
 }
 
@@ -144,7 +154,7 @@ impl<'a> ControlRun<'a> {
             solve_us: Vec::new(),
             rt_us: Vec::new(),
             step_us: Vec::new(),
-            not_solved: 0,
+            not_solved: BTreeMap::new(),
             publisher,
         };
         run.publish(first.k, first.t, &[])?;
@@ -205,7 +215,10 @@ impl<'a> ControlRun<'a> {
         }
         self.solve_us.push(r.solve_time_ns as f64 / 1e3);
         if r.status != SolveStatus::Solved {
-            self.not_solved += 1;
+            *self
+                .not_solved
+                .entry(status_name(r.status).to_string())
+                .or_default() += 1;
         }
         let u = r.u[..nu].to_vec();
         let t = Instant::now();
@@ -256,13 +269,60 @@ impl<'a> ControlRun<'a> {
             solve_median_us: quantile(&self.solve_us, 0.5),
             solve_round_trip_median_us: quantile(&self.rt_us, 0.5),
             step_round_trip_median_us: quantile(&self.step_us, 0.5),
-            not_solved: self.not_solved,
+            not_solved: self.not_solved.values().sum(),
+            not_solved_by_status: self.not_solved,
+            offset_free: None,
             mpc: None,
             error_state: matches!(r, Reference::Plan { .. }),
             position_loop: self.task.position_loop.map(|p| p.spec().clone()),
             x: self.xs,
             u: self.us,
         }
+    }
+}
+
+/// The name of a solve status in reports (`solved`, `suboptimal`, `fallback`, `inaccurate`).
+pub fn status_name(s: SolveStatus) -> &'static str {
+    match s {
+        SolveStatus::Solved => "solved",
+        SolveStatus::Suboptimal => "suboptimal",
+        SolveStatus::Fallback => "fallback",
+        SolveStatus::Inaccurate => "inaccurate",
+    }
+}
+
+impl ControlReport {
+    /// The warning a loop whose MPC did not solve every step deserves (`None` when every
+    /// solve was `solved`): how many of how many steps, by status, and what that means.
+    pub fn not_solved_warning(&self) -> Option<String> {
+        if self.not_solved == 0 {
+            return None;
+        }
+        let by: Vec<String> = self
+            .not_solved_by_status
+            .iter()
+            .map(|(k, v)| format!("{k} {v}"))
+            .collect();
+        let fallback = self
+            .not_solved_by_status
+            .get("fallback")
+            .copied()
+            .unwrap_or(0);
+        Some(format!(
+            "control of '{}' (model '{}'): the MPC did not solve {} of {} steps ({}){}",
+            self.sim,
+            self.model,
+            self.not_solved,
+            self.u.len(),
+            by.join(", "),
+            if fallback > 0 {
+                "; on a fallback the solver failed and the previous plan, shifted and clamped to \
+                 the bounds, was applied: check [control].mpc (bounds, x_min/x_max, solver, \
+                 max_iterations, time_limit) and the model"
+            } else {
+                "; check [control].mpc (max_iterations, time_limit)"
+            }
+        ))
     }
 }
 

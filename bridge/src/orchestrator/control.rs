@@ -122,8 +122,9 @@ pub fn control_phase(
     };
     let all: Vec<usize> = (0..prepared.len()).collect();
     let (mut reports, mut figures) = run(clients, &all, what.publish, on)?;
-    for (r, p) in reports.iter_mut().zip(&prepared) {
+    for ((r, p), ctrl) in reports.iter_mut().zip(&prepared).zip(&sc.control) {
         r.mpc = Some(p.mpc.clone());
+        r.offset_free = ctrl.offset_free.clone();
     }
     if what.baseline && prepared.len() > 1 {
         on(Event::Phase(

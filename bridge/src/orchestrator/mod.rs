@@ -70,4 +70,8 @@ pub enum Event<'a> {
     Train(&'a serde_json::Value),
     /// A control step: (k, total).
     Control(usize, usize),
+    /// Something the user should know about the results (also in `report.json`'s
+    /// `warnings`): an MPC that did not solve every step, an aggregation round that made
+    /// control worse.
+    Warning(&'a str),
 }

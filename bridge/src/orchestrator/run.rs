@@ -46,6 +46,11 @@ pub struct Report {
     /// controlled simulator, the error before and after retraining on the rollouts.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub aggregation: Vec<AggregationRound>,
+    /// What the user should know about the results, also reported as [`Event::Warning`]: every
+    /// control run whose MPC did not solve every step ([`ControlReport::not_solved_warning`]),
+    /// every aggregation round that made control worse ([`aggregate::round_warnings`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
     /// Total wall time in seconds.
     pub wall_seconds: f64,
 }
@@ -210,6 +215,7 @@ pub fn run_scenario_with(
 
     hooks(HookPhase::BeforeControl, on)?;
     let (mut controls, mut control_loop, mut aggregation) = (Vec::new(), None, Vec::new());
+    let mut warnings = Vec::new();
     if !sc.control.is_empty() {
         on(Event::Phase("closed-loop control (MPC service)"));
         let record = extras.aggregate > 0;
@@ -231,6 +237,10 @@ pub fn run_scenario_with(
             },
             on,
         )?;
+        for w in c.iter().filter_map(ControlReport::not_solved_warning) {
+            on(Event::Warning(&w));
+            warnings.push(w);
+        }
         if record {
             aggregation = aggregate::aggregate(
                 sc,
@@ -243,6 +253,7 @@ pub fn run_scenario_with(
                 on,
             )?;
         }
+        warnings.extend(aggregation.iter().flat_map(aggregate::round_warnings));
         controls = c;
         control_loop = Some(l);
     }
@@ -255,6 +266,7 @@ pub fn run_scenario_with(
         controls,
         control_loop,
         aggregation,
+        warnings,
         wall_seconds: t0.elapsed().as_secs_f64(),
     };
     let path = opts.out_dir.join("report.json");

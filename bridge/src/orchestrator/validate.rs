@@ -1,7 +1,8 @@
 //! The whole scenario checked against its simulators' `info` right after the readiness barrier,
-//! before the expensive phases: `[train].config`, `[control].mpc`, and the lengths of
-//! `control.x0`/`control.reference` (and a `reference_file` or `feedforward_file` that exists
-//! already), so that a typo fails in seconds, not after collection.
+//! before the expensive phases: the uniform policy's bounds, `[train].config`, `[control].mpc`,
+//! and the lengths of `control.x0`/`control.reference` (and a `reference_file` or
+//! `feedforward_file` that exists already), so that a typo fails in seconds, not after
+//! collection.
 
 use koopman::mpc::{MpcConfig, MpcController};
 use koopman::train::stand_in::{self, StandIn};
@@ -39,6 +40,12 @@ pub fn mpc_config(
 /// linear model of the controlled simulator's dimensions) and the lengths of `x0` and
 /// `reference`. `infos[j]` is the `info` of `sc.sims[j]`.
 pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
+    if let crate::scenario::Policy::Uniform { low, high } = &sc.collect.policy {
+        for (s, info) in sc.sims.iter().zip(infos) {
+            crate::collect::uniform_bounds(low, high, info)
+                .map_err(|m| Error::Config(format!("simulator '{}': {m}", s.id)))?;
+        }
+    }
     if let Some(t) = &sc.train {
         train_config(&t.config).map_err(|e| {
             Error::Config(format!(
@@ -47,12 +54,6 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
             ))
         })?;
     }
-    let bilinear = sc
-        .train
-        .as_ref()
-        .and_then(|t| t.config.get("bilinear"))
-        .and_then(|v| v.as_bool())
-        .unwrap_or(false);
     for ctrl in &sc.control {
         let j = controlled_sim(sc, ctrl);
         validate_control(ctrl, &sc.sims[j].id, infos[j])?;
@@ -63,9 +64,10 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
                     sc.sims[j].id
                 ))
             };
-            if !bilinear {
+            if ctrl.feedforward_file.is_some() {
                 return Err(at(
-                    "needs a bilinear model ([train] config = { bilinear = true })".into(),
+                    "the error-state MPC of `feedforward_file` takes no offset-free correction"
+                        .into(),
                 ));
             }
             o.check(infos[j].nx()).map_err(|e| at(e.to_string()))?;
