@@ -45,8 +45,14 @@ def test_bad_targets_and_resets_in_process(sim):
         sim.step(np.zeros(11))
     with pytest.raises(InvalidInput, match="u must be finite"):
         sim.step(np.r_[STAND[:5], np.nan, STAND[6:]])
-    with pytest.raises(InvalidInput, match=r"x0 puts the robot 0\.2\d* m into the floor \(contact world/go2/\w+_calf; base height 0\.1 m"):
+    with pytest.raises(InvalidInput, match=r"x0 puts the robot 0\.2\d* m into the floor \(contact world/go2/(FR|FL|RR|RL); base height 0\.1 m, at most 0\.06 m"):
         sim.reset(x0=_under_floor(x))
+    folded = x.copy()  # upright, legs folded up over the back, the base origin 3 cm above the floor: the body in it
+    folded[0:4] = [1.0, 0, 0, 0]
+    folded[10:22] = [0.0, 3.14, -0.84] * 4
+    folded[34] = 0.03
+    with pytest.raises(InvalidInput, match=r"x0 puts the robot 0\.0\d+ m into the floor \(contact world/go2/base; .* at most 0\.02 m allowed"):
+        sim.reset(x0=folded)
     below = x.copy()
     below[34] = -0.3
     with pytest.raises(InvalidInput, match="base height -0.3 m puts the base under the floor"):

@@ -265,9 +265,9 @@ class Go2Simulator:
                 too_deep.append((-float(probe.contact.dist[c]), allowed, geoms))
         if too_deep:
             depth, allowed, geoms = max(too_deep, key=lambda t: t[0])
-            bodies = [m.body(int(m.geom_bodyid[gid])).name or "world" for gid in geoms]
+            names = [m.geom(gid).name or m.body(int(m.geom_bodyid[gid])).name or "world" for gid in geoms]
             raise InvalidInput(
-                f"x0 puts the robot {depth:.3g} m into the floor (contact {bodies[0]}/{bodies[1]}; base height {height:.4g} m, "
+                f"x0 puts the robot {depth:.3g} m into the floor (contact {names[0]}/{names[1]}; base height {height:.4g} m, "
                 f"at most {allowed} m allowed)"
             )
         mj.mj_resetData(m, d)
