@@ -61,3 +61,49 @@ fn bad_x0_is_a_clear_error() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("--x0 needs 2 finite values"), "{stderr}");
 }
+
+#[test]
+fn the_offset_free_row_runs_on_a_lifted_model_and_needs_its_mode() {
+    let out_dir = common::scratch("control-offset-free");
+    let run = |extra: &[&str]| {
+        Command::new(common::exe())
+            .args([
+                "control",
+                "--env",
+                "damped-pendulum",
+                "--fit",
+                "20",
+                "--steps",
+                "20",
+            ])
+            .args(extra)
+            .arg("--out")
+            .arg(&out_dir)
+            .output()
+            .expect("run koopbridge control")
+    };
+    let o = run(&["--solver", "offset-free"]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        stderr.contains("--solver offset-free needs a lifted model"),
+        "{stderr}"
+    );
+    let o = run(&["--solver", "all", "--offset-free", "disturbance"]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    let metrics: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out_dir.join("metrics.json")).unwrap()).unwrap();
+    let names: Vec<&str> = metrics
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|m| m["controller"].as_str().unwrap())
+        .collect();
+    assert!(
+        names.contains(&"koopman-mpc/dedicated+disturbance")
+            && names.contains(&"koopman-mpc/dedicated"),
+        "{names:?}"
+    );
+    assert!(out_dir.join("metrics-offset-free.json").is_file());
+}

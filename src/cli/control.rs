@@ -71,6 +71,9 @@ impl ControllerChoice {
 fn solver_help(kind: ControllerKind) -> &'static str {
     match kind {
         ControllerKind::Dedicated => "Koopman MPC, dedicated box-QP solver (input bounds)",
+        ControllerKind::OffsetFree => {
+            "Koopman MPC (dedicated solver) with the offset-free correction of --offset-free"
+        }
         ControllerKind::Clarabel => "Koopman MPC solved by Clarabel (also rate and state bounds)",
         ControllerKind::ClosedForm => {
             "Unconstrained closed-form MPC, clamped (the reference code's baseline)"
@@ -107,6 +110,7 @@ model; --solver shooting is random-shooting MPC (1000 samples) on an NNDM (--mod
 --solver all runs every controller the given models allow.\n\nExamples:\n  koopbridge control --model models/damped --env damped-pendulum --task regulate --solver all\n  \
 koopbridge control --model models/damped --nndm models/damped-nndm --env damped-pendulum --solver all\n  \
 koopbridge control --model models/damped-nndm --env damped-pendulum --solver shooting\n  \
+koopbridge control --model models/damped --env damped-pendulum --solver offset-free --offset-free disturbance\n  \
 koopbridge control --model models/damped-linear --bilinear models/damped-bilinear --edmd models/damped-edmd \
 --env damped-pendulum --solver all --offset-free integral\n  \
 koopbridge control --model models/double-task-linear --bilinear models/double-task-bilinear \
@@ -127,8 +131,9 @@ pub struct ControlArgs {
     /// the Koopman MPC (dedicated solver) on it.
     #[arg(long, value_name = "DIR")]
     pub edmd: Option<PathBuf>,
-    /// Offset-free correction of the bilinear MPC near the target (--solver
-    /// bilinear-offset-free; with --solver all, a row next to the plain bilinear MPC):
+    /// Offset-free correction of the MPC near the target (--solver offset-free on a lifted
+    /// model, bilinear-offset-free on a bilinear one; with --solver all, a row next to each
+    /// plain MPC):
     /// `integral` shifts the reference by the integrated error, `disturbance` adds a low-pass
     /// estimate of the one-step prediction error to the predictions, `trajectory` adds the
     /// filtered error of each τ-step prediction to horizon step τ (the one that regulates the
@@ -268,6 +273,7 @@ pub fn run(args: ControlArgs) -> anyhow::Result<()> {
         && (args.model.is_some() || args.fit.is_some() || args.train.is_some());
     let at_hand: Vec<ModelNeed> = [
         lifted_given.then_some(ModelNeed::Lifted),
+        (lifted_given && args.offset_free.is_some()).then_some(ModelNeed::LiftedOffsetFree),
         nndm.is_some().then_some(ModelNeed::Nndm),
         bilinear.is_some().then_some(ModelNeed::Bilinear),
         (bilinear.is_some() && args.offset_free.is_some()).then_some(ModelNeed::BilinearOffsetFree),
@@ -412,6 +418,10 @@ fn missing_model(kind: ControllerKind, model_is_nndm: bool) -> String {
         Some(ModelNeed::BilinearOffsetFree) => "--solver bilinear-offset-free needs a bilinear \
              model (--model DIR of kind bilinear or --bilinear DIR) and --offset-free \
              integral|disturbance"
+            .into(),
+        Some(ModelNeed::LiftedOffsetFree) => "--solver offset-free needs a lifted model (--model \
+             DIR of kind koopman or edmd, --fit or --train) and --offset-free \
+             integral|disturbance|trajectory"
             .into(),
         Some(ModelNeed::Edmd) => "--solver edmd needs --edmd DIR (a model of kind edmd)".into(),
         _ => format!(

@@ -30,6 +30,9 @@ pub const LQR_MIN_R: f64 = 1e-6;
 pub enum ControllerKind {
     /// [`MpcController`] with [`SolverKind::Dedicated`].
     Dedicated,
+    /// [`MpcController`] (dedicated solver) with the offset-free correction of
+    /// [`ControllerSettings::offset_free`].
+    OffsetFree,
     /// [`MpcController`] with [`SolverKind::Clarabel`].
     Clarabel,
     /// [`MpcController`] with [`SolverKind::ClosedForm`].
@@ -55,6 +58,8 @@ pub enum ControllerKind {
 pub enum ModelNeed {
     /// A lifted (Koopman or EDMD) model.
     Lifted,
+    /// A lifted model and offset-free settings ([`ControllerSettings::offset_free`]).
+    LiftedOffsetFree,
     /// An NNDM (a one-step model).
     Nndm,
     /// A bilinear Koopman model.
@@ -67,9 +72,10 @@ pub enum ModelNeed {
 
 impl ControllerKind {
     /// Every kind, in the order of a comparison report.
-    pub const ALL: [ControllerKind; 10] = [
+    pub const ALL: [ControllerKind; 11] = [
         ControllerKind::BilinearOffsetFree,
         ControllerKind::Bilinear,
+        ControllerKind::OffsetFree,
         ControllerKind::Dedicated,
         ControllerKind::Clarabel,
         ControllerKind::ClosedForm,
@@ -84,6 +90,7 @@ impl ControllerKind {
     pub fn name(self) -> &'static str {
         match self {
             ControllerKind::Dedicated => "dedicated",
+            ControllerKind::OffsetFree => "offset-free",
             ControllerKind::Clarabel => "clarabel",
             ControllerKind::ClosedForm => "closed-form",
             ControllerKind::Lqr => "lqr",
@@ -103,6 +110,7 @@ impl ControllerKind {
             | ControllerKind::Clarabel
             | ControllerKind::ClosedForm
             | ControllerKind::Lqr => Some(ModelNeed::Lifted),
+            ControllerKind::OffsetFree => Some(ModelNeed::LiftedOffsetFree),
             ControllerKind::Shooting => Some(ModelNeed::Nndm),
             ControllerKind::Bilinear => Some(ModelNeed::Bilinear),
             ControllerKind::BilinearOffsetFree => Some(ModelNeed::BilinearOffsetFree),
@@ -149,7 +157,8 @@ pub struct ControllerSettings {
     pub u_min: Vec<f64>,
     /// Upper input bounds (nu).
     pub u_max: Vec<f64>,
-    /// The offset-free correction of [`ControllerKind::BilinearOffsetFree`].
+    /// The offset-free correction of [`ControllerKind::BilinearOffsetFree`] and
+    /// [`ControllerKind::OffsetFree`].
     pub offset_free: Option<OffsetFreeConfig>,
 }
 
@@ -220,6 +229,15 @@ pub fn build<'m>(
                 ..mpc_config
             };
             Box::new(MpcController::new(lifted()?, &cfg)?)
+        }
+        ControllerKind::OffsetFree => {
+            let mut mpc = MpcController::new(lifted()?, &mpc_config)?;
+            let offset = settings
+                .offset_free
+                .clone()
+                .ok_or_else(|| missing("offset-free settings"))?;
+            mpc.set_offset_free(Some(offset))?;
+            Box::new(mpc)
         }
         ControllerKind::Lqr => {
             let model = lifted()?;
@@ -366,6 +384,39 @@ mod tests {
                 "{kind:?} {need:?}: {err}"
             );
         }
+    }
+
+    #[test]
+    fn the_offset_free_row_is_the_dedicated_mpc_with_the_correction() {
+        let system = by_name("damped-pendulum").unwrap();
+        let model = MatrixModel::random_stable(2, 6, 1, 0.9, 3).unwrap();
+        let on_model = models(system.as_ref(), Some(&model));
+        assert_eq!(
+            ControllerKind::available(&[ModelNeed::Lifted, ModelNeed::LiftedOffsetFree])[..2],
+            [ControllerKind::OffsetFree, ControllerKind::Dedicated]
+        );
+        let plain = settings(5, 0.0, -2.0, 2.0);
+        let err = build(ControllerKind::OffsetFree, on_model, &plain)
+            .err()
+            .expect("no settings");
+        assert!(err.to_string().contains("offset-free settings"), "{err}");
+        let with = ControllerSettings {
+            offset_free: Some(OffsetFreeConfig::defaults(
+                super::super::OffsetMode::Disturbance,
+                2,
+                vec![0],
+            )),
+            ..plain.clone()
+        };
+        let mut built = build(ControllerKind::OffsetFree, on_model, &with).unwrap();
+        assert_eq!(built.policy.name(), "koopman-mpc/dedicated+disturbance");
+        // The first decision (no prediction error seen yet) is the plain MPC's.
+        let mut dedicated = build(ControllerKind::Dedicated, on_model, &plain).unwrap();
+        let (x, future) = ([0.1, 0.0], vec![0.0; 10]);
+        assert_eq!(
+            built.policy.act(&x, &[0.0, 0.0], &future).unwrap().u,
+            dedicated.policy.act(&x, &[0.0, 0.0], &future).unwrap().u
+        );
     }
 
     #[test]
