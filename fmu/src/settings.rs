@@ -25,7 +25,8 @@ pub struct MpcFile {
     pub reference: Option<Vec<f64>>,
     /// The MPC settings (SPEC defaults for absent fields; [`MpcConfig`]).
     pub mpc: MpcConfig,
-    /// The offset-free correction of a bilinear model's MPC (refused for other models).
+    /// The offset-free correction of the MPC (lifted-linear or bilinear models; refused for an
+    /// NNDM).
     pub offset_free: Option<OffsetFreeConfig>,
 }
 
@@ -53,7 +54,7 @@ pub struct ControllerFile {
     pub reference: Vec<f64>,
     /// The MPC settings.
     pub mpc: MpcConfig,
-    /// The offset-free correction (bilinear models only).
+    /// The offset-free correction (lifted-linear or bilinear models).
     pub offset_free: Option<OffsetFreeConfig>,
 }
 

@@ -37,7 +37,7 @@ The MPC file (TOML) is shaped like the service's `configure` request:
   horizon = 15
   u_min = [-8.0]
   u_max = [8.0]
-  [offset_free]                     # optional, bilinear models only
+  [offset_free]                     # optional: lifted-linear or bilinear models
   mode = \"trajectory\"
   radius = 1.0
   gain = [0.5, 0.5]
