@@ -34,7 +34,8 @@ pub struct ConfigureRequest {
     /// MPC settings (SPEC defaults for absent fields).
     #[serde(default)]
     pub mpc: Option<MpcConfig>,
-    /// Offset-free correction of a bilinear model's MPC (refused for a lifted model). With it,
+    /// Offset-free correction of a bilinear or lifted-linear model's MPC (refused for a
+    /// one-step NNDM and, for a lifted model, by a solve with a feed-forward). With it,
     /// consecutive solves for this model are one closed loop (configure again to start anew).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub offset_free: Option<OffsetFreeConfig>,
