@@ -235,3 +235,57 @@ pub fn key_tail(q: &Query, what: &str) -> std::result::Result<String, ErrorReply
     validate_chunk(what, name).map_err(|e| e.to_reply())?;
     Ok(name.to_string())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::session::{free_loopback_endpoint, open_session, ZenohOptions};
+
+    /// The error code of a reply, `None` for a sample or a reply that is not an `ErrorReply`.
+    fn code(r: &zenoh::query::Reply) -> Option<ErrorCode> {
+        let e = r.result().err()?;
+        let reply: ErrorReply = serde_json::from_slice(&e.payload().to_bytes()).ok()?;
+        Some(reply.code)
+    }
+
+    /// While nothing drains an inbox, an oversized query is answered `too_large` and every
+    /// query past [`INBOX_CAPACITY`] `busy`, from the Zenoh callback; the queued ones wait.
+    #[test]
+    fn a_full_inbox_answers_busy_and_an_oversized_query_too_large() {
+        let ep = free_loopback_endpoint().unwrap();
+        let a = open_session(&ZenohOptions::peer(vec![ep.clone()], vec![])).unwrap();
+        let b = open_session(&ZenohOptions::peer(vec![], vec![ep])).unwrap();
+        let mut inbox = Inbox::new();
+        let key = "koopbridge/t/inbox";
+        inbox.declare(&a, key, ()).unwrap();
+        let get = |payload: Vec<u8>, secs: u64| {
+            b.get(key)
+                .payload(payload)
+                .timeout(Duration::from_secs(secs))
+                .wait()
+                .unwrap()
+        };
+        // Oversized: `too_large` at once (also the sign that `b` reaches the queryable).
+        let deadline = std::time::Instant::now() + Duration::from_secs(20);
+        loop {
+            let r = get(vec![0; DEFAULT_MAX_PAYLOAD + 1], 2).recv();
+            if let Ok(r) = r {
+                assert_eq!(code(&r), Some(ErrorCode::TooLarge));
+                break;
+            }
+            assert!(std::time::Instant::now() < deadline, "no reply");
+        }
+        let extra = 20;
+        let pending: Vec<_> = (0..INBOX_CAPACITY + extra)
+            .map(|_| get(vec![1, 2, 3], 3))
+            .collect();
+        let busy = pending
+            .iter()
+            .filter(|p| p.recv().is_ok_and(|r| code(&r) == Some(ErrorCode::Busy)))
+            .count();
+        assert_eq!(busy, extra);
+        // The queued ones are there, untouched, in order of arrival.
+        let queued = std::iter::from_fn(|| inbox.next(Duration::ZERO)).count();
+        assert_eq!(queued, INBOX_CAPACITY);
+    }
+}

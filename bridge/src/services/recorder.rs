@@ -136,6 +136,19 @@ struct Recording {
     dropped: u64,
 }
 
+/// Keeps state `m` in `rec` if the recorder's budget `spent` (what every running recording
+/// keeps) has room for it under [`MAX_RECORDED_BYTES`]; otherwise counts it as dropped.
+fn keep(rec: &mut Recording, m: StateMsg, spent: &AtomicUsize) {
+    let c = state_cost(&m);
+    if spent.fetch_add(c, Ordering::Relaxed) + c > MAX_RECORDED_BYTES {
+        spent.fetch_sub(c, Ordering::Relaxed);
+        rec.dropped += 1;
+    } else {
+        rec.bytes += c;
+        rec.states.push(m);
+    }
+}
+
 /// Turns a sequence of state messages into windows of `steps` transitions. Windows never span
 /// a sequence gap or a reset (k not increasing by one). Returns (x, u, windows, gaps, out_of_order).
 pub fn windows_from_stream(
@@ -296,17 +309,7 @@ pub fn serve(
                             .callback(move |s| {
                                 let mut r = super::lock(&r2);
                                 match StateMsg::decode(&s.payload().to_bytes()) {
-                                    Ok(m) => {
-                                        let c = state_cost(&m);
-                                        let before = spent.fetch_add(c, Ordering::Relaxed);
-                                        if before + c > MAX_RECORDED_BYTES {
-                                            spent.fetch_sub(c, Ordering::Relaxed);
-                                            r.dropped += 1;
-                                        } else {
-                                            r.bytes += c;
-                                            r.states.push(m);
-                                        }
-                                    }
+                                    Ok(m) => keep(&mut r, m, &spent),
                                     Err(_) => r.bad += 1,
                                 }
                             })
@@ -425,6 +428,20 @@ mod tests {
             x: vec![x],
             u: if k == 0 { vec![] } else { vec![u] },
         }
+    }
+
+    /// The recordings' budget: a state that would pass [`MAX_RECORDED_BYTES`] is dropped and
+    /// counted, one that fits is kept and charged.
+    #[test]
+    fn states_past_the_budget_are_dropped_and_counted() {
+        let c = state_cost(&st(0, 1, 0.0, 0.0));
+        assert_eq!(c, 96 + 16);
+        let spent = AtomicUsize::new(MAX_RECORDED_BYTES - 2 * c + 1);
+        let mut rec = Recording::default();
+        keep(&mut rec, st(0, 1, 0.0, 0.0), &spent);
+        keep(&mut rec, st(1, 2, 0.0, 0.0), &spent);
+        assert_eq!((rec.states.len(), rec.dropped, rec.bytes), (1, 1, c));
+        assert_eq!(spent.load(Ordering::Relaxed), MAX_RECORDED_BYTES - c + 1);
     }
 
     #[test]

@@ -145,3 +145,23 @@ fn serve_model(model: &str, mut c: ServiceController, jobs: mpsc::Receiver<Job>)
     }
     tracing::debug!("solver thread of model '{model}' ends");
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Past [`MAX_MODELS`] a new model is `busy`; a configured one is always admitted.
+    #[test]
+    fn configured_models_are_bounded() {
+        let mut w = SolveWorkers::default();
+        for i in 0..MAX_MODELS {
+            assert!(w.admit(&format!("m{i}")).is_ok());
+            let (jobs, _) = mpsc::channel();
+            let thread = std::thread::spawn(|| ());
+            w.by_model.insert(format!("m{i}"), Worker { jobs, thread });
+        }
+        assert_eq!(w.admit("another").unwrap_err().code, ErrorCode::Busy);
+        assert!(w.admit("m3").is_ok());
+        w.shut_down();
+    }
+}
