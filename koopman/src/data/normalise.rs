@@ -24,7 +24,7 @@ pub struct Normalisation {
 
 /// Mean and population standard deviation (floored) of each of `dim` interleaved columns.
 fn column_stats(values: &[f64], dim: usize) -> (Vec<f64>, Vec<f64>) {
-    let rows = if dim == 0 { 0 } else { values.len() / dim };
+    let rows = values.len().checked_div(dim).unwrap_or(0);
     let mut mean = vec![0.0; dim];
     let mut var = vec![0.0; dim];
     if rows == 0 {
