@@ -111,9 +111,9 @@ def make_references(n: int, steps: int, seed: int = REFERENCE_SEED, *, warmup: f
     with one window per episode (``windows_per_episode`` 1, T = ``steps``), under ``seed``: a
     seeded reset, ``warmup`` s of walking unrecorded, then ``steps`` recorded steps under a
     random velocity command changed every ``command_every`` s. The references are the first
-    ``n`` rollouts whose first state a fresh simulator accepts as ``reset(x0)`` (the adapter
-    refuses a state with a foot or leg deeper than 2 cm in the floor, which the expert's soft
-    contacts reach now and then); the refused ones are appended to ``skipped``."""
+    ``n`` rollouts whose first state a fresh simulator accepts as ``reset(x0)`` (it refuses a
+    base or leg too deep in the floor; until the adapter's 06:13 change of 4 Dec 2026 that
+    refused 2 of the first 50 expert starts); the refused ones are appended to ``skipped``."""
     from .._native import InvalidInput
     from ..adapters.go2_sim import Go2Simulator
     from ..adapters.legged_collect import ExpertPolicy
