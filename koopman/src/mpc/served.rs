@@ -419,10 +419,9 @@ mod tests {
             assert!((ub - ul).abs() < 1e-6, "{:?} vs {:?}", b.u, l.u);
         }
         assert!(!c.takes_feedforward());
-        let err = c
-            .solve_about_plan(&x, &[0.0, 0.0], &[0.0; 8])
-            .err()
-            .expect("refused");
+        let Err(err) = c.solve_about_plan(&x, &[0.0, 0.0], &[0.0; 8]) else {
+            panic!("a feed-forward to a bilinear controller must be refused");
+        };
         assert!(err.to_string().contains("this one is bilinear"), "{err}");
         let _ = std::fs::remove_dir_all(&dir);
         let _ = std::fs::remove_dir_all(&lin_dir);
