@@ -71,6 +71,20 @@ fn an_unsolvable_mpc_is_reported_and_warned_about() {
         lo < -0.4 && hi > 0.15,
         "the inputs do not span the bounds: [{lo}, {hi}]"
     );
+    // With --fail-on-warning the same run (data and model reused) fails, after its report.
+    std::fs::remove_file(out.join("report.json")).unwrap();
+    let strict = std::process::Command::new(common::exe())
+        .args(["run", sc.to_str().unwrap(), "--out", out.to_str().unwrap()])
+        .arg("--fail-on-warning")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&strict.stderr);
+    assert_eq!(strict.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("1 warning(s) and --fail-on-warning"),
+        "{stderr}"
+    );
+    assert!(out.join("report.json").is_file());
 }
 
 #[test]

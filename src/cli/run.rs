@@ -23,7 +23,7 @@ use bridge::scenario::Scenario;
     External simulator commands run in the repository of the scenario file.\n\n\
     Warnings (on stderr, and in report.json's `warnings`): an MPC that did not solve every\n\
     step (`not_solved`, by status: suboptimal, inaccurate, fallback), an aggregation round that\n\
-    made control worse. They do not change the exit code."
+    made control worse. They do not change the exit code unless --fail-on-warning is given."
 )]
 pub struct RunArgs {
     /// The scenario file (TOML, see scenarios/).
@@ -59,6 +59,11 @@ pub struct RunArgs {
     /// 0.001, the goal lost, more unsolved MPC steps) is a warning.
     #[arg(long, value_name = "ROUNDS", default_value_t = 0)]
     pub aggregate: usize,
+    /// Exit with an error (code 1) when the run ends with warnings (an MPC that did not solve
+    /// every step, an aggregation round that made control worse); report.json is written
+    /// either way.
+    #[arg(long)]
+    pub fail_on_warning: bool,
     #[command(flatten)]
     pub zenoh: super::ZenohArgs,
 }
@@ -250,6 +255,13 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     // Repeated at the end, where they are not lost among the progress lines.
     for w in &report.warnings {
         eprintln!("warning: {w}");
+    }
+    if args.fail_on_warning && !report.warnings.is_empty() {
+        anyhow::bail!(
+            "{} warning(s) and --fail-on-warning (the report is in {})",
+            report.warnings.len(),
+            path.display()
+        );
     }
     Ok(())
 }
