@@ -197,7 +197,7 @@ mod tests {
         assert!(mean.abs() < 1e-15 && (var - 1.0).abs() < 1e-12);
         assert!(z.x.iter().skip(1).step_by(2).all(|v| *v == 0.0));
         assert_eq!(z.u, vec![1.0, -1.0]);
-        let mut back = z.state(3, 0).to_vec();
+        let mut back = z.state(1, 1).to_vec();
         n.raw_state_in_place(&mut back);
         assert!((back[0] - 7.0).abs() < 1e-14 && (back[1] - 10.0).abs() < 1e-14);
     }
