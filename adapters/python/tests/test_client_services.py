@@ -87,12 +87,12 @@ def test_fetch_configure_and_solve_through_the_services(tmp_path, session_id):
         # MpcConfig is checked by the bridge's own type before anything is sent.
         with pytest.raises(koopbridge.KoopbridgeError, match="MPC configuration: unknown field `horizn`"):
             c.configure_mpc("s0", "pend", horizn=10)
-        # An offset-free correction is a bilinear model's: a bad one is refused here, a good one
-        # for this linear model by the service.
+        # An offset-free correction: a bad one is refused here; a good one is accepted for this
+        # linear model too (issue 31), and the configuration below replaces it.
         with pytest.raises(koopbridge.KoopbridgeError, match="offset_free"):
             c.configure_mpc("s0", "pend", horizon=10, offset_free={"mode": "sideways", "radius": 1.0, "gain": [0.5, 0.5]})
-        with pytest.raises(koopbridge.RemoteError, match="needs a bilinear model"):
-            c.configure_mpc("s0", "pend", horizon=10, offset_free={"mode": "trajectory", "radius": 1.0, "gain": [0.5, 0.5]})
+        reply = c.configure_mpc("s0", "pend", horizon=10, offset_free={"mode": "trajectory", "radius": 1.0, "gain": [0.5, 0.5]})
+        assert (reply["nx"], reply["nu"]) == (2, 1)
         reply = c.configure_mpc("s0", "pend", horizon=10, u_min=[-8.0], u_max=[8.0])
         assert (reply["nx"], reply["nu"], reply["horizon"]) == (2, 1, 10)
         sol = c.solve("s0", [-2.5, 0.1], [0.0, 0.0], model="pend", nu=1)
