@@ -13,7 +13,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-__all__ = ["DatasetMeta", "save_dataset_npz", "write_atomic"]
+from ..collect import Windows
+
+__all__ = ["DatasetMeta", "load_block", "save_dataset_npz", "write_atomic"]
 
 EPOCH = (1980, 1, 1, 0, 0, 0)
 
@@ -76,3 +78,16 @@ def save_dataset_npz(path: str, x: np.ndarray, u: np.ndarray, meta: DatasetMeta)
 
     write_atomic(path, write)
     write_atomic(os.path.splitext(path)[0] + ".json", lambda f: f.write(meta_json))  # type: ignore[attr-defined]
+
+
+def load_block(path: str, seed: int, start: int, n: int, T: int) -> Windows | None:
+    """The block at ``path`` (a resumable collection's block of windows) if it exists and is the one
+    asked for, else None."""
+    try:
+        with np.load(path) as z:
+            w = Windows(x=z["x"], u=z["u"], seed=int(z["seed"]), start=int(z["start"]), reset_seeds=z["reset_seeds"])
+    except (OSError, ValueError, KeyError):
+        return None
+    if (w.seed, w.start, w.x.shape[0], w.u.shape[1]) != (seed, start, n, T):
+        return None
+    return w

@@ -23,8 +23,8 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from ..collect import UniformPolicy, Windows
-from .dataset_npz import DatasetMeta, save_dataset_npz
+from ..collect import UniformPolicy
+from .dataset_npz import DatasetMeta, load_block, save_dataset_npz
 
 __all__ = ["collect_block", "main", "parser"]
 
@@ -53,18 +53,6 @@ def collect_block(state: str, seed: int, start: int, n: int, T: int, path: str) 
     dt = time.perf_counter() - t0
     w.save_npz(path)
     return path, dt
-
-
-def _load_block(path: str, seed: int, start: int, n: int, T: int) -> Windows | None:
-    """The block at ``path`` if it exists and is the one asked for, else None."""
-    try:
-        with np.load(path) as z:
-            w = Windows(x=z["x"], u=z["u"], seed=int(z["seed"]), start=int(z["start"]), reset_seeds=z["reset_seeds"])
-    except (OSError, ValueError, KeyError):
-        return None
-    if (w.seed, w.start, w.x.shape[0], w.u.shape[1]) != (seed, start, n, T):
-        return None
-    return w
 
 
 def parser() -> argparse.ArgumentParser:
@@ -100,7 +88,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     starts = list(range(0, a.windows, a.block))
     spec = [(s, min(a.block, a.windows - s), os.path.join(blocks_dir, f"block-{s:07d}.npz")) for s in starts]
     # Validation and test blocks first, so that a partial run (--from-blocks) can already train.
-    todo = sorted((b for b in spec if _load_block(b[2], a.seed, b[0], b[1], a.steps) is None), key=lambda b: (b[0] < n_train, b[0]))
+    todo = sorted((b for b in spec if load_block(b[2], a.seed, b[0], b[1], a.steps) is None), key=lambda b: (b[0] < n_train, b[0]))
     if a.from_blocks:
         return _write_partial(a, spec, n_train)
     print(f"franka_data: {len(spec) - len(todo)} of {len(spec)} blocks present, collecting {len(todo)} with {a.procs} process(es)", flush=True)
@@ -124,7 +112,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             for f, (_, n, _) in zip(futures, todo, strict=True):
                 report(n, f.result()[1])
     wall = time.perf_counter() - t0
-    blocks = [_load_block(path, a.seed, s, n, a.steps) for s, n, path in spec]
+    blocks = [load_block(path, a.seed, s, n, a.steps) for s, n, path in spec]
     if any(b is None for b in blocks):
         print("franka_data: a block is missing after collection", file=sys.stderr)
         return 1
@@ -163,7 +151,7 @@ def _write_splits(a: argparse.Namespace, x: np.ndarray, u: np.ndarray, cuts: dic
 def _write_partial(a: argparse.Namespace, spec: list[tuple[int, int, str]], n_train: int) -> int:
     """``--from-blocks``: the splits from the blocks present (all validation and test blocks,
     the prefix of the train blocks)."""
-    blocks = [_load_block(path, a.seed, s, n, a.steps) for s, n, path in spec]
+    blocks = [load_block(path, a.seed, s, n, a.steps) for s, n, path in spec]
     held = [b for (s, _, _), b in zip(spec, blocks, strict=False) if s >= n_train]
     if any(b is None for b in held):
         print("franka_data: --from-blocks needs every validation and test block", file=sys.stderr)

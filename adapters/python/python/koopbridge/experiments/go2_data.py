@@ -25,8 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from ..collect import Windows
-from .dataset_npz import DatasetMeta, save_dataset_npz
+from .dataset_npz import DatasetMeta, load_block, save_dataset_npz
 
 __all__ = ["collect_block", "main", "parser", "policy_json"]
 
@@ -60,18 +59,6 @@ def collect_block(policy: dict[str, Any], seed: int, start: int, n: int, T: int,
     dt = time.perf_counter() - t0
     w.save_npz(path)
     return path, dt, _WORKER_SIM.falls - falls
-
-
-def _load_block(path: str, seed: int, start: int, n: int, T: int) -> Windows | None:
-    """The block at ``path`` if it exists and is the one asked for, else None."""
-    try:
-        with np.load(path) as z:
-            w = Windows(x=z["x"], u=z["u"], seed=int(z["seed"]), start=int(z["start"]), reset_seeds=z["reset_seeds"])
-    except (OSError, ValueError, KeyError):
-        return None
-    if (w.seed, w.start, w.x.shape[0], w.u.shape[1]) != (seed, start, n, T):
-        return None
-    return w
 
 
 def parser() -> argparse.ArgumentParser:
@@ -112,7 +99,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     os.makedirs(blocks_dir, exist_ok=True)
     spec = [(s, min(a.block, a.windows - s), os.path.join(blocks_dir, f"block-{s:07d}.npz")) for s in range(0, a.windows, a.block)]
     # Validation and test blocks first, so that a partial run can already be looked at.
-    todo = sorted((b for b in spec if _load_block(b[2], a.seed, b[0], b[1], a.steps) is None), key=lambda b: (b[0] < n_train, b[0]))
+    todo = sorted((b for b in spec if load_block(b[2], a.seed, b[0], b[1], a.steps) is None), key=lambda b: (b[0] < n_train, b[0]))
     print(f"go2_data: policy {json.dumps(policy)}; {len(spec) - len(todo)} of {len(spec)} blocks present, "
           f"collecting {len(todo)} with {a.procs} process(es)", flush=True)
     t0 = time.perf_counter()
@@ -136,7 +123,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             for f, (_, n, _) in zip(futures, todo, strict=True):
                 report(n, f.result()[2])
     wall = time.perf_counter() - t0
-    blocks = [_load_block(path, a.seed, s, n, a.steps) for s, n, path in spec]
+    blocks = [load_block(path, a.seed, s, n, a.steps) for s, n, path in spec]
     if any(b is None for b in blocks):
         print("go2_data: a block is missing after collection", file=sys.stderr)
         return 1
