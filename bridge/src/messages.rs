@@ -225,6 +225,47 @@ pub enum CollectPolicy {
         #[serde(default, skip_serializing_if = "Option::is_none")]
         dither: Option<f64>,
     },
+    /// A legged robot's expert walking policy under random velocity commands, run by the
+    /// simulator itself (issue 25: the Go2 adapter's rl_sar expert); windows cut back to back from
+    /// episodes, each a function of `(policy, seed, window)`. Every other simulator answers
+    /// `unsupported`.
+    #[serde(rename = "expert")]
+    Expert(ExpertSettings),
+    /// The expert with Gaussian noise on its joint targets (`noise`, rad).
+    #[serde(rename = "expert+noise")]
+    ExpertNoise(ExpertSettings),
+}
+
+/// The settings of a legged robot's expert collection ([`CollectPolicy::Expert`],
+/// [`CollectPolicy::ExpertNoise`]), all optional (absent = the simulator's default). They travel
+/// as they are; the simulator checks them (`bad_request` there).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExpertSettings {
+    /// σ of the Gaussian noise on every joint target, rad (`expert+noise` only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub noise: Option<f64>,
+    /// Lower corner of the box of velocity commands (vx m/s, vy m/s, ωz rad/s).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub command_low: Option<[f64; 3]>,
+    /// Upper corner of the box of velocity commands.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub command_high: Option<[f64; 3]>,
+    /// Seconds between two command draws.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub command_every: Option<f64>,
+    /// The largest push, m/s (0 = none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub push: Option<f64>,
+    /// Seconds between pushes (at window boundaries).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub push_every: Option<f64>,
+    /// Seconds walked unrecorded after each reset.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub warmup: Option<f64>,
+    /// Windows cut back to back from one episode.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub windows_per_episode: Option<u32>,
 }
 
 impl CollectPolicy {
@@ -245,6 +286,9 @@ impl CollectPolicy {
                     }
                     _ => format!("adapter-planned windows_per_plan={k}"),
                 }
+            }
+            CollectPolicy::Expert(_) | CollectPolicy::ExpertNoise(_) => {
+                format!("adapter-{}", serde_json::to_string(self).unwrap_or_default())
             }
         }
     }
@@ -378,7 +422,28 @@ mod tests {
             serde_json::to_string(&uniform).unwrap(),
             r#"{"kind":"uniform","low":-0.12,"high":[0.1,0.2]}"#
         );
+        let expert: CollectPolicy =
+            serde_json::from_str(r#"{"kind":"expert","windows_per_episode":50}"#).unwrap();
+        assert_eq!(
+            expert,
+            CollectPolicy::Expert(ExpertSettings {
+                windows_per_episode: Some(50),
+                ..Default::default()
+            })
+        );
+        let noisy: CollectPolicy =
+            serde_json::from_str(r#"{"kind":"expert+noise","noise":0.05}"#).unwrap();
+        assert_eq!(
+            serde_json::to_string(&noisy).unwrap(),
+            r#"{"kind":"expert+noise","noise":0.05}"#
+        );
+        assert_eq!(
+            noisy.describe(),
+            r#"adapter-{"kind":"expert+noise","noise":0.05}"#
+        );
         for bad in [
+            r#"{"kind":"expert","speed":1}"#,
+            r#"{"kind":"expert","command_low":[0,0]}"#,
             r#"{"kind":"planned","goals":3}"#,
             r#"{"kind":"planned","windows_per_plan":-1}"#,
             r#"{"kind":"planned","low":0.1}"#,

@@ -95,11 +95,7 @@ def test_uniform_targets_through_a_zenoh_collect_request(sim, session_id, serve_
             x, u = c.collect("go2", seed=4, block=1, block_windows=3, steps=5)
             here = sim.collect(UniformPolicy(), 4, 3, 5, start=3)
             assert np.array_equal(x, here.x) and np.array_equal(u, here.u)
-            try:
-                xe, ue = c.collect("go2", seed=4, block=0, block_windows=2, steps=5, policy=SHORT)
-            except ValueError as e:
-                assert "unknown variant" in str(e) and "expert" in str(e), e
-                pytest.skip("the Rust CollectPolicy does not carry the 'expert' kind yet (issue 25, bridge side)")
+            xe, ue = c.collect("go2", seed=4, block=0, block_windows=2, steps=5, policy=SHORT)
             ref = sim.collect(ExpertPolicy.from_json(SHORT), 4, 2, 5)
             assert np.array_equal(xe, ref.x) and np.array_equal(ue, ref.u)
     assert served.error is None

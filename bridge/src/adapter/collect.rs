@@ -45,6 +45,10 @@ pub enum PlanInputs {
         /// Exploration amplitude on the planned commands (finite, ≥ 0; `None` = none).
         dither: Option<f64>,
     },
+    /// A policy the simulator runs itself with its own settings ([`CollectPolicy::Expert`],
+    /// [`CollectPolicy::ExpertNoise`]): passed on as it is; [`run_windows`] answers
+    /// `unsupported`.
+    Simulator(CollectPolicy),
 }
 
 /// A `collect` request checked against the simulator: which windows, how long, the policy
@@ -118,6 +122,18 @@ impl CollectPlan {
         }
         let (low, high) = match &req.policy {
             CollectPolicy::Uniform { low, high } => (low, high),
+            p @ (CollectPolicy::Expert(_) | CollectPolicy::ExpertNoise(_)) => {
+                return Ok(CollectPlan {
+                    seed: req.seed,
+                    block: req.block,
+                    first,
+                    windows: n,
+                    steps: t,
+                    inputs: PlanInputs::Simulator(p.clone()),
+                    nx,
+                    nu,
+                });
+            }
             CollectPolicy::Planned {
                 windows_per_plan,
                 dither,
@@ -208,6 +224,7 @@ impl CollectPlan {
                 windows_per_plan: *windows_per_plan,
                 dither: *dither,
             },
+            PlanInputs::Simulator(p) => p.clone(),
         }
     }
 
@@ -280,12 +297,22 @@ pub fn run_windows<B: SimBackend + ?Sized>(
     backend: &mut B,
     plan: &CollectPlan,
 ) -> Result<Windows, SimError> {
-    let PlanInputs::Uniform { low, high } = &plan.inputs else {
-        return Err(SimError::Unsupported(
-            "the planned collect policy needs a simulator that plans its own trajectories (the \
-             Drake Gen3 adapter); this one collects with uniform inputs only"
-                .into(),
-        ));
+    let (low, high) = match &plan.inputs {
+        PlanInputs::Uniform { low, high } => (low, high),
+        PlanInputs::Planned { .. } => {
+            return Err(SimError::Unsupported(
+                "the planned collect policy needs a simulator that plans its own trajectories \
+                 (the Drake Gen3 adapter); this one collects with uniform inputs only"
+                    .into(),
+            ))
+        }
+        PlanInputs::Simulator(p) => {
+            return Err(SimError::Unsupported(format!(
+                "the {} collect policy needs a simulator that runs an expert itself (the Go2 \
+                 adapter); this one collects with uniform inputs only",
+                p.describe()
+            )))
+        }
     };
     let (n, t) = (plan.windows, plan.steps);
     let mut w = Windows {
