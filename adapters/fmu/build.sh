@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Builds the project's own FMUs from C (damped pendulum FMI 2.0 CS, double pendulum FMI 3.0 CS)
-# against the FMI headers that fmpy ships, into adapters/fmu/build/*.fmu (or $1).
+# Builds the project's own FMUs from C (damped pendulum FMI 2.0 CS, double pendulum FMI 3.0 CS, and
+# the FMU adapter's test FMUs typed_fmi2 / typed_fmi3 with a variable of every numeric type) against the FMI headers that fmpy ships, into adapters/fmu/build/*.fmu (or $1).
 # Usage: adapters/fmu/build.sh [OUT_DIR]   (PYTHON=path/to/python with fmpy installed; default .venv)
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
@@ -40,3 +40,5 @@ build damped_pendulum linux64
 if [ -f "$here/src/double_pendulum.c" ]; then
   build double_pendulum x86_64-linux
 fi
+build typed_fmi2 linux64
+build typed_fmi3 x86_64-linux

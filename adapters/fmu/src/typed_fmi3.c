@@ -1,0 +1,405 @@
+/* A test FMU (FMI 3.0 co-simulation) with a variable of every numeric FMI 3 type, for the FMU
+ * adapter's type conversions: an integrator x' = gain * drive * s(mode) while `on` (s = +1 forward,
+ * -1 reverse, 0 hold), exact per step (x += h * gain * drive * s), echo outputs of every integer
+ * input, a step counter that wraps at 256, and arrays y[n] (y[i] = (i + 1) x, n a structural
+ * parameter, at most 8) and M[2,2] (M[i,j] = x + 10 i + j).
+ *
+ * Value references (must match typed_fmi3.xml):
+ *   0 time; 1 x (Float64 out); 2 x0 (Float64 param); 3 drive (Int32 in); 4 on (Boolean in);
+ *   5 mode (Enumeration in); 6 gain (Float32 in); 7 i8, 8 u8, 9 i16, 10 u16, 11 u32, 12 i64,
+ *   13 u64 (inputs of those types); 14 steps (UInt8 out); 15 xf (Float32 out, = x);
+ *   16 .. 23 i8_out, u8_out, i16_out, u16_out, i32_out (= drive), u32_out, i64_out, u64_out;
+ *   24 on_out (Boolean); 25 mode_out (Enumeration); 26 n (UInt64 structural parameter);
+ *   27 y (Float64[n] out); 28 M (Float64[2,2] out); 29 label (String param); 30 blob (Binary param). */
+
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmi3Functions.h"
+
+#define TOKEN "{5d0c2b7e-8a41-4f3c-9e6d-1b2a3c4d5e6f}"
+#define NVARS 31
+#define NMAX 8
+
+enum { F64, F32, I8, U8, I16, U16, I32, U32, I64, U64, BOOL, ENUM, STR, BIN };
+/* The type of each value reference. */
+static const int TYPE[NVARS] = {F64, F64, F64, I32, BOOL, ENUM, F32, I8, U8, I16, U16, U32, I64, U64, U8, F32,
+                                I8, U8, I16, U16, I32, U32, I64, U64, BOOL, ENUM, U64, F64, F64, STR, BIN};
+enum { VR_TIME, VR_X, VR_X0, VR_DRIVE, VR_ON, VR_MODE, VR_GAIN, VR_I8, VR_U64 = 13, VR_STEPS, VR_XF, VR_ECHO,
+       VR_ON_OUT = 24, VR_MODE_OUT, VR_N, VR_Y, VR_M, VR_LABEL, VR_BLOB };
+
+typedef union {
+    double f;
+    int64_t i;
+    uint64_t u;
+} Value;
+
+typedef enum { ST_INSTANTIATED, ST_INIT, ST_STEP, ST_TERMINATED } Phase;
+
+typedef struct {
+    Value v[NVARS];
+    Phase phase;
+    fmi3InstanceEnvironment env;
+    fmi3LogMessageCallback log;
+} Instance;
+
+static fmi3Status fail(Instance *c, const char *msg) {
+    if (c && c->log) c->log(c->env, fmi3Error, "logStatusError", msg);
+    return fmi3Error;
+}
+
+static void set_defaults(Instance *c) {
+    memset(c->v, 0, sizeof c->v);
+    c->v[VR_MODE].i = 1;
+    c->v[VR_GAIN].f = 1.0;
+    c->v[VR_N].u = 3;
+    c->phase = ST_INSTANTIATED;
+}
+
+/* The value of scalar `vr` (outputs computed from the state and the inputs). */
+static Value value_of(const Instance *c, fmi3ValueReference vr) {
+    Value r;
+    if (vr == VR_X && c->phase == ST_INIT) {
+        r.f = c->v[VR_X0].f;
+    } else if (vr == VR_XF) {
+        r.f = (float)(c->phase == ST_INIT ? c->v[VR_X0].f : c->v[VR_X].f);
+    } else if (vr >= VR_ECHO && vr < VR_ECHO + 8) {
+        static const int SRC[8] = {7, 8, 9, 10, 3, 11, 12, 13};
+        r = c->v[SRC[vr - VR_ECHO]];
+    } else if (vr == VR_ON_OUT) {
+        r = c->v[VR_ON];
+    } else if (vr == VR_MODE_OUT) {
+        r = c->v[VR_MODE];
+    } else {
+        r = c->v[vr];
+    }
+    return r;
+}
+
+/* The number of values of `vr` (arrays: their size). */
+static size_t size_of(const Instance *c, fmi3ValueReference vr) {
+    if (vr == VR_Y) return (size_t)c->v[VR_N].u;
+    if (vr == VR_M) return 4;
+    return 1;
+}
+
+/* Reads the values of `vr[]` (of the types `t1`/`t2`) as doubles, int64 or uint64 into `out`. */
+static fmi3Status get_values(Instance *c, const char *fn, const fmi3ValueReference vr[], size_t nvr, int t1, int t2,
+                             Value out[], size_t nv) {
+    size_t i, j, k = 0;
+    char msg[160];
+    if (!c) return fmi3Error;
+    for (i = 0; i < nvr; i++) {
+        if (vr[i] >= NVARS || (TYPE[vr[i]] != t1 && TYPE[vr[i]] != t2)) {
+            snprintf(msg, sizeof msg, "%s: value reference %u is not of this type", fn, (unsigned)vr[i]);
+            return fail(c, msg);
+        }
+        if (k + size_of(c, vr[i]) > nv) return fail(c, "nValues is too small");
+        if (vr[i] == VR_Y || vr[i] == VR_M) {
+            const double x = c->phase == ST_INIT ? c->v[VR_X0].f : c->v[VR_X].f;
+            for (j = 0; j < size_of(c, vr[i]); j++)
+                out[k++].f = vr[i] == VR_Y ? (double)(j + 1) * x : x + 10.0 * (double)(j / 2) + (double)(j % 2);
+        } else {
+            out[k++] = value_of(c, vr[i]);
+        }
+    }
+    if (k != nv) return fail(c, "nValues does not match the sizes of the variables");
+    return fmi3OK;
+}
+
+/* Checks that `vr[]` are of the type `t1`/`t2` and may be set now; returns 0 or fails. */
+static fmi3Status check_set(Instance *c, const char *fn, const fmi3ValueReference vr[], size_t nvr, int t1, int t2,
+                            size_t nv) {
+    size_t i;
+    char msg[160];
+    if (!c) return fmi3Error;
+    if (nv != nvr) return fail(c, "set: nValues must equal nValueReferences (no array inputs)");
+    for (i = 0; i < nvr; i++) {
+        const fmi3ValueReference r = vr[i];
+        if (r >= NVARS || (TYPE[r] != t1 && TYPE[r] != t2)) {
+            snprintf(msg, sizeof msg, "%s: value reference %u is not of this type", fn, (unsigned)r);
+            return fail(c, msg);
+        }
+        if (!((r >= VR_DRIVE && r <= VR_U64) || r == VR_X0 || r == VR_N || r == VR_LABEL || r == VR_BLOB)) {
+            snprintf(msg, sizeof msg, "%s: variable %u cannot be set", fn, (unsigned)r);
+            return fail(c, msg);
+        }
+        if ((r == VR_X0 || r == VR_LABEL || r == VR_BLOB) && c->phase != ST_INSTANTIATED && c->phase != ST_INIT)
+            return fail(c, "parameters can only be set before initialization ends");
+        if (r == VR_N && c->phase != ST_INSTANTIATED)
+            return fail(c, "the structural parameter n can only be set before initialization");
+    }
+    return fmi3OK;
+}
+
+#define GETTER(fn, T, t1, t2, field)                                                                      \
+    fmi3Status fn(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr, T values[], size_t nv) { \
+        Value buf[NMAX * NVARS];                                                                          \
+        size_t i;                                                                                         \
+        fmi3Status s;                                                                                     \
+        if (nv > NMAX * NVARS) return fail((Instance *)inst, #fn ": too many values");                   \
+        s = get_values((Instance *)inst, #fn, vr, nvr, t1, t2, buf, nv);                                  \
+        if (s != fmi3OK) return s;                                                                        \
+        for (i = 0; i < nv; i++) values[i] = (T)buf[i].field;                                             \
+        return fmi3OK;                                                                                    \
+    }
+GETTER(fmi3GetFloat64, fmi3Float64, F64, F64, f)
+GETTER(fmi3GetFloat32, fmi3Float32, F32, F32, f)
+GETTER(fmi3GetInt8, fmi3Int8, I8, I8, i)
+GETTER(fmi3GetUInt8, fmi3UInt8, U8, U8, i)
+GETTER(fmi3GetInt16, fmi3Int16, I16, I16, i)
+GETTER(fmi3GetUInt16, fmi3UInt16, U16, U16, i)
+GETTER(fmi3GetInt32, fmi3Int32, I32, I32, i)
+GETTER(fmi3GetUInt32, fmi3UInt32, U32, U32, i)
+GETTER(fmi3GetInt64, fmi3Int64, I64, ENUM, i)
+GETTER(fmi3GetUInt64, fmi3UInt64, U64, U64, u)
+GETTER(fmi3GetBoolean, fmi3Boolean, BOOL, BOOL, i)
+
+#define SETTER(fn, T, t1, t2, field)                                                                            \
+    fmi3Status fn(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr, const T values[], size_t nv) { \
+        Instance *c = (Instance *)inst;                                                                         \
+        size_t i;                                                                                               \
+        fmi3Status s = check_set(c, #fn, vr, nvr, t1, t2, nv);                                                  \
+        if (s != fmi3OK) return s;                                                                              \
+        for (i = 0; i < nvr; i++) {                                                                             \
+            if (vr[i] == VR_N && (values[i] < 1 || (uint64_t)values[i] > NMAX))                                 \
+                return fail(c, "n must be between 1 and 8");                                                    \
+            c->v[vr[i]].field = values[i];                                                                      \
+        }                                                                                                       \
+        return fmi3OK;                                                                                          \
+    }
+SETTER(fmi3SetFloat64, fmi3Float64, F64, F64, f)
+SETTER(fmi3SetFloat32, fmi3Float32, F32, F32, f)
+SETTER(fmi3SetInt8, fmi3Int8, I8, I8, i)
+SETTER(fmi3SetUInt8, fmi3UInt8, U8, U8, i)
+SETTER(fmi3SetInt16, fmi3Int16, I16, I16, i)
+SETTER(fmi3SetUInt16, fmi3UInt16, U16, U16, i)
+SETTER(fmi3SetInt32, fmi3Int32, I32, I32, i)
+SETTER(fmi3SetUInt32, fmi3UInt32, U32, U32, i)
+SETTER(fmi3SetInt64, fmi3Int64, I64, ENUM, i)
+SETTER(fmi3SetUInt64, fmi3UInt64, U64, U64, u)
+SETTER(fmi3SetBoolean, fmi3Boolean, BOOL, BOOL, i)
+
+fmi3Status fmi3GetString(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr, fmi3String values[],
+                         size_t nv) {
+    size_t i;
+    if (nv != nvr) return fail((Instance *)inst, "fmi3GetString: scalars only");
+    for (i = 0; i < nvr; i++) {
+        if (vr[i] != VR_LABEL) return fail((Instance *)inst, "fmi3GetString: not a String variable");
+        values[i] = "typed";
+    }
+    return fmi3OK;
+}
+fmi3Status fmi3SetString(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr, const fmi3String values[],
+                         size_t nv) {
+    (void)values;
+    return check_set((Instance *)inst, "fmi3SetString", vr, nvr, STR, STR, nv);
+}
+fmi3Status fmi3GetBinary(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr, size_t sizes[],
+                         fmi3Binary values[], size_t nv) {
+    static const fmi3Byte EMPTY[1] = {0};
+    size_t i;
+    if (nv != nvr) return fail((Instance *)inst, "fmi3GetBinary: scalars only");
+    for (i = 0; i < nvr; i++) {
+        if (vr[i] != VR_BLOB) return fail((Instance *)inst, "fmi3GetBinary: not a Binary variable");
+        sizes[i] = 0;
+        values[i] = EMPTY;
+    }
+    return fmi3OK;
+}
+fmi3Status fmi3SetBinary(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr, const size_t sizes[],
+                         const fmi3Binary values[], size_t nv) {
+    (void)sizes;
+    (void)values;
+    return check_set((Instance *)inst, "fmi3SetBinary", vr, nvr, BIN, BIN, nv);
+}
+
+/* ---- common functions ---- */
+const char *fmi3GetVersion(void) { return fmi3Version; }
+
+fmi3Status fmi3SetDebugLogging(fmi3Instance c, fmi3Boolean on, size_t n, const fmi3String cats[]) {
+    (void)on;
+    (void)n;
+    (void)cats;
+    return c ? fmi3OK : fmi3Error;
+}
+
+fmi3Instance fmi3InstantiateModelExchange(fmi3String name, fmi3String token, fmi3String res, fmi3Boolean visible,
+                                          fmi3Boolean logging, fmi3InstanceEnvironment env,
+                                          fmi3LogMessageCallback log) {
+    (void)name;
+    (void)token;
+    (void)res;
+    (void)visible;
+    (void)logging;
+    if (log) log(env, fmi3Error, "logStatusError", "typed_fmi3 supports co-simulation only");
+    return NULL;
+}
+
+fmi3Instance fmi3InstantiateScheduledExecution(fmi3String name, fmi3String token, fmi3String res,
+                                               fmi3Boolean visible, fmi3Boolean logging,
+                                               fmi3InstanceEnvironment env, fmi3LogMessageCallback log,
+                                               fmi3ClockUpdateCallback cu, fmi3LockPreemptionCallback lp,
+                                               fmi3UnlockPreemptionCallback up) {
+    (void)name;
+    (void)token;
+    (void)res;
+    (void)visible;
+    (void)logging;
+    (void)cu;
+    (void)lp;
+    (void)up;
+    if (log) log(env, fmi3Error, "logStatusError", "typed_fmi3 supports co-simulation only");
+    return NULL;
+}
+
+fmi3Instance fmi3InstantiateCoSimulation(fmi3String name, fmi3String token, fmi3String res, fmi3Boolean visible,
+                                         fmi3Boolean logging, fmi3Boolean eventModeUsed,
+                                         fmi3Boolean earlyReturnAllowed, const fmi3ValueReference req[],
+                                         size_t nreq, fmi3InstanceEnvironment env, fmi3LogMessageCallback log,
+                                         fmi3IntermediateUpdateCallback iu) {
+    Instance *c;
+    (void)res;
+    (void)visible;
+    (void)logging;
+    (void)eventModeUsed;
+    (void)earlyReturnAllowed;
+    (void)req;
+    (void)nreq;
+    (void)iu;
+    if (!name) return NULL;
+    if (!token || strcmp(token, TOKEN) != 0) {
+        if (log) log(env, fmi3Error, "logStatusError", "instantiation token mismatch");
+        return NULL;
+    }
+    c = (Instance *)calloc(1, sizeof(Instance));
+    if (!c) return NULL;
+    c->env = env;
+    c->log = log;
+    set_defaults(c);
+    return c;
+}
+
+void fmi3FreeInstance(fmi3Instance inst) { free(inst); }
+
+fmi3Status fmi3EnterInitializationMode(fmi3Instance inst, fmi3Boolean tolDef, fmi3Float64 tol, fmi3Float64 start,
+                                       fmi3Boolean stopDef, fmi3Float64 stop) {
+    Instance *c = (Instance *)inst;
+    (void)tolDef;
+    (void)tol;
+    (void)stopDef;
+    (void)stop;
+    if (!c || c->phase != ST_INSTANTIATED) return fail(c, "fmi3EnterInitializationMode: wrong state");
+    c->v[VR_TIME].f = start;
+    c->phase = ST_INIT;
+    return fmi3OK;
+}
+
+fmi3Status fmi3ExitInitializationMode(fmi3Instance inst) {
+    Instance *c = (Instance *)inst;
+    if (!c || c->phase != ST_INIT) return fail(c, "fmi3ExitInitializationMode: wrong state");
+    c->v[VR_X].f = c->v[VR_X0].f;
+    c->v[VR_STEPS].i = 0;
+    c->phase = ST_STEP;
+    return fmi3OK;
+}
+
+fmi3Status fmi3EnterEventMode(fmi3Instance c) { return fail((Instance *)c, "fmi3EnterEventMode: no events"); }
+
+fmi3Status fmi3Terminate(fmi3Instance inst) {
+    Instance *c = (Instance *)inst;
+    if (!c) return fmi3Error;
+    c->phase = ST_TERMINATED;
+    return fmi3OK;
+}
+
+fmi3Status fmi3Reset(fmi3Instance inst) {
+    Instance *c = (Instance *)inst;
+    if (!c) return fmi3Error;
+    set_defaults(c);
+    return fmi3OK;
+}
+
+/* Functions of capabilities the FMU does not declare: they report an error and change nothing. */
+#define UNSUPPORTED(fn, ...)                                                \
+    fmi3Status fn(fmi3Instance inst_, __VA_ARGS__) {                        \
+        return fail((Instance *)inst_, #fn " is not supported by this FMU"); \
+    }
+#define UNUSED_ARGS_BEGIN _Pragma("GCC diagnostic push") _Pragma("GCC diagnostic ignored \"-Wunused-parameter\"")
+#define UNUSED_ARGS_END _Pragma("GCC diagnostic pop")
+
+UNUSED_ARGS_BEGIN
+UNSUPPORTED(fmi3GetClock, const fmi3ValueReference vr[], size_t nvr, fmi3Clock v[])
+UNSUPPORTED(fmi3SetClock, const fmi3ValueReference vr[], size_t nvr, const fmi3Clock v[])
+UNSUPPORTED(fmi3GetNumberOfVariableDependencies, fmi3ValueReference vr, size_t *n)
+UNSUPPORTED(fmi3GetVariableDependencies, fmi3ValueReference d, size_t ed[], fmi3ValueReference ind[], size_t ei[],
+            fmi3DependencyKind k[], size_t n)
+UNSUPPORTED(fmi3GetFMUState, fmi3FMUState *s)
+UNSUPPORTED(fmi3SetFMUState, fmi3FMUState s)
+UNSUPPORTED(fmi3FreeFMUState, fmi3FMUState *s)
+UNSUPPORTED(fmi3SerializedFMUStateSize, fmi3FMUState s, size_t *n)
+UNSUPPORTED(fmi3SerializeFMUState, fmi3FMUState s, fmi3Byte b[], size_t n)
+UNSUPPORTED(fmi3DeserializeFMUState, const fmi3Byte b[], size_t n, fmi3FMUState *s)
+UNSUPPORTED(fmi3GetDirectionalDerivative, const fmi3ValueReference u[], size_t nu, const fmi3ValueReference k[],
+            size_t nk, const fmi3Float64 seed[], size_t ns, fmi3Float64 sens[], size_t nsens)
+UNSUPPORTED(fmi3GetAdjointDerivative, const fmi3ValueReference u[], size_t nu, const fmi3ValueReference k[],
+            size_t nk, const fmi3Float64 seed[], size_t ns, fmi3Float64 sens[], size_t nsens)
+UNSUPPORTED(fmi3GetIntervalDecimal, const fmi3ValueReference vr[], size_t n, fmi3Float64 iv[],
+            fmi3IntervalQualifier q[])
+UNSUPPORTED(fmi3GetIntervalFraction, const fmi3ValueReference vr[], size_t n, fmi3UInt64 c[], fmi3UInt64 r[],
+            fmi3IntervalQualifier q[])
+UNSUPPORTED(fmi3GetShiftDecimal, const fmi3ValueReference vr[], size_t n, fmi3Float64 s[])
+UNSUPPORTED(fmi3GetShiftFraction, const fmi3ValueReference vr[], size_t n, fmi3UInt64 c[], fmi3UInt64 r[])
+UNSUPPORTED(fmi3SetIntervalDecimal, const fmi3ValueReference vr[], size_t n, const fmi3Float64 iv[])
+UNSUPPORTED(fmi3SetIntervalFraction, const fmi3ValueReference vr[], size_t n, const fmi3UInt64 c[],
+            const fmi3UInt64 r[])
+UNSUPPORTED(fmi3SetShiftDecimal, const fmi3ValueReference vr[], size_t n, const fmi3Float64 s[])
+UNSUPPORTED(fmi3SetShiftFraction, const fmi3ValueReference vr[], size_t n, const fmi3UInt64 c[],
+            const fmi3UInt64 r[])
+UNSUPPORTED(fmi3UpdateDiscreteStates, fmi3Boolean *a, fmi3Boolean *b, fmi3Boolean *d, fmi3Boolean *e,
+            fmi3Boolean *f, fmi3Float64 *t)
+UNSUPPORTED(fmi3CompletedIntegratorStep, fmi3Boolean no, fmi3Boolean *e, fmi3Boolean *t)
+UNSUPPORTED(fmi3SetTime, fmi3Float64 t)
+UNSUPPORTED(fmi3SetContinuousStates, const fmi3Float64 x[], size_t n)
+UNSUPPORTED(fmi3GetContinuousStateDerivatives, fmi3Float64 dx[], size_t n)
+UNSUPPORTED(fmi3GetEventIndicators, fmi3Float64 e[], size_t n)
+UNSUPPORTED(fmi3GetContinuousStates, fmi3Float64 x[], size_t n)
+UNSUPPORTED(fmi3GetNominalsOfContinuousStates, fmi3Float64 x[], size_t n)
+UNSUPPORTED(fmi3GetNumberOfEventIndicators, size_t *n)
+UNSUPPORTED(fmi3GetNumberOfContinuousStates, size_t *n)
+UNSUPPORTED(fmi3GetOutputDerivatives, const fmi3ValueReference vr[], size_t nvr, const fmi3Int32 o[],
+            fmi3Float64 v[], size_t nv)
+UNSUPPORTED(fmi3ActivateModelPartition, fmi3ValueReference clock, fmi3Float64 t)
+UNUSED_ARGS_END
+
+fmi3Status fmi3EnterConfigurationMode(fmi3Instance c) { return fail((Instance *)c, "n is fixed"); }
+fmi3Status fmi3ExitConfigurationMode(fmi3Instance c) { return fail((Instance *)c, "n is fixed"); }
+fmi3Status fmi3EvaluateDiscreteStates(fmi3Instance c) { return fail((Instance *)c, "no discrete states"); }
+fmi3Status fmi3EnterContinuousTimeMode(fmi3Instance c) { return fail((Instance *)c, "co-simulation only"); }
+
+/* ---- co-simulation ---- */
+fmi3Status fmi3EnterStepMode(fmi3Instance c) {
+    return fail((Instance *)c, "fmi3EnterStepMode: event mode is not used by this FMU");
+}
+
+fmi3Status fmi3DoStep(fmi3Instance inst, fmi3Float64 t, fmi3Float64 h, fmi3Boolean noSetPrior,
+                      fmi3Boolean *eventNeeded, fmi3Boolean *terminate, fmi3Boolean *earlyReturn,
+                      fmi3Float64 *lastTime) {
+    Instance *c = (Instance *)inst;
+    const int64_t mode = c ? c->v[VR_MODE].i : 0;
+    const double s = mode == 1 ? 1.0 : mode == 2 ? -1.0 : 0.0;
+    (void)noSetPrior;
+    if (eventNeeded) *eventNeeded = fmi3False;
+    if (terminate) *terminate = fmi3False;
+    if (earlyReturn) *earlyReturn = fmi3False;
+    if (!c || c->phase != ST_STEP) return fail(c, "fmi3DoStep: the FMU is not initialized");
+    if (!(h > 0.0)) return fail(c, "fmi3DoStep: communication step size must be positive");
+    if (mode < 1 || mode > 3) return fail(c, "fmi3DoStep: mode must be 1, 2 or 3");
+    if (c->v[VR_ON].i) c->v[VR_X].f += h * (double)(float)c->v[VR_GAIN].f * (double)c->v[VR_DRIVE].i * s;
+    c->v[VR_STEPS].i = (c->v[VR_STEPS].i + 1) & 0xFF;
+    c->v[VR_TIME].f = t + h;
+    if (lastTime) *lastTime = c->v[VR_TIME].f;
+    return fmi3OK;
+}
