@@ -213,13 +213,21 @@ class GymSimulator:
         return [f"obs{i}" for i in range(self.nx)]
 
     def input_names(self) -> list[str]:
-        """The actuators' names for a MuJoCo environment whose action is its controls, else ``a0, a1, ...``."""
+        """For a MuJoCo environment whose action is its controls: each actuator's name, else
+        ``<joint>_cmd`` for one that drives a joint; otherwise (or when names repeat) ``a0, a1, ...``."""
+        plain = [f"a{i}" for i in range(self.nu)]
         m = self.mujoco
-        if m is not None and m.nu == self.nu:
-            names = [m.actuator(i).name or f"a{i}" for i in range(m.nu)]
-            if len(set(names)) == len(names):
-                return names
-        return [f"a{i}" for i in range(self.nu)]
+        if m is None or m.nu != self.nu:
+            return plain
+        import mujoco
+
+        names = []
+        for i in range(m.nu):
+            name = m.actuator(i).name
+            if not name and int(m.actuator_trntype[i]) == mujoco.mjtTrn.mjTRN_JOINT:
+                name = f"{m.joint(int(m.actuator_trnid[i][0])).name or 'joint'}_cmd"
+            names.append(name or f"a{i}")
+        return names if len(set(names)) == len(names) else plain
 
     def info(self) -> SimInfo:
         """Names, bounds (the action Box), dt, the Gymnasium and MuJoCo versions and how episodes,
