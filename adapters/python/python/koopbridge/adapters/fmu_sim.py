@@ -8,17 +8,16 @@ from __future__ import annotations
 import os
 import shutil
 from collections.abc import Sequence
-from ctypes import byref, c_double, c_uint32
+from ctypes import byref
 from typing import Any
 
 import numpy as np
 
-from .._native import InvalidInput, KoopbridgeError, Unsupported
+from .._native import InvalidInput, Unsupported
 from ..simulator import SimInfo
+from .fmu_variables import Accessor, Component, FmuError, Variables
 
-
-class FmuError(KoopbridgeError):
-    """A problem with an FMU; the message names the FMU file and the cause."""
+__all__ = ["FmuError", "FmuSimulator"]
 
 
 def _start_value(type_name: str | None, start: Any) -> Any:
@@ -27,10 +26,12 @@ def _start_value(type_name: str | None, start: Any) -> Any:
     if start is None:
         return None
     text = str(start).strip()
-    if type_name == "Boolean":
+    if type_name == "Boolean" and len(text.split()) == 1:
         return text in ("true", "1")
     if type_name in ("String", "Binary", "Clock"):
         return text
+    if len(text.split()) > 1:  # an FMI 3 array's start values
+        return [_start_value(type_name, t) for t in text.split()]
     try:
         value = float(text)
     except ValueError:
@@ -79,32 +80,36 @@ class FmuSimulator:
         except Exception as e:  # fmpy raises several types for broken archives and XML
             raise FmuError(f"FMU '{self.name}': cannot read its modelDescription.xml ({e})") from e
         if md.coSimulation is None:
-            raise FmuError(f"FMU '{self.name}': it has no co-simulation interface (FMI {md.fmiVersion}; model exchange only)")
+            has = "model exchange only" if md.modelExchange is not None else "neither co-simulation nor model exchange"
+            if getattr(md, "scheduledExecution", None) is not None:
+                has = "scheduled execution" + (" and model exchange" if md.modelExchange is not None else "") + " only"
+            raise FmuError(f"FMU '{self.name}': it has no co-simulation interface (FMI {md.fmiVersion}; {has})")
         if md.fmiVersion not in ("2.0",) and not md.fmiVersion.startswith("3."):
             raise FmuError(f"FMU '{self.name}': FMI version {md.fmiVersion} is not supported (2.0 and 3.x are)")
         self.md = md
         self.fmi3 = md.fmiVersion.startswith("3.")
-        self.vars = {v.name: v for v in md.modelVariables}
         if not outputs:
             raise FmuError(f"FMU '{self.name}': no output variables chosen (the state x)")
-        self.inputs = list(inputs)
-        self.outputs = list(outputs)
-        for n in self.inputs + self.outputs + list(initial or []) + list((parameters or {}).keys()):
-            self._var(n)
-        for n in self.inputs + self.outputs:
-            if self._var(n).type not in ("Real", "Float64", "Float32"):
-                raise FmuError(f"FMU '{self.name}': variable '{n}' is of type {self._var(n).type}; only real variables can be inputs or outputs")
-        for n in self.inputs:
-            if self._var(n).causality not in ("input", "parameter"):
-                raise FmuError(f"FMU '{self.name}': variable '{n}' has causality '{self._var(n).causality}', it cannot be an input")
+        self.parameters = dict(parameters or {})
+        vs = self.variables_ = Variables(md, self.name, self.parameters, self.path)
+        self.vars = vs.by_name
+        param_comps = vs.resolve(list(self.parameters), "parameter")
+        for c in param_comps:
+            if c.var.dimensions:
+                raise FmuError(f"FMU '{self.name}': parameter '{c.var.name}' is an array; --param sets scalars only")
+        self.in_comps = vs.resolve(inputs, "input")
+        self.out_comps = vs.resolve(outputs, "output")
+        self.inputs = [c.name for c in self.in_comps]
+        self.outputs = [c.name for c in self.out_comps]
         default_dt = md.defaultExperiment.stepSize if md.defaultExperiment is not None else None
         self.dt = float(dt if dt is not None else (default_dt or 0.0))
         if not (self.dt > 0 and np.isfinite(self.dt)):
             raise FmuError(f"FMU '{self.name}': no communication step given and none in its default experiment")
         if initial is None:
-            settable = all(self._var(n).causality in ("input", "parameter") or getattr(self._var(n), "initial", None) in ("exact", "approx") for n in self.outputs)
+            settable = all(c.var.causality in ("input", "parameter") or getattr(c.var, "initial", None) in ("exact", "approx") for c in self.out_comps)
             initial = list(self.outputs) if settable else []
-        self.initial = list(initial)
+        self.init_comps = vs.resolve(initial, "initial")
+        self.initial = [c.name for c in self.init_comps]
         if self.initial and len(self.initial) != len(self.outputs):
             raise FmuError(f"FMU '{self.name}': {len(self.initial)} initial-state variables for {len(self.outputs)} outputs")
         nx = len(self.outputs)
@@ -115,15 +120,22 @@ class FmuSimulator:
                 raise FmuError(f"FMU '{self.name}': {what} has {r.size} values, the state has {nx}")
         self.u_min = self._bounds(u_min, "min", -np.inf)
         self.u_max = self._bounds(u_max, "max", np.inf)
-        self.parameters = dict(parameters or {})
         self.env = env or md.modelName
         self.angle_indices = list(angle_indices)
-        self.vr_in = [self._var(n).valueReference for n in self.inputs]
-        self.vr_out = [self._var(n).valueReference for n in self.outputs]
-        self._vr_in = (c_uint32 * len(self.vr_in))(*self.vr_in)
-        self._vr_out = (c_uint32 * len(self.vr_out))(*self.vr_out)
-        self._u_buf = (c_double * len(self.vr_in))()
-        self._x_buf = (c_double * len(self.vr_out))()
+        # The parameters are converted and checked here, at start-up; structural ones are set first.
+        structural = [c for c in param_comps if c.var.causality == "structuralParameter"]
+        others = [c for c in param_comps if c.var.causality != "structuralParameter"]
+        self._params = []
+        for comps in (structural, others):
+            if comps:
+                acc = Accessor(comps, vs, "parameter")
+                try:
+                    self._params.append((acc, acc.convert([self.parameters[c.var.name] for c in comps])))
+                except InvalidInput as e:
+                    raise FmuError(str(e)) from e
+        self._in = Accessor(self.in_comps, vs, "input")
+        self._out = Accessor(self.out_comps, vs, "output")
+        self._init = Accessor(self.init_comps, vs, "initial")
         self.log: list[str] = []
         self.unzipdir = fmpy.extract(self.path)
         self.fmu: Any = None
@@ -132,11 +144,7 @@ class FmuSimulator:
 
     # ---- description ----
     def _var(self, name: str) -> Any:
-        v = self.vars.get(name)
-        if v is None:
-            known = ", ".join(sorted(self.vars)[:40])
-            raise FmuError(f"FMU '{self.name}': unknown variable '{name}' (known: {known})")
-        return v
+        return self.variables_.var(name)
 
     def _bounds(self, given: Sequence[float] | None, attr: str, default: float) -> list[float]:
         if given is not None:
@@ -145,34 +153,53 @@ class FmuSimulator:
                 raise FmuError(f"FMU '{self.name}': u_{attr} has {len(b)} values for {len(self.inputs)} inputs")
             return b
         out = []
-        for n in self.inputs:
-            v = getattr(self._var(n), attr, None)
-            out.append(float(v) if v not in (None, "") else default)
+        for c in self.in_comps:
+            if c.kind == "enum" and c.items:  # the items' range, narrowed by min/max
+                lo, hi = max(c.items[0], c.lo if c.lo is not None else c.items[0]), min(c.items[-1], c.hi if c.hi is not None else c.items[-1])
+                out.append(float(lo if attr == "min" else hi))
+                continue
+            b = c.lo if attr == "min" else c.hi
+            if b is None and c.kind in ("float64", "float32"):
+                v = getattr(c.var, attr, None) or (getattr(c.var.declaredType, attr, None) if getattr(c.var, "declaredType", None) is not None else None)
+                b = float(v) if v not in (None, "") else None
+            out.append(float(b) if b is not None else default)
         return out
 
     def variables(self) -> list[dict[str, Any]]:
-        """Every variable of the FMU: name, causality, variability, type, unit, start value."""
+        """Every variable of the FMU: name, causality, variability, type, unit, start value
+        (a list for an array), and ``shape`` for an FMI 3 array (with the ``--param`` sizes)."""
         out = []
         for v in self.md.modelVariables:
-            out.append(
-                dict(
-                    name=v.name,
-                    causality=v.causality,
-                    variability=v.variability,
-                    type=v.type,
-                    unit=v.unit or (v.declaredType.unit if getattr(v, "declaredType", None) is not None else None),
-                    start=_start_value(v.type, v.start),
-                    description=v.description,
-                )
+            d = dict(
+                name=v.name,
+                causality=v.causality,
+                variability=v.variability,
+                type=v.type,
+                unit=v.unit or (v.declaredType.unit if getattr(v, "declaredType", None) is not None else None),
+                start=_start_value(v.type, v.start),
+                description=v.description,
             )
+            if getattr(v, "dimensions", None):
+                try:
+                    d["shape"] = list(self.variables_.shape(v))
+                except FmuError:
+                    d["shape"] = None
+            out.append(d)
         return out
+
+    def _component_start(self, c: Component, starts: dict[str, Any]) -> Any:
+        s = starts.get(c.var.name)
+        if isinstance(s, list):
+            return s[c.index] if c.index < len(s) else (s[0] if len(s) == 1 else None)
+        return s
 
     def info(self) -> SimInfo:
         """The simulator description for koopbridge plus the FMU's own under ``extra["fmu"]``
-        (FMI version, units and start values of the inputs and outputs, every variable); it
-        reaches clients in the ``info`` reply's ``extra`` object."""
-        units = {v["name"]: v["unit"] for v in self.variables()}
-        starts = {v["name"]: v["start"] for v in self.variables()}
+        (FMI version, units, types and start values of the inputs and outputs, every variable);
+        it reaches clients in the ``info`` reply's ``extra`` object."""
+        variables = self.variables()
+        units = {v["name"]: v["unit"] for v in variables}
+        starts = {v["name"]: v["start"] for v in variables}
         return SimInfo(
             env=self.env,
             kind="fmu",
@@ -189,10 +216,14 @@ class FmuSimulator:
                     fmi_version=self.md.fmiVersion,
                     model_name=self.md.modelName,
                     generation_tool=self.md.generationTool,
-                    units=dict(inputs=[units[n] for n in self.inputs], outputs=[units[n] for n in self.outputs]),
-                    start=dict(inputs=[starts[n] for n in self.inputs], outputs=[starts[n] for n in self.outputs]),
+                    units=dict(inputs=[units[c.var.name] for c in self.in_comps], outputs=[units[c.var.name] for c in self.out_comps]),
+                    start=dict(
+                        inputs=[self._component_start(c, starts) for c in self.in_comps],
+                        outputs=[self._component_start(c, starts) for c in self.out_comps],
+                    ),
+                    types=dict(inputs=[c.var.type for c in self.in_comps], outputs=[c.var.type for c in self.out_comps]),
                     initial=self.initial,
-                    variables=self.variables(),
+                    variables=variables,
                 )
             ),
         )
@@ -237,17 +268,6 @@ class FmuSimulator:
     def _last_log(self) -> str:
         return f"; the FMU said: {self.log[-1]}" if self.log else ""
 
-    def _set(self, names: Sequence[str], values: Sequence[float]) -> None:
-        vrs = [self._var(n).valueReference for n in names]
-        if self.fmi3:
-            self.fmu.setFloat64(vrs, list(map(float, values)))
-        else:
-            self.fmu.setReal(vrs, list(map(float, values)))
-
-    def _get(self, vrs: Sequence[int]) -> np.ndarray:
-        vals = self.fmu.getFloat64(vrs) if self.fmi3 else self.fmu.getReal(vrs)
-        return np.asarray(vals, dtype=float)
-
     def reset(self, seed: int | None = None, x0: Sequence[float] | None = None) -> np.ndarray:
         """Re-initialises the FMU: at ``x0``, at a state drawn with ``seed`` from the
         ``x0_low``..``x0_high`` range, or (neither) at the FMU's start values. Returns x_0."""
@@ -256,33 +276,35 @@ class FmuSimulator:
             if self.x0_low is None or self.x0_high is None:
                 raise Unsupported(f"FMU '{self.name}': a seeded reset needs an initial-state range (--x0-low/--x0-high)")
             x0 = np.random.default_rng(seed).uniform(self.x0_low, self.x0_high)
+            # a draw for an integer, enumeration or Boolean variable is rounded to its nearest value
+            discrete = [i for i, c in enumerate(self.init_comps) if c.kind in ("int", "enum", "bool")]
+            x0[discrete] = np.round(x0[discrete])
+        x0_typed = None
         if x0 is not None:
             x0 = np.asarray(x0, dtype=float).ravel()
             if x0.shape != (nx,) or not np.all(np.isfinite(x0)):
                 raise InvalidInput(f"FMU '{self.name}': x0 must be {nx} finite values")
             if not self.initial:
                 raise Unsupported(f"FMU '{self.name}': no initial-state variables to set x0 (--initial NAMES)")
+            x0_typed = self._init.convert(x0)  # InvalidInput before the FMU is touched
         try:
             if self.fmu is None:
                 self._instantiate()
             else:
                 self.fmu.reset()
             self.log.clear()
+            if not self.fmi3:
+                self.fmu.setupExperiment(startTime=0.0)
+            for acc, values in self._params:
+                acc.set(self.fmu, converted=values)
+            if x0_typed is not None:
+                self._init.set(self.fmu, converted=x0_typed)
             if self.fmi3:
-                if self.parameters:
-                    self._set(list(self.parameters), list(self.parameters.values()))
-                if x0 is not None:
-                    self._set(self.initial, x0)
                 self.fmu.enterInitializationMode(startTime=0.0)
             else:
-                self.fmu.setupExperiment(startTime=0.0)
-                if self.parameters:
-                    self._set(list(self.parameters), list(self.parameters.values()))
-                if x0 is not None:
-                    self._set(self.initial, x0)
                 self.fmu.enterInitializationMode()
             self.fmu.exitInitializationMode()
-            x = self._get(self.vr_out)
+            x = self._out.get(self.fmu)
         except (FmuError, InvalidInput, Unsupported):
             raise
         except Exception as e:
@@ -299,27 +321,18 @@ class FmuSimulator:
         u = np.asarray(u, dtype=float).ravel()
         if u.shape != (len(self.inputs),):
             raise InvalidInput(f"FMU '{self.name}': u must have {len(self.inputs)} values, got {u.size}")
-        # The hot path calls the FMI functions directly with buffers made once (fmpy's
-        # setReal/getReal build new ctypes arrays on every call).
-        fmu, ni, no = self.fmu, len(self.vr_in), len(self.vr_out)
+        u_typed = self._in.convert(u) if len(self.inputs) else []  # InvalidInput: the FMU is untouched
+        fmu = self.fmu
         try:
-            if ni:
-                self._u_buf[:] = u.tolist()
-                if self.fmi3:
-                    fmu.fmi3SetFloat64(fmu.component, self._vr_in, ni, self._u_buf, ni)
-                else:
-                    fmu.fmi2SetReal(fmu.component, self._vr_in, ni, self._u_buf)
+            if len(self.inputs):
+                self._in.set(fmu, converted=u_typed)
             if self.fmi3:
                 _, terminate, early, _ = fmu.doStep(self.t, self.dt)
                 if terminate or early:
                     raise RuntimeError("the FMU ended the step early or asked to terminate")
             else:
                 fmu.fmi2DoStep(fmu.component, self.t, self.dt, 1)
-            if self.fmi3:
-                fmu.fmi3GetFloat64(fmu.component, self._vr_out, no, self._x_buf, no)
-            else:
-                fmu.fmi2GetReal(fmu.component, self._vr_out, no, self._x_buf)
-            x = np.array(self._x_buf[:], dtype=float)
+            x = self._out.get(fmu)
         except Exception as e:
             t = self.t
             self._discard()
