@@ -5,6 +5,7 @@ serve (session, id, Zenoh endpoints) and how (lockstep or free-run). Mirrors the
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import threading
 from typing import Any
@@ -74,8 +75,10 @@ def serve_from_args(adapter: Adapter, args: argparse.Namespace) -> dict[str, Any
 
 def _lifeline(service: Any) -> None:
     """Stops ``service`` when standard input reaches end of file (the parent went away)."""
+    # os.read on the descriptor, not sys.stdin.buffer: a thread blocked in the buffered reader holds
+    # its lock, and interpreter shutdown (after SIGTERM stopped the service) then aborts on it.
     try:
-        while sys.stdin.buffer.read(4096):
+        while os.read(sys.stdin.fileno(), 4096):
             pass
     except (OSError, ValueError):
         pass

@@ -69,6 +69,17 @@ class SimulatorAdapter(Adapter):
             self.sim.close()
 
 
+def _strict_json(obj: Any) -> Any:
+    """``obj`` with every non-finite float replaced by None (null, "no bound", as ``info`` replies)."""
+    if isinstance(obj, float):
+        return obj if np.isfinite(obj) else None
+    if isinstance(obj, Mapping):
+        return {k: _strict_json(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_strict_json(v) for v in obj]
+    return obj
+
+
 def run_main(
     factory: Callable[[argparse.Namespace], Simulator],
     parser: argparse.ArgumentParser,
@@ -96,7 +107,7 @@ def run_main(
     tag = f"koopbridge {info.kind} adapter"
     try:
         if args.describe:
-            json.dump(info.to_dict(), sys.stdout, indent=2, default=str)
+            json.dump(_strict_json(info.to_dict()), sys.stdout, indent=2, default=str, allow_nan=False)
             print()
             return 0
         if threading.current_thread() is threading.main_thread():
