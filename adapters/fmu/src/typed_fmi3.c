@@ -10,7 +10,8 @@
  *   13 u64 (inputs of those types); 14 steps (UInt8 out); 15 xf (Float32 out, = x);
  *   16 .. 23 i8_out, u8_out, i16_out, u16_out, i32_out (= drive), u32_out, i64_out, u64_out;
  *   24 on_out (Boolean); 25 mode_out (Enumeration); 26 n (UInt64 structural parameter);
- *   27 y (Float64[n] out); 28 M (Float64[2,2] out); 29 label (String param); 30 blob (Binary param). */
+ *   27 y (Float64[n] out); 28 M (Float64[2,2] out); 29 label (String param); 30 blob (Binary param);
+ *   31 w (Float64[2] in); 32 wsum (Float64 out, = w[0] + 2 w[1]). */
 
 #include <stdint.h>
 #include <stdio.h>
@@ -20,15 +21,15 @@
 #include "fmi3Functions.h"
 
 #define TOKEN "{5d0c2b7e-8a41-4f3c-9e6d-1b2a3c4d5e6f}"
-#define NVARS 31
+#define NVARS 33
 #define NMAX 8
 
 enum { F64, F32, I8, U8, I16, U16, I32, U32, I64, U64, BOOL, ENUM, STR, BIN };
 /* The type of each value reference. */
 static const int TYPE[NVARS] = {F64, F64, F64, I32, BOOL, ENUM, F32, I8, U8, I16, U16, U32, I64, U64, U8, F32,
-                                I8, U8, I16, U16, I32, U32, I64, U64, BOOL, ENUM, U64, F64, F64, STR, BIN};
+                                I8, U8, I16, U16, I32, U32, I64, U64, BOOL, ENUM, U64, F64, F64, STR, BIN, F64, F64};
 enum { VR_TIME, VR_X, VR_X0, VR_DRIVE, VR_ON, VR_MODE, VR_GAIN, VR_I8, VR_U64 = 13, VR_STEPS, VR_XF, VR_ECHO,
-       VR_ON_OUT = 24, VR_MODE_OUT, VR_N, VR_Y, VR_M, VR_LABEL, VR_BLOB };
+       VR_ON_OUT = 24, VR_MODE_OUT, VR_N, VR_Y, VR_M, VR_LABEL, VR_BLOB, VR_W, VR_WSUM };
 
 typedef union {
     double f;
@@ -40,6 +41,7 @@ typedef enum { ST_INSTANTIATED, ST_INIT, ST_STEP, ST_TERMINATED } Phase;
 
 typedef struct {
     Value v[NVARS];
+    double w[2];
     Phase phase;
     fmi3InstanceEnvironment env;
     fmi3LogMessageCallback log;
@@ -52,6 +54,7 @@ static fmi3Status fail(Instance *c, const char *msg) {
 
 static void set_defaults(Instance *c) {
     memset(c->v, 0, sizeof c->v);
+    c->w[0] = c->w[1] = 0.0;
     c->v[VR_MODE].i = 1;
     c->v[VR_GAIN].f = 1.0;
     c->v[VR_N].u = 3;
@@ -68,6 +71,8 @@ static Value value_of(const Instance *c, fmi3ValueReference vr) {
     } else if (vr >= VR_ECHO && vr < VR_ECHO + 8) {
         static const int SRC[8] = {7, 8, 9, 10, 3, 11, 12, 13};
         r = c->v[SRC[vr - VR_ECHO]];
+    } else if (vr == VR_WSUM) {
+        r.f = c->w[0] + 2.0 * c->w[1];
     } else if (vr == VR_ON_OUT) {
         r = c->v[VR_ON];
     } else if (vr == VR_MODE_OUT) {
@@ -82,6 +87,7 @@ static Value value_of(const Instance *c, fmi3ValueReference vr) {
 static size_t size_of(const Instance *c, fmi3ValueReference vr) {
     if (vr == VR_Y) return (size_t)c->v[VR_N].u;
     if (vr == VR_M) return 4;
+    if (vr == VR_W) return 2;
     return 1;
 }
 
@@ -97,7 +103,10 @@ static fmi3Status get_values(Instance *c, const char *fn, const fmi3ValueReferen
             return fail(c, msg);
         }
         if (k + size_of(c, vr[i]) > nv) return fail(c, "nValues is too small");
-        if (vr[i] == VR_Y || vr[i] == VR_M) {
+        if (vr[i] == VR_W) {
+            out[k++].f = c->w[0];
+            out[k++].f = c->w[1];
+        } else if (vr[i] == VR_Y || vr[i] == VR_M) {
             const double x = c->phase == ST_INIT ? c->v[VR_X0].f : c->v[VR_X].f;
             for (j = 0; j < size_of(c, vr[i]); j++)
                 out[k++].f = vr[i] == VR_Y ? (double)(j + 1) * x : x + 10.0 * (double)(j / 2) + (double)(j % 2);
@@ -112,17 +121,18 @@ static fmi3Status get_values(Instance *c, const char *fn, const fmi3ValueReferen
 /* Checks that `vr[]` are of the type `t1`/`t2` and may be set now; returns 0 or fails. */
 static fmi3Status check_set(Instance *c, const char *fn, const fmi3ValueReference vr[], size_t nvr, int t1, int t2,
                             size_t nv) {
-    size_t i;
+    size_t i, total = 0;
     char msg[160];
     if (!c) return fmi3Error;
-    if (nv != nvr) return fail(c, "set: nValues must equal nValueReferences (no array inputs)");
+    for (i = 0; i < nvr; i++) total += vr[i] < NVARS ? size_of(c, vr[i]) : 1;
+    if (nv != total) return fail(c, "set: nValues does not match the sizes of the variables");
     for (i = 0; i < nvr; i++) {
         const fmi3ValueReference r = vr[i];
         if (r >= NVARS || (TYPE[r] != t1 && TYPE[r] != t2)) {
             snprintf(msg, sizeof msg, "%s: value reference %u is not of this type", fn, (unsigned)r);
             return fail(c, msg);
         }
-        if (!((r >= VR_DRIVE && r <= VR_U64) || r == VR_X0 || r == VR_N || r == VR_LABEL || r == VR_BLOB)) {
+        if (!((r >= VR_DRIVE && r <= VR_U64) || r == VR_W || r == VR_X0 || r == VR_N || r == VR_LABEL || r == VR_BLOB)) {
             snprintf(msg, sizeof msg, "%s: variable %u cannot be set", fn, (unsigned)r);
             return fail(c, msg);
         }
@@ -160,13 +170,18 @@ GETTER(fmi3GetBoolean, fmi3Boolean, BOOL, BOOL, i)
 #define SETTER(fn, T, t1, t2, field)                                                                            \
     fmi3Status fn(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr, const T values[], size_t nv) { \
         Instance *c = (Instance *)inst;                                                                         \
-        size_t i;                                                                                               \
+        size_t i, k = 0;                                                                                        \
         fmi3Status s = check_set(c, #fn, vr, nvr, t1, t2, nv);                                                  \
         if (s != fmi3OK) return s;                                                                              \
         for (i = 0; i < nvr; i++) {                                                                             \
-            if (vr[i] == VR_N && (values[i] < 1 || (uint64_t)values[i] > NMAX))                                 \
+            if (vr[i] == VR_N && (values[k] < 1 || (uint64_t)values[k] > NMAX))                                 \
                 return fail(c, "n must be between 1 and 8");                                                    \
-            c->v[vr[i]].field = values[i];                                                                      \
+            if (vr[i] == VR_W) {                                                                                \
+                c->w[0] = (double)values[k++];                                                                  \
+                c->w[1] = (double)values[k++];                                                                  \
+            } else {                                                                                            \
+                c->v[vr[i]].field = values[k++];                                                                \
+            }                                                                                                   \
         }                                                                                                       \
         return fmi3OK;                                                                                          \
     }

@@ -168,6 +168,11 @@ def test_array_elements_and_structural_size(typed3):
     np.testing.assert_array_equal(sim.reset(), [2.0, 11.0, 7.0])
     np.testing.assert_array_equal(sim.step([4, 1]), [6.0, 13.0, 21.0])
     assert FmuSimulator(str(typed3), [], ["y"]).outputs == ["y[0]", "y[1]", "y[2]"]  # the start size, 3
+    # An array input: its elements are components too, set in one call (wsum = w[0] + 2 w[1]).
+    sim = FmuSimulator(str(typed3), ["w", "drive"], ["wsum", "w[1]", "w[0]"], dt=0.1)
+    assert sim.inputs == ["w[0]", "w[1]", "drive"] and sim.info()["fmu"]["start"]["inputs"] == [0.0, 0.0, 0]
+    np.testing.assert_array_equal(sim.reset(), [0.0, 0.0, 0.0])
+    np.testing.assert_array_equal(sim.step([1.5, -2.25, 3]), [-3.0, -2.25, 1.5])
 
 
 @pytest.mark.parametrize(
@@ -178,6 +183,8 @@ def test_array_elements_and_structural_size(typed3):
         (dict(inputs=["x"]), "'x' has causality 'output', it cannot be an input"),
         (dict(inputs=["y"]), r"'y\[0\]' has causality 'output', it cannot be an input"),
         (dict(inputs=["x0"]), "'x0' is a fixed parameter; it cannot be set while stepping"),
+        (dict(inputs=["w[1]"]), r"input variable 'w' must be given whole and once \(FMI sets all 2 elements"),
+        (dict(inputs=["w", "w[0]"]), "input variable 'w' must be given whole and once"),
         (dict(initial=["y[0]"], outputs=["x"]), r"'y\[0\]' .* cannot be set before initialisation"),
         (dict(outputs=["y[3]"]), r"'y\[3\]': index out of range for 'y' of shape \[3\]"),
         (dict(outputs=["M[1]"]), r"'M\[1\]': index out of range for 'M' of shape \[2, 2\]"),
