@@ -221,3 +221,18 @@ def test_an_fmu_with_neither_interface_is_not_called_model_exchange_only(tmp_pat
     with pytest.raises(FmuError, match=r"no co-simulation interface \(FMI 2\.0; neither co-simulation nor model exchange\)") as e:
         FmuSimulator(str(bare), ["u"], ["theta"])
     assert "model exchange only" not in str(e.value)
+
+
+def test_a_clock_is_refused_at_start_up(tmp_path, typed3):
+    # typed_fmi3 with a Clock input added to its model description (fmpy reads it as type Clock).
+    clocked = tmp_path / "clocked.fmu"
+    tick = '    <Clock name="tick" valueReference="40" causality="input" variability="discrete" intervalVariability="triggered"/>\n'
+    with zipfile.ZipFile(typed3) as src, zipfile.ZipFile(clocked, "w") as dst:
+        for item in src.infolist():
+            data = src.read(item)
+            if item.filename == "modelDescription.xml":
+                data = data.decode().replace("  </ModelVariables>", tick + "  </ModelVariables>").encode()
+            dst.writestr(item, data)
+    with pytest.raises(FmuError, match=r"FMU 'clocked\.fmu': variable 'tick' is of type Clock, which cannot be served as a number"):
+        FmuSimulator(str(clocked), ["tick"], ["x"])
+    assert FmuSimulator(str(clocked), ["drive"], ["x"]).outputs == ["x"]  # the rest is served
