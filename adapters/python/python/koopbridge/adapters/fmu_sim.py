@@ -50,7 +50,13 @@ class FmuSimulator:
     FMU's initial-state parameters; default: the outputs themselves when they can be set, else
     none); ``x0_low``/``x0_high``: range of the uniform initial-state draw of a seeded reset;
     ``u_min``/``u_max``: input bounds reported in ``info`` (default: the variables' min/max);
-    ``parameters``: start values to set on every reset; ``env``, ``angle_indices``: reported.
+    ``parameters``: start values to set on every reset (checked here; FMI 3 structural
+    parameters first, so they may size arrays); ``env``, ``angle_indices``: reported.
+
+    Names may be variables of any numeric FMI type, an FMI 3 array (all its elements ``y[0]``,
+    ``y[1]``, ...) or one element (``y[1]``, ``M[0,1]``); see ``fmu_variables`` for the
+    conversions. What cannot be served raises ``FmuError`` here, at construction; a value that
+    cannot be represented raises ``InvalidInput`` in ``reset``/``step`` before the FMU is touched.
     """
 
     def __init__(
