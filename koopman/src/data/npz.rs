@@ -109,6 +109,18 @@ impl Dataset {
                         ),
                     ));
                 }
+                if m.meta.input_names.len() != nu || m.meta.state_names.len() != nx {
+                    return Err(Error::format(
+                        path,
+                        format!(
+                            "metadata names {} states and {} inputs ({:?}) but the arrays \
+                             have nx={nx}, nu={nu}",
+                            m.meta.state_names.len(),
+                            m.meta.input_names.len(),
+                            m.meta.input_names
+                        ),
+                    ));
+                }
                 m.meta
             }
             None => DatasetMeta {
@@ -275,6 +287,40 @@ mod tests {
         ));
         let p = write_raw("rank.npz", (&[4], &[0.0; 4]), (&[1, 1, 1], &[0.0]));
         assert!(matches!(Dataset::load_npz(&p), Err(Error::Format { .. })));
+        // A `u` whose width disagrees with the metadata (nu = 1 stored, 2 or 0 in the array).
+        let meta_of = |nu: usize, inputs: Vec<String>| {
+            let mut m = d.meta.clone();
+            m.input_names = inputs;
+            serde_json::to_vec(&NpzMeta {
+                n: 1,
+                steps: 1,
+                nx: 2,
+                nu,
+                meta: m,
+            })
+            .unwrap()
+        };
+        for (width, meta, says) in [
+            (2, meta_of(1, vec!["u".into()]), "nu=1"),
+            (0, meta_of(1, vec!["u".into()]), "nu=1"),
+            (1, meta_of(1, vec![]), "0 inputs"),
+        ] {
+            let p = dir.join(format!("width{width}-{says}.npz"));
+            let u = vec![0.25; width];
+            write_npz(
+                &p,
+                &[
+                    ("x.npy", &npy::encode(&[1, 2, 2], &[0.0; 4])),
+                    ("u.npy", &npy::encode(&[1, 1, width], &u)),
+                    ("meta.json", &meta),
+                ],
+            )
+            .unwrap();
+            let e = Dataset::load_npz(&p).unwrap_err();
+            assert!(matches!(e, Error::Format { .. }), "{e}");
+            let msg = e.to_string();
+            assert!(msg.contains(says) && msg.contains(&format!("{width}")), "{msg}");
+        }
         // Without metadata it loads with defaults.
         let p = write_raw("plain.npz", (&[1, 2, 1], &[0.0, 1.0]), (&[1, 1, 1], &[0.5]));
         let plain = Dataset::load_npz(&p).unwrap();

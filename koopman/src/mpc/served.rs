@@ -21,6 +21,11 @@ use crate::error::{ensure_finite, Error, Result};
 use crate::model::bilinear::BilinearModel;
 use crate::model::LiftedModel;
 
+/// Why an MPC cannot be built for a model of a system without inputs.
+pub const AUTONOMOUS_MPC: &str = "the model is of an autonomous system (nu = 0): an MPC needs at \
+     least one input to plan; such a model predicts (koopbridge sim, eval, scenarios without \
+     [control]) but cannot control";
+
 /// A loaded model, before its controller's settings are known.
 #[derive(Clone)]
 pub enum LoadedModel {
@@ -83,6 +88,11 @@ impl LoadedModel {
         cfg: &MpcConfig,
         offset_free: Option<&OffsetFreeConfig>,
     ) -> Result<ModelController> {
+        if self.nu() == 0 {
+            return Err(Error::InvalidArgument(format!(
+                "no inputs to control: {AUTONOMOUS_MPC}"
+            )));
+        }
         match self {
             LoadedModel::Lifted(m) => {
                 let mut c = MpcController::from_shared(m.clone(), cfg)?;

@@ -102,6 +102,28 @@ impl Default for TrainConfig {
     }
 }
 
+impl TrainConfig {
+    /// Settles the inverse-control loss for data with `nu` inputs. An autonomous system
+    /// (`nu = 0`) has no `B` to invert, so the loss has nothing to train: the default turns off
+    /// (returns `true` when it did, so callers can say so), and an explicit request
+    /// (`explicitly_requested`) is refused with the reason rather than silently dropped.
+    pub fn settle_ctrl_for(&mut self, nu: usize, explicitly_requested: bool) -> Result<bool> {
+        if nu > 0 || !self.ctrl {
+            return Ok(false);
+        }
+        if explicitly_requested {
+            return Err(crate::Error::InvalidArgument(AUTONOMOUS_CTRL.into()));
+        }
+        self.ctrl = false;
+        Ok(true)
+    }
+}
+
+/// Why the inverse-control loss cannot be trained on data without inputs.
+pub const AUTONOMOUS_CTRL: &str = "the inverse-control loss (ctrl) needs inputs, and this data \
+     has none (nu = 0, an autonomous system): it reconstructs u from the latent step through \
+     pinv(B), and there is no B; leave ctrl off (cov and the prediction loss still apply)";
+
 /// What the trainer reports to its observer after every iteration.
 #[derive(Clone, Debug, Serialize)]
 pub struct Progress {

@@ -197,6 +197,9 @@ fn train_params(
         )));
     }
     let arch = Arch::new(nx, nu, &cfg.hidden, cfg.n_mult)?;
+    if cfg.ctrl && nu == 0 {
+        return Err(Error::InvalidArgument(super::AUTONOMOUS_CTRL.into()));
+    }
     if cfg.bilinear && nu == 0 {
         return Err(Error::InvalidArgument(
             "a bilinear model needs inputs: this dataset has nu = 0".into(),
