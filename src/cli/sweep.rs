@@ -54,8 +54,10 @@ pub struct SweepArgs {
     /// Training seeds (comma-separated; SPEC's are 17382, 76849, 20965, 84902, 51194).
     #[arg(long, value_delimiter = ',', default_values_t = [17382u64])]
     pub seeds: Vec<u64>,
-    /// Regulariser settings: both, none, ctrl, cov (comma-separated).
-    #[arg(long, value_delimiter = ',', default_value = "both")]
+    /// Regulariser settings: both, none, ctrl, cov (comma-separated). Default: both; for data
+    /// without inputs (nu = 0) cov, since the inverse-control loss needs inputs (asking for ctrl
+    /// or both there is refused).
+    #[arg(long, value_delimiter = ',')]
     pub regularisers: Vec<String>,
     /// Training iterations of every point (default: SPEC's 60,000).
     #[arg(long)]
@@ -120,11 +122,9 @@ pub fn run(args: SweepArgs) -> anyhow::Result<()> {
                 .replace(|c: char| !c.is_ascii_alphanumeric() && c != '-', "-")
         })
         .context("dataset folder has no name")?;
-    let regularisers = args
-        .regularisers
-        .iter()
-        .map(|r| Regularisers::parse(r))
-        .collect::<Result<Vec<_>, _>>()?;
+    let pool = Dataset::load_npz(&data_dir.join("train.npz"))
+        .with_context(|| format!("reading the train pool in {}", data_dir.display()))?;
+    let regularisers = Regularisers::for_data(&args.regularisers, pool.nu)?;
     let mut settings = serde_json::Map::new();
     for kv in &args.set {
         let (k, v) = kv
@@ -148,8 +148,6 @@ pub fn run(args: SweepArgs) -> anyhow::Result<()> {
     let test_path = data_dir.join("test.npz");
     let test_set = Dataset::load_npz(&test_path)
         .with_context(|| format!("reading the test set {}", test_path.display()))?;
-    let pool = Dataset::load_npz(&data_dir.join("train.npz"))
-        .with_context(|| format!("reading the train pool in {}", data_dir.display()))?;
     if let Some(m) = args.samples.iter().find(|&&m| m > pool.n) {
         bail!("--samples {m} exceeds the train pool of {} windows", pool.n);
     }

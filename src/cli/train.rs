@@ -208,10 +208,14 @@ fn observer<'b>(
 /// The Koopman model of SPEC, or with `bilinear` its bilinear variant
 /// `z⁺ = A z + B u + Σ u_i N_i z` (same recipe, N_i initialised to zero).
 fn train_koopman(args: &TrainArgs, splits: &Splits, bilinear: bool) -> anyhow::Result<()> {
-    let cfg = TrainConfig {
+    let mut cfg = TrainConfig {
         bilinear,
         ..config(args)
     };
+    // No flag turns ctrl on explicitly (it is on by default), so data without inputs turn it off.
+    if cfg.settle_ctrl_for(splits.train.nu, false)? {
+        eprintln!("note: the data have no inputs (nu = 0): the inverse-control loss is off");
+    }
     let (train, val, test) = (&splits.train, &splits.val, Some(&splits.test));
     type Save = Box<dyn FnOnce(&Path) -> koopman::Result<()>>;
     let ((save, metrics), curve) = with_progress(cfg.iterations, |observer| {

@@ -4,7 +4,7 @@
 //! `feedforward_file` that exists already), so that a typo fails in seconds, not after
 //! collection.
 
-use koopman::mpc::{MpcConfig, MpcController};
+use koopman::mpc::{MpcConfig, MpcController, AUTONOMOUS_MPC};
 use koopman::train::stand_in::{self, StandIn};
 use koopman::train::TrainConfig;
 
@@ -53,6 +53,15 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
                 train_setting_names().join(", ")
             ))
         })?;
+        if t.config.get("ctrl") == Some(&serde_json::Value::Bool(true)) {
+            if let Some(s) = sc.sims.iter().zip(infos).find(|(_, i)| i.nu() == 0) {
+                return Err(Error::Config(format!(
+                    "[train].config sets ctrl = true, but simulator '{}': {}",
+                    s.0.id,
+                    koopman::train::AUTONOMOUS_CTRL
+                )));
+            }
+        }
     }
     for ctrl in &sc.control {
         let j = controlled_sim(sc, ctrl);
@@ -134,10 +143,11 @@ fn validate_control(ctrl: &ControlSpec, sim: &str, info: &SimInfo) -> Result<()>
     if let Some(v) = ctrl.x0.iter().chain(reference).find(|v| !v.is_finite()) {
         return bad(format!("x0 and reference must be finite, got {v}"));
     }
-    if nx == 0 || nu == 0 {
-        return bad(format!(
-            "MPC needs states and inputs (nx = {nx}, nu = {nu})"
-        ));
+    if nu == 0 {
+        return bad(format!("no inputs to control: {AUTONOMOUS_MPC}"));
+    }
+    if nx == 0 {
+        return bad("MPC needs states (nx = 0)".into());
     }
     if let Some(pl) = &ctrl.position_loop {
         if let Err(e) = super::control::position_loop_of(pl, info, &cfg) {

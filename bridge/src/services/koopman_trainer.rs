@@ -160,6 +160,9 @@ impl Trainer for KoopmanTrainer {
             cfg.threads = self.threads;
         }
         let tr = self.load(&spec.train)?;
+        let explicit_ctrl = spec.config.get("ctrl") == Some(&serde_json::Value::Bool(true));
+        cfg.settle_ctrl_for(tr.nu, explicit_ctrl)
+            .map_err(|e| Error::protocol(ErrorCode::BadRequest, e.to_string()))?;
         let va = self.load(&spec.val)?;
         let te = spec.test.as_ref().map(|t| self.load(t)).transpose()?;
         let resume = usable_checkpoint(checkpoint, &cfg, &tr, &va);

@@ -59,6 +59,33 @@ impl Regularisers {
         }
     }
 
+    /// The settings a grid trains on data with `nu` inputs: the names asked for, else `both`
+    /// (`cov` for data without inputs, where the inverse-control loss has nothing to invert —
+    /// asking for `ctrl` or `both` there is refused with the reason).
+    pub fn for_data(asked: &[String], nu: usize) -> Result<Vec<Self>> {
+        if asked.is_empty() {
+            return Ok(vec![if nu == 0 {
+                Regularisers::Cov
+            } else {
+                Regularisers::Both
+            }]);
+        }
+        let parsed = asked
+            .iter()
+            .map(|r| Regularisers::parse(r))
+            .collect::<Result<Vec<_>>>()?;
+        if nu == 0 {
+            if let Some(r) = parsed.iter().find(|r| r.flags().0) {
+                return Err(Error::Config(format!(
+                    "regulariser setting '{}': {}; use none or cov",
+                    r.as_str(),
+                    koopman::train::AUTONOMOUS_CTRL
+                )));
+            }
+        }
+        Ok(parsed)
+    }
+
     /// Parses a name; the error lists the valid ones.
     pub fn parse(s: &str) -> Result<Self> {
         Regularisers::ALL
@@ -292,6 +319,25 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("both, none, ctrl, cov"));
+    }
+
+    #[test]
+    fn data_without_inputs_default_to_cov_and_refuse_ctrl() {
+        let names = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        assert_eq!(Regularisers::for_data(&[], 1).unwrap(), [Regularisers::Both]);
+        assert_eq!(Regularisers::for_data(&[], 0).unwrap(), [Regularisers::Cov]);
+        assert_eq!(
+            Regularisers::for_data(&names(&["none", "cov"]), 0).unwrap(),
+            [Regularisers::None, Regularisers::Cov]
+        );
+        for asked in [["none", "both"], ["ctrl", "cov"]] {
+            let e = Regularisers::for_data(&names(&asked), 0).unwrap_err().to_string();
+            assert!(e.contains("needs inputs") && e.contains("nu = 0"), "{e}");
+        }
+        assert_eq!(
+            Regularisers::for_data(&names(&["ctrl"]), 2).unwrap(),
+            [Regularisers::Ctrl]
+        );
     }
 
     #[test]
