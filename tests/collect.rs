@@ -8,8 +8,8 @@ mod common;
 
 use std::time::Duration;
 
-use bridge::adapter::collect::{run_windows, window_rng, CollectPlan};
-use bridge::adapter::{SimBackend, SystemBackend};
+use bridge::adapter::collect::CollectPlan;
+use bridge::adapter::{run_windows, window_rng, SimBackend, SystemBackend};
 use bridge::client::SimClient;
 use bridge::collect::blocks::{collect_block, collect_blocks, Block, Collection};
 use bridge::collect::{adapter_seed, Split};

@@ -317,7 +317,7 @@ impl SimBackend for PyBackend {
                 .map(|r| r.map_err(|e| sim_error(py, e, "collect")))
         });
         // A plain `Adapter` subclass without `collect`: its reset and step, window by window.
-        own.unwrap_or_else(|| bridge::adapter::collect::run_windows(self, plan))
+        own.unwrap_or_else(|| bridge::adapter::run_windows(self, plan))
     }
 }
 

@@ -1,10 +1,13 @@
 //! What an adapter serves: the [`SimBackend`] trait (plain synchronous calls), its error type,
-//! and [`SystemBackend`] for the built-in reference systems.
+//! the in-process `collect` every backend has by default ([`run_windows`]) and [`SystemBackend`]
+//! for the built-in reference systems.
+
+use koopman::rng::Rng;
 
 use crate::error::{ErrorCode, ErrorReply};
 use crate::messages::{ResetRequest, SimInfo};
 
-use super::collect::{run_windows, CollectPlan, Windows};
+use super::collect::{CollectPlan, PlanInputs, Windows};
 
 /// A simulator as the adapter sees it: plain synchronous calls, one at a time, on one thread.
 pub trait SimBackend {
@@ -47,6 +50,62 @@ impl SimError {
         };
         ErrorReply::new(code, self.to_string())
     }
+}
+
+/// The generator of window `i` of a collection with `seed` (Rust backends): its first draw is
+/// the window's reset seed, the next ones its inputs, input by input, step by step. Window `i`
+/// depends on nothing else, so any block can be run on its own.
+pub fn window_rng(seed: u64, i: u64) -> Rng {
+    Rng::derive(seed, i)
+}
+
+/// Runs the plan's windows on `backend`, one after the other: window `i` resets with the first
+/// draw of [`window_rng`]`(seed, i)` and steps with `u ~ U(low, high)` drawn from it. The
+/// default `collect` of every [`SimBackend`]; a planned policy is `unsupported` here (the
+/// backend has no planner).
+pub fn run_windows<B: SimBackend + ?Sized>(
+    backend: &mut B,
+    plan: &CollectPlan,
+) -> Result<Windows, SimError> {
+    let (low, high) = match &plan.inputs {
+        PlanInputs::Uniform { low, high } => (low, high),
+        PlanInputs::Planned { .. } => {
+            return Err(SimError::Unsupported(
+                "the planned collect policy needs a simulator that plans its own trajectories \
+                 (the Drake Gen3 adapter); this one collects with uniform inputs only"
+                    .into(),
+            ))
+        }
+        PlanInputs::Simulator(p) => {
+            return Err(SimError::Unsupported(format!(
+                "the {} collect policy needs a simulator that runs an expert itself (the Go2 \
+                 adapter); this one collects with uniform inputs only",
+                p.describe()
+            )))
+        }
+    };
+    let (n, t) = (plan.windows, plan.steps);
+    let mut w = Windows {
+        x: Vec::with_capacity(n * (t + 1) * plan.nx),
+        u: Vec::with_capacity(n * t * plan.nu),
+    };
+    let mut u = vec![0.0; plan.nu];
+    for i in 0..n as u64 {
+        let mut rng = window_rng(plan.seed, plan.first + i);
+        let reset = ResetRequest {
+            seed: Some(rng.next_u64()),
+            x0: None,
+        };
+        w.x.extend_from_slice(&backend.reset(&reset)?);
+        for _ in 0..t {
+            for (v, (lo, hi)) in u.iter_mut().zip(low.iter().zip(high)) {
+                *v = rng.uniform(*lo, *hi);
+            }
+            w.x.extend_from_slice(&backend.step(&u)?);
+            w.u.extend_from_slice(&u);
+        }
+    }
+    Ok(w)
 }
 
 /// A [`SimBackend`] for any built-in reference system of `koopman::systems`.

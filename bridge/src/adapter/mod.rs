@@ -2,10 +2,12 @@
 //! runs free-run mode (absolute-deadline pacing, `state` out, `command` in) and holds the
 //! liveliness token — for any [`SimBackend`], Rust or Python.
 //!
-//! - [`backend`]: the [`SimBackend`] trait and [`SystemBackend`];
+//! - [`backend`]: the [`SimBackend`] trait, its default in-process `collect` ([`run_windows`])
+//!   and [`SystemBackend`];
 //! - [`lockstep`]: the protocol state machine, request bytes in, reply bytes out (no Zenoh);
 //! - [`free_run`]: the free-run clock, command clipping and counters (no Zenoh);
-//! - [`collect`]: `collect` requests checked, run in-process and cut into reply chunks;
+//! - [`collect`]: `collect` requests checked and the windows a backend returns cut into reply
+//!   chunks;
 //! - [`serve`] (here): the Zenoh wiring around them.
 //!
 //! Zenoh callbacks only forward queries and samples into a channel; the backend is called on the
@@ -15,6 +17,8 @@ pub mod backend;
 pub mod collect;
 pub mod free_run;
 pub mod lockstep;
+#[cfg(test)]
+mod tests_collect;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
@@ -29,7 +33,7 @@ use crate::keyexpr::{Keys, Role, SimLeaf};
 use crate::services::{payload, respond, DEFAULT_MAX_PAYLOAD};
 
 pub use crate::messages::{AdapterStats, InfoReply, ResetRequest, SimInfo};
-pub use backend::{SimBackend, SimError, SystemBackend};
+pub use backend::{run_windows, window_rng, SimBackend, SimError, SystemBackend};
 pub use collect::{CollectPlan, Windows};
 pub use free_run::{FreeRun, FreeRunOptions};
 pub use lockstep::Lockstep;
