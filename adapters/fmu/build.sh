@@ -37,6 +37,7 @@ PY
 }
 
 build damped_pendulum linux64
+build van_der_pol linux64  # Van der Pol oscillator, FMI 2.0 CS with no inputs (an autonomous system)
 if [ -f "$here/src/double_pendulum.c" ]; then
   build double_pendulum x86_64-linux
 fi
