@@ -33,7 +33,7 @@ impl Placeholders {
     /// The placeholders of a run whose commands run in `base`.
     pub fn new(base: &Path, out: &Path, session: &str, connect: &str) -> Self {
         Placeholders {
-            python: super::cluster::external_program("{python}", base),
+            python: super::program::external_program("{python}", base),
             out: out.to_path_buf(),
             session: session.to_string(),
             connect: connect.to_string(),
@@ -53,7 +53,7 @@ impl Placeholders {
     /// The program and arguments that run `cmd` with `extra` appended: a shell string becomes
     /// `sh -c 'exec CMD "$@"' sh EXTRA…` (so the started process is the command itself, and its
     /// lifeline reaches it); a program list resolves its program like a simulator's
-    /// ([`super::cluster::external_program`]). `exec`: `false` runs a shell string as it is
+    /// ([`super::program::external_program`]). `exec`: `false` runs a shell string as it is
     /// (hooks may be several commands).
     pub fn program(
         &self,
@@ -77,7 +77,7 @@ impl Placeholders {
                 let (first, rest) = v
                     .split_first()
                     .map_or(("", &[][..]), |(f, r)| (f.as_str(), r));
-                let program = super::cluster::external_program(first, &self.base);
+                let program = super::program::external_program(first, &self.base);
                 let mut a: Vec<String> = rest.iter().map(|x| self.expand(x, false)).collect();
                 a.extend(extra.iter().cloned());
                 (program, a)

@@ -9,6 +9,7 @@
 //! - [`control`]: the control phase of a run (models configured, references read, the loop);
 //! - [`reference`]: fixed and time-varying (`reference_file`) references and their windows;
 //! - [`commands`]: command placeholders and `[[hooks]]`;
+//! - [`program`]: the program an external command runs (`{python}`, relative paths);
 //! - [`aggregate`]: on-policy aggregation rounds (`--aggregate`);
 //! - [`validate`]: the whole scenario checked against the simulators' `info` before collection;
 //! - [`reuse`]: a rerun into the same folder reuses unchanged data and models;
@@ -21,6 +22,7 @@ pub mod commands;
 pub mod control;
 pub mod control_loop;
 pub mod position_loop;
+pub mod program;
 pub mod reference;
 pub mod reuse;
 pub mod run;
