@@ -6,9 +6,9 @@ use std::time::Duration;
 
 use super::commands::Placeholders;
 use super::control_loop::{control_loop, LoopReport};
+use super::control_settings::{controlled_sim, mpc_config, position_loop_of};
 use super::position_loop::PositionLoop;
 use super::reference::{reference_of, Reference};
-use super::validate::{controlled_sim, mpc_config};
 use super::{ControlReport, ControlTask, Event, SERVICES_ID};
 use crate::client::{Client, Liveliness, SimClient};
 use crate::error::{Error, Result};
@@ -146,20 +146,4 @@ pub fn control_phase(
             Some(slowest / figures.macro_steps_per_second.max(1e-9));
     }
     Ok((reports, figures))
-}
-
-/// The position loop of a control entry, its inputs clipped to the MPC's bounds (the scenario's
-/// intersected with the simulator's); the error says what does not fit.
-pub fn position_loop_of(
-    spec: &crate::scenario::PositionLoopSpec,
-    info: &crate::messages::SimInfo,
-    mpc: &koopman::mpc::MpcConfig,
-) -> std::result::Result<PositionLoop, String> {
-    PositionLoop::new(
-        spec,
-        info.nx(),
-        info.nu(),
-        mpc.u_min.as_deref(),
-        mpc.u_max.as_deref(),
-    )
 }

@@ -7,6 +7,7 @@
 //!   ([`closed_loop()`], [`closed_loop::ControlRun`]);
 //! - [`control_loop`]: several controlled simulators in one lockstep loop, concurrently;
 //! - [`control`]: the control phase of a run (models configured, references read, the loop);
+//! - [`control_settings`]: a `[control]` entry's simulator, MPC settings and position loop;
 //! - [`reference`]: fixed and time-varying (`reference_file`) references and their windows;
 //! - [`commands`]: command placeholders and `[[hooks]]`;
 //! - [`program`]: the program an external command runs (`{python}`, relative paths);
@@ -21,6 +22,7 @@ pub mod cluster;
 pub mod commands;
 pub mod control;
 pub mod control_loop;
+pub mod control_settings;
 pub mod position_loop;
 pub mod program;
 pub mod reference;

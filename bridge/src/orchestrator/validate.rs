@@ -4,36 +4,16 @@
 //! `feedforward_file` that exists already), so that a typo fails in seconds, not after
 //! collection.
 
-use koopman::mpc::{MpcConfig, MpcController, AUTONOMOUS_MPC};
+use koopman::mpc::{MpcController, AUTONOMOUS_MPC};
 use koopman::train::stand_in::{self, StandIn};
 use koopman::train::TrainConfig;
 
+use super::control_settings::{controlled_sim, mpc_config, position_loop_of};
 use super::reference::{load_feedforward, load_trajectory};
 use crate::error::{Error, Result};
 use crate::messages::SimInfo;
 use crate::scenario::{ControlSpec, Scenario};
 use crate::services::koopman_trainer::train_config;
-
-/// The MPC settings of a scenario's `[control].mpc` for a simulator: SPEC defaults with the
-/// simulator's input bounds, overlaid with the scenario's fields (unknown fields are an error),
-/// then the input bounds intersected with the simulator's (it cannot take more).
-pub fn mpc_config(
-    info: &SimInfo,
-    overrides: &serde_json::Map<String, serde_json::Value>,
-) -> Result<MpcConfig> {
-    let mut v =
-        serde_json::to_value(MpcConfig::default()).map_err(|e| Error::Config(e.to_string()))?;
-    if let Some(o) = v.as_object_mut() {
-        for (k, val) in overrides {
-            o.insert(k.clone(), val.clone());
-        }
-    }
-    let mut cfg: MpcConfig =
-        serde_json::from_value(v).map_err(|e| Error::Config(format!("[control].mpc: {e}")))?;
-    crate::services::mpc::clamp_bounds_to_sim(&mut cfg, info)
-        .map_err(|e| Error::Config(format!("[control].mpc: {e}")))?;
-    Ok(cfg)
-}
 
 /// Checks every setting of `sc` that the services would only check later: the training
 /// settings, and for `[control]` the MPC settings (by building a controller on a stand-in
@@ -103,11 +83,6 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
     Ok(())
 }
 
-/// The index in `sc.sims` of the simulator a control entry drives (`sim`, else the first).
-pub fn controlled_sim(sc: &Scenario, ctrl: &ControlSpec) -> usize {
-    sc.controlled_index(ctrl)
-}
-
 /// The names of every `TrainConfig` field (what `[train].config` may set).
 pub fn train_setting_names() -> Vec<String> {
     serde_json::to_value(TrainConfig::default())
@@ -150,7 +125,7 @@ fn validate_control(ctrl: &ControlSpec, sim: &str, info: &SimInfo) -> Result<()>
         return bad("MPC needs states (nx = 0)".into());
     }
     if let Some(pl) = &ctrl.position_loop {
-        if let Err(e) = super::control::position_loop_of(pl, info, &cfg) {
+        if let Err(e) = position_loop_of(pl, info, &cfg) {
             return bad(e);
         }
     }
