@@ -1,10 +1,14 @@
 """The Gymnasium adapter (``koopbridge.adapters.gym``): InvertedPendulum-v5 and Reacher-v5 pass
 ``check_adapter`` over a real Zenoh session; served states equal a separate ``gymnasium.make``
 environment stepped directly; ``reset(x0)`` sets the env's own MuJoCo state exactly; episode ends
-are reported and stepping goes on; bad ids, non-Box actions and bad requests get clear errors."""
+are reported and stepping goes on; bad ids, non-Box actions and bad requests get clear errors;
+the Gym scenario runs from outside the repository with a tiny budget."""
 
 from __future__ import annotations
 
+import json
+import os
+import re
 import subprocess
 import sys
 import time
@@ -16,7 +20,7 @@ gymnasium = pytest.importorskip("gymnasium")
 pytest.importorskip("mujoco")
 
 import koopbridge  # noqa: E402
-from conftest import Child, free_endpoint  # noqa: E402
+from conftest import ROOT, Child, free_endpoint, koopbridge_binary_or_skip  # noqa: E402
 from koopbridge import InvalidInput, SimulatorAdapter, Unsupported  # noqa: E402
 from koopbridge.adapters.gym_sim import GymError, GymSimulator  # noqa: E402
 from koopbridge.testing import check_adapter, sample_inputs  # noqa: E402
@@ -248,3 +252,28 @@ def test_command_line_serves_reports_falls_and_stops_with_the_lifeline(session_i
         log = child.output()
     assert "InvertedPendulum-v5: episode terminated at step" in log and "stepping goes on" in log, log
     assert "stopped after 30 steps" in log and "'terminations': 1" in log, log
+
+
+def test_scenario_outside_the_repository_runs_with_a_tiny_budget(tmp_path):
+    """scenarios/gym-inverted-pendulum.toml copied outside the repository (no .venv beside it):
+    `{python}` still resolves to a Python with koopbridge and says which; the run collects from
+    the Gymnasium adapter, trains, controls and reports the environment's state names."""
+    exe = koopbridge_binary_or_skip()
+    text = (ROOT / "scenarios" / "gym-inverted-pendulum.toml").read_text()
+    for key, value in (("train_windows", 64), ("val_windows", 16), ("test_windows", 16)):
+        text = re.sub(rf"^{key} = \d+", f"{key} = {value}", text, count=1, flags=re.M)
+    text = text.replace("steps = 300", "steps = 20").replace("iterations = 3000, validate_every = 500", "iterations = 40, validate_every = 20")
+    sc = tmp_path / "elsewhere" / "gym.toml"
+    sc.parent.mkdir()
+    sc.write_text(text)
+    out = tmp_path / "out"
+    env = {k: v for k, v in os.environ.items() if k != "KOOPBRIDGE_PYTHON"}
+    if not any((d / ".venv" / "bin" / "python").is_file() for d in exe.resolve().parents):
+        env["KOOPBRIDGE_PYTHON"] = sys.executable  # a binary installed elsewhere: name the Python
+    r = subprocess.run([str(exe), "run", str(sc), "--out", str(out)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert re.search(r"koopbridge: \{python\} is \S+ \((the venv of \S+, where this koopbridge was built|KOOPBRIDGE_PYTHON)\)", r.stderr), r.stderr[-2000:]
+    report = json.loads((out / "report.json").read_text())
+    c = report["control"]
+    assert c["state_names"] == ["slider", "hinge", "slider_vel", "hinge_vel"] and c["input_names"] == ["slide"]
+    assert c["dt"] == pytest.approx(0.04) and len(c["x"]) == 21 and np.all(np.isfinite(c["x"]))
