@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 
 use super::commands::Placeholders;
 use super::control::{control_phase, ControlPhase};
-use super::run::{train_model, TrainReport};
+use super::train::{train_model, TrainReport};
 use super::{Cluster, ControlReport, Event, RunOptions, SERVICES_ID};
 use crate::client::SimClient;
 use crate::error::{Error, Result};

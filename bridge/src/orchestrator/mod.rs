@@ -14,6 +14,7 @@
 //! - [`aggregate`]: on-policy aggregation rounds (`--aggregate`);
 //! - [`validate`]: the whole scenario checked against the simulators' `info` before collection;
 //! - [`reuse`]: a rerun into the same folder reuses unchanged data and models;
+//! - [`train`]: one simulator's model trained through the trainer service ([`TrainReport`]);
 //! - [`run`]: the whole scenario ([`run_scenario`]) and its report.
 
 pub mod aggregate;
@@ -28,6 +29,7 @@ pub mod program;
 pub mod reference;
 pub mod reuse;
 pub mod run;
+pub mod train;
 pub mod validate;
 
 use std::path::PathBuf;
@@ -40,7 +42,8 @@ pub use cluster::Cluster;
 pub use control_loop::{control_loop, LoopReport};
 pub use position_loop::PositionLoop;
 pub use reference::Reference;
-pub use run::{run_scenario, run_scenario_with, CollectReport, Report, RunExtras, TrainReport};
+pub use run::{run_scenario, run_scenario_with, CollectReport, Report, RunExtras};
+pub use train::TrainReport;
 
 /// Id of the services process started by the orchestrator.
 pub const SERVICES_ID: &str = "main";

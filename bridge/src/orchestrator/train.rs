@@ -1,0 +1,85 @@
+//! Training one simulator's model through the trainer service for a run — the first model and
+//! each aggregation round's — and the report of it.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use super::{Cluster, Event, RunOptions, SERVICES_ID};
+use crate::error::{Error, ErrorCode, Result};
+use crate::keyexpr::Role;
+use crate::scenario::Scenario;
+use crate::services::trainer::{submit_and_wait_watching, DatasetRef, JobSpec};
+
+/// Training result of one simulator's model.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct TrainReport {
+    /// Simulator id.
+    pub sim: String,
+    /// Model name in the store.
+    pub model: String,
+    /// Trainer job id.
+    pub job: String,
+    /// Metrics reported by the trainer.
+    pub metrics: serde_json::Value,
+    /// True when this run reused the model a previous run trained into the same folder from
+    /// the same data and `[train]` section.
+    #[serde(default)]
+    pub reused: bool,
+}
+
+/// Trains model `model` of simulator `sim` through the trainer service on the training windows
+/// in file `train` (validation and test: the collected `val.npz`/`test.npz` of `sim`), with the
+/// scenario's `[train]` settings.
+pub fn train_model(
+    sc: &Scenario,
+    opts: &RunOptions,
+    cluster: &Cluster,
+    sim: &str,
+    model: &str,
+    train: &Path,
+    on: &mut dyn FnMut(Event<'_>),
+) -> Result<TrainReport> {
+    let t = sc
+        .train
+        .as_ref()
+        .ok_or_else(|| Error::Config("no [train]".into()))?;
+    let dir = opts.out_dir.join("data").join(sim);
+    let abs = |p: PathBuf| -> DatasetRef {
+        DatasetRef::Path {
+            path: std::fs::canonicalize(&p).unwrap_or(p),
+        }
+    };
+    let spec = JobSpec {
+        model: model.to_string(),
+        train: abs(train.to_path_buf()),
+        val: abs(dir.join("val.npz")),
+        test: (sc.collect.test_windows > 0).then(|| abs(dir.join("test.npz"))),
+        config: t.config.clone(),
+    };
+    // The simulators are needed again after training: a lost one ends the run now.
+    let sims: Vec<(Role, String)> = sc.sims.iter().map(|s| (Role::Sim, s.id.clone())).collect();
+    let (client, live) = (&cluster.client, &cluster.live);
+    let rec = submit_and_wait_watching(client, live, SERVICES_ID, &spec, &sims, &mut |p| {
+        on(Event::Train(p))
+    })
+    .map_err(|e| match e {
+        // A trainer started separately (--attach-existing) reads only its own data root.
+        Error::Remote { who, mut reply } if reply.code == ErrorCode::Forbidden => {
+            reply.message.push_str(&format!(
+                "; a trainer started separately needs a --data-root that holds this run's \
+                 data folder {}",
+                opts.out_dir.join("data").display()
+            ));
+            Error::Remote { who, reply }
+        }
+        e => e,
+    })?;
+    Ok(TrainReport {
+        sim: sim.to_string(),
+        model: model.to_string(),
+        job: rec.job,
+        metrics: rec.metrics.unwrap_or_default(),
+        reused: false,
+    })
+}
