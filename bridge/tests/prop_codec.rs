@@ -3,8 +3,8 @@
 //! and never panics, and decode ∘ encode is the identity (bit for bit, NaNs included).
 
 use bridge::codec::{
-    CommandMsg, SolveReply, SolveRequest, SolveStatus, StateMsg, StepReply, StepRequest, MAGIC,
-    PROTOCOL_VERSION,
+    CommandMsg, SolveReply, SolveRequest, SolveStatus, StateMsg, StepReply, StepRequest,
+    StepStatus, MAGIC, PROTOCOL_VERSION,
 };
 use bridge::{Error, ErrorCode};
 use proptest::prelude::*;
@@ -45,8 +45,19 @@ fn vec_f64() -> impl Strategy<Value = Vec<f64>> {
 fn encoded() -> impl Strategy<Value = Vec<u8>> {
     prop_oneof![
         (any::<u64>(), vec_f64()).prop_map(|(k, u)| StepRequest { k, u }.encode()),
-        (any::<u64>(), any::<f64>(), vec_f64())
-            .prop_map(|(k, t, x)| StepReply { k, t, x }.encode()),
+        (
+            any::<u64>(),
+            any::<f64>(),
+            vec_f64(),
+            0..=StepStatus::KNOWN_BITS
+        )
+            .prop_map(|(k, t, x, s)| StepReply {
+                k,
+                t,
+                x,
+                status: StepStatus::from_bits(s).unwrap_or_default()
+            }
+            .encode()),
         (
             any::<u64>(),
             any::<u64>(),
@@ -137,11 +148,16 @@ proptest! {
     }
 
     #[test]
-    fn step_messages_round_trip(k in any::<u64>(), t in any::<f64>(), u in vec_f64()) {
+    fn step_messages_round_trip(k in any::<u64>(), t in any::<f64>(), u in vec_f64(),
+                                s in 0..=StepStatus::KNOWN_BITS) {
         let r = StepRequest::decode(&StepRequest { k, u: u.clone() }.encode()).unwrap();
         prop_assert_eq!((r.k, bits(&r.u)), (k, bits(&u)));
-        let r = StepReply::decode(&StepReply { k, t, x: u.clone() }.encode()).unwrap();
+        let status = StepStatus::from_bits(s).unwrap();
+        let b = StepReply { k, t, x: u.clone(), status }.encode();
+        prop_assert_eq!(b[3], if s == 0 { 0x02 } else { 0x09 });
+        let r = StepReply::decode(&b).unwrap();
         prop_assert_eq!((r.k, r.t.to_bits(), bits(&r.x)), (k, t.to_bits(), bits(&u)));
+        prop_assert_eq!(r.status, status);
     }
 
     #[test]

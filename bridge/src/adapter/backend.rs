@@ -4,6 +4,7 @@
 
 use koopman::rng::Rng;
 
+use crate::codec::StepStatus;
 use crate::error::{ErrorCode, ErrorReply};
 use crate::messages::{ResetRequest, SimInfo};
 
@@ -17,6 +18,15 @@ pub trait SimBackend {
     fn reset(&mut self, req: &ResetRequest) -> std::result::Result<Vec<f64>, SimError>;
     /// Applies `u` (`nu` values, held over one `dt`) and returns the next state.
     fn step(&mut self, u: &[f64]) -> std::result::Result<Vec<f64>, SimError>;
+    /// [`Self::step`] and what the simulator says about that step (an episode end, a clipped
+    /// input), sent in the lockstep step reply (PROTOCOL.md §4, `0x09`). Default: `step` with
+    /// an empty status; a backend with something to report overrides it.
+    fn step_reporting(
+        &mut self,
+        u: &[f64],
+    ) -> std::result::Result<(Vec<f64>, StepStatus), SimError> {
+        Ok((self.step(u)?, StepStatus::EMPTY))
+    }
     /// Runs the windows of a checked `collect` request in-process and returns them (the
     /// adapter checks their sizes and values). Default: [`run_windows`], reset and step one
     /// window after the other; a backend with a faster path (or its own generator, as the

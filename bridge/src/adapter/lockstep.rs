@@ -4,7 +4,7 @@
 
 use std::collections::VecDeque;
 
-use crate::codec::{StepReply, StepRequest, PROTOCOL_VERSION};
+use crate::codec::{StepReply, StepRequest, StepStatus, PROTOCOL_VERSION};
 use crate::error::{Error, ErrorCode, ErrorReply, Result};
 use crate::keyexpr::SimLeaf;
 use crate::messages::{AdapterStats, CollectRequest, InfoReply, ResetRequest, SimInfo};
@@ -159,7 +159,13 @@ impl<'a> Lockstep<'a> {
                     })?
                 };
                 let x = self.reset(&req)?;
-                Ok(StepReply { k: 0, t: 0.0, x }.encode())
+                Ok(StepReply {
+                    k: 0,
+                    t: 0.0,
+                    x,
+                    status: StepStatus::EMPTY,
+                }
+                .encode())
             }
             SimLeaf::Step => {
                 self.lockstep_only("step")?;
@@ -214,11 +220,12 @@ impl<'a> Lockstep<'a> {
                 ),
             ));
         }
-        let x = self.step(&req.u)?;
+        let (x, status) = self.step_reporting(&req.u)?;
         let reply = StepReply {
             k: self.k,
             t: self.k as f64 * self.info.dt,
             x,
+            status,
         }
         .encode();
         self.cache.push_back(Cached {
@@ -279,10 +286,26 @@ impl<'a> Lockstep<'a> {
     /// Steps the backend with `u` (already checked) and returns the next state; `k` advances.
     pub fn step(&mut self, u: &[f64]) -> std::result::Result<Vec<f64>, ErrorReply> {
         let x = self.backend.step(u).map_err(|e| e.reply())?;
-        self.check_state(&x)?;
+        self.advanced(&x)?;
+        Ok(x)
+    }
+
+    /// [`Self::step`] with the status the backend reports for the step (the lockstep reply's).
+    fn step_reporting(
+        &mut self,
+        u: &[f64],
+    ) -> std::result::Result<(Vec<f64>, StepStatus), ErrorReply> {
+        let (x, status) = self.backend.step_reporting(u).map_err(|e| e.reply())?;
+        self.advanced(&x)?;
+        Ok((x, status))
+    }
+
+    /// Checks the state a step returned and counts the step (`k` advances).
+    fn advanced(&mut self, x: &[f64]) -> std::result::Result<(), ErrorReply> {
+        self.check_state(x)?;
         self.k += 1;
         self.stats.steps += 1;
-        Ok(x)
+        Ok(())
     }
 
     fn check_state(&self, x: &[f64]) -> std::result::Result<(), ErrorReply> {
@@ -311,8 +334,9 @@ pub(crate) mod tests {
     use super::*;
     use crate::adapter::backend::SimError;
 
-    /// `x_{k+1} = x_k + u_k` (two states, one input in ±2) that counts its steps and fails
-    /// (returns a non-finite state) when `u` is exactly 1.5.
+    /// `x_{k+1} = x_k + u_k` (two states, one input in ±2) that counts its steps, fails
+    /// (returns a non-finite state) when `u` is exactly 1.5 and reports `terminated` when it is
+    /// exactly -1.25.
     #[derive(Default)]
     pub(crate) struct Counter {
         pub(crate) x: Vec<f64>,
@@ -350,6 +374,13 @@ pub(crate) mod tests {
             }
             self.x = vec![self.x[0] + u[0], self.x[1]];
             Ok(self.x.clone())
+        }
+        fn step_reporting(
+            &mut self,
+            u: &[f64],
+        ) -> std::result::Result<(Vec<f64>, StepStatus), SimError> {
+            let ended = StepStatus::new(u[0] == -1.25, false, false);
+            Ok((self.step(u)?, ended))
         }
     }
 
@@ -406,6 +437,29 @@ pub(crate) mod tests {
         assert_eq!((s.k(), s.stats().steps, s.stats().errors), (2, 2, 3));
         drop(s);
         assert_eq!(b.steps, 2, "the backend stepped once per k");
+    }
+
+    #[test]
+    fn the_backends_step_status_travels_in_the_reply_and_its_cached_retry() {
+        let mut b = Counter::default();
+        let mut s = Lockstep::new(&mut b, "c", 4).unwrap();
+        let reset = s.answer(SimLeaf::Reset, b"").unwrap();
+        assert_eq!(
+            (reset[3], StepReply::decode(&reset).unwrap().status),
+            (0x02, StepStatus::EMPTY)
+        );
+        let ended = step(&mut s, 0, &[-1.25]).unwrap();
+        let r = StepReply::decode(&ended).unwrap();
+        assert_eq!((ended[3], r.k, r.status), (0x09, 1, StepStatus::TERMINATED));
+        assert_eq!(
+            step(&mut s, 0, &[-1.25]).unwrap(),
+            ended,
+            "the retry: the same status"
+        );
+        let r = StepReply::decode(&step(&mut s, 1, &[1.0]).unwrap()).unwrap();
+        assert_eq!((r.x, r.status), (vec![-0.25, 10.0], StepStatus::EMPTY));
+        drop(s);
+        assert_eq!(b.steps, 2);
     }
 
     #[test]

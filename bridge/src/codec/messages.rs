@@ -25,24 +25,61 @@ impl StepRequest {
 }
 
 impl StepReply {
-    /// Encodes: header, `k: u64`, `t: f64`, `n: u32`, `x: n × f64`.
+    /// Encodes: header, `k: u64`, `t: f64`, `n: u32`, `x: n × f64` (type `0x02`); with a
+    /// non-empty status, type `0x09` and then `status: u8`.
     pub fn encode(&self) -> Vec<u8> {
-        let mut w = Writer::new(MsgType::StepReply, 20 + 8 * self.x.len());
+        let t = if self.status.is_empty() {
+            MsgType::StepReply
+        } else {
+            MsgType::StepReplyStatus
+        };
+        let mut w = Writer::new(t, 21 + 8 * self.x.len());
         w.u64(self.k);
         w.f64(self.t);
         w.vec(&self.x);
+        if t == MsgType::StepReplyStatus {
+            w.u8(self.status.bits());
+        }
         w.0
     }
-    /// Decodes and checks the whole payload.
+    /// Decodes and checks the whole payload (either type; a `0x09` reply must carry a
+    /// non-empty status of known bits).
     pub fn decode(b: &[u8]) -> Result<Self> {
-        let mut r = Reader::new(b, MsgType::StepReply, "step reply")?;
-        let m = StepReply {
-            k: r.u64()?,
-            t: r.f64()?,
-            x: r.vec()?,
+        let what = "step reply";
+        let with_status = b.len() >= 4 && b[3] == MsgType::StepReplyStatus as u8;
+        let t = if with_status {
+            MsgType::StepReplyStatus
+        } else {
+            MsgType::StepReply
+        };
+        let mut r = Reader::new(b, t, what)?;
+        let (k, t, x) = (r.u64()?, r.f64()?, r.vec()?);
+        let status = if with_status {
+            let s = r.u8()?;
+            match StepStatus::from_bits(s) {
+                Some(st) if !st.is_empty() => st,
+                Some(_) => {
+                    return Err(bad(
+                        what,
+                        "type 0x09 (with a status) but the status is empty (send type 0x02)",
+                    ))
+                }
+                None => {
+                    return Err(bad(
+                        what,
+                        format!(
+                            "status 0x{s:02x} has bits this participant does not know (known: \
+                             0x{:02x})",
+                            StepStatus::KNOWN_BITS
+                        ),
+                    ))
+                }
+            }
+        } else {
+            StepStatus::EMPTY
         };
         r.finish()?;
-        Ok(m)
+        Ok(StepReply { k, t, x, status })
     }
 }
 

@@ -29,6 +29,9 @@ pub enum MsgType {
     /// [`SolveRequest`] with a feed-forward (its own type, so that no prefix of it is a valid
     /// request without one).
     SolveRequestFeedforward = 0x08,
+    /// [`StepReply`] with a non-empty [`StepStatus`] (its own type, so that a peer that knows
+    /// only `0x02` refuses it by its type instead of misreading it).
+    StepReplyStatus = 0x09,
 }
 
 /// `step` query: apply `u` at step `k` (`u_k` held over `[t_k, t_k + dt)`).
@@ -49,6 +52,82 @@ pub struct StepReply {
     pub t: f64,
     /// The state `x_{k+1}`, `nx` values.
     pub x: Vec<f64>,
+    /// What the simulator says about this step (an episode end, a clipped input); empty for a
+    /// `reset` reply and for simulators that report nothing. On the wire a reply with a
+    /// non-empty status has type `0x09` and a `u8` after `x`; one without it is the original
+    /// `0x02` layout.
+    pub status: StepStatus,
+}
+
+/// The status a simulator reports with a step: a set of flags (PROTOCOL.md §4, `0x09`). The
+/// simulator keeps stepping whatever it says; what to do about it is the caller's choice.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct StepStatus(u8);
+
+impl StepStatus {
+    /// No flag: the plain step reply.
+    pub const EMPTY: StepStatus = StepStatus(0);
+    /// Bit 0: the simulator's task says the episode has ended at this state (a fall, a
+    /// Gymnasium `terminated`). Set on every step while it holds.
+    pub const TERMINATED: StepStatus = StepStatus(1);
+    /// Bit 1: the episode was cut by a limit outside the task (a Gymnasium time limit,
+    /// `truncated`).
+    pub const TRUNCATED: StepStatus = StepStatus(2);
+    /// Bit 2: the simulator clipped the input of this step into its bounds before applying it.
+    pub const CLIPPED: StepStatus = StepStatus(4);
+    /// Every bit this protocol version defines; the others must be 0.
+    pub const KNOWN_BITS: u8 = 0b111;
+
+    /// The status with exactly the given flags.
+    pub fn new(terminated: bool, truncated: bool, clipped: bool) -> Self {
+        StepStatus(u8::from(terminated) | u8::from(truncated) << 1 | u8::from(clipped) << 2)
+    }
+    /// The status of the wire byte `b`; `None` when a bit outside [`Self::KNOWN_BITS`] is set.
+    pub fn from_bits(b: u8) -> Option<Self> {
+        (b & !Self::KNOWN_BITS == 0).then_some(StepStatus(b))
+    }
+    /// The wire byte.
+    pub fn bits(self) -> u8 {
+        self.0
+    }
+    /// No flag set.
+    pub fn is_empty(self) -> bool {
+        self.0 == 0
+    }
+    /// Every flag of `other` is set in `self`.
+    pub fn contains(self, other: StepStatus) -> bool {
+        self.0 & other.0 == other.0
+    }
+    /// The episode has ended at this state ([`Self::TERMINATED`]).
+    pub fn terminated(self) -> bool {
+        self.contains(Self::TERMINATED)
+    }
+    /// The episode was cut by a limit ([`Self::TRUNCATED`]).
+    pub fn truncated(self) -> bool {
+        self.contains(Self::TRUNCATED)
+    }
+    /// The input was clipped ([`Self::CLIPPED`]).
+    pub fn clipped(self) -> bool {
+        self.contains(Self::CLIPPED)
+    }
+    /// The names of the set flags (`terminated`, `truncated`, `clipped`), in bit order.
+    pub fn names(self) -> Vec<&'static str> {
+        [
+            (self.terminated(), "terminated"),
+            (self.truncated(), "truncated"),
+            (self.clipped(), "clipped"),
+        ]
+        .into_iter()
+        .filter_map(|(on, n)| on.then_some(n))
+        .collect()
+    }
+}
+
+impl std::ops::BitOr for StepStatus {
+    type Output = StepStatus;
+    fn bitor(self, rhs: StepStatus) -> StepStatus {
+        StepStatus(self.0 | rhs.0)
+    }
 }
 
 /// Free-run `state` publication.

@@ -29,6 +29,7 @@ fn golden_step_reply() {
         k: 4,
         t: 0.02,
         x: vec![1.5, -2.0],
+        status: StepStatus::EMPTY,
     };
     assert_eq!(
         hex(&m.encode()),
@@ -40,6 +41,117 @@ fn golden_step_reply() {
          00000000000000c0"
     );
     assert_eq!(StepReply::decode(&m.encode()).unwrap(), m);
+}
+
+#[test]
+fn golden_step_reply_with_status() {
+    // terminated | clipped = 0b101: type 0x09, the 0x02 body, then the status byte.
+    let m = StepReply {
+        k: 4,
+        t: 0.02,
+        x: vec![1.5, -2.0],
+        status: StepStatus::TERMINATED | StepStatus::CLIPPED,
+    };
+    let b = m.encode();
+    assert_eq!(
+        hex(&b),
+        "4b420109\
+         0400000000000000\
+         7b14ae47e17a943f\
+         02000000\
+         000000000000f83f\
+         00000000000000c0\
+         05"
+    );
+    let r = StepReply::decode(&b).unwrap();
+    assert_eq!(r, m);
+    assert!(r.status.terminated() && !r.status.truncated() && r.status.clipped());
+    assert_eq!(r.status.names(), ["terminated", "clipped"]);
+    // Every flag alone and together round-trips, each through its own byte.
+    for bits in 1..=StepStatus::KNOWN_BITS {
+        let status = StepStatus::from_bits(bits).unwrap();
+        let m = StepReply {
+            status,
+            ..m.clone()
+        };
+        let b = m.encode();
+        assert_eq!((b[3], b[b.len() - 1]), (0x09, bits));
+        assert_eq!(StepReply::decode(&b).unwrap(), m);
+    }
+    assert_eq!(
+        StepStatus::new(true, true, true).bits(),
+        StepStatus::KNOWN_BITS
+    );
+    assert_eq!(StepStatus::new(false, true, false), StepStatus::TRUNCATED);
+}
+
+#[test]
+fn step_reply_status_is_refused_typed_when_malformed() {
+    let code = |b: &[u8]| match StepReply::decode(b) {
+        Err(Error::Protocol { code, .. }) => code,
+        other => panic!("expected a protocol error, got {other:?}"),
+    };
+    let with = StepReply {
+        k: 9,
+        t: 0.5,
+        x: vec![1.5],
+        status: StepStatus::TRUNCATED,
+    }
+    .encode();
+    let plain = StepReply {
+        status: StepStatus::EMPTY,
+        ..StepReply::decode(&with).unwrap()
+    }
+    .encode();
+    // No prefix of a 0x09 reply decodes, in particular not the one without its status byte.
+    for n in 0..with.len() {
+        assert_eq!(code(&with[..n]), ErrorCode::BadRequest, "{n}-byte prefix");
+    }
+    // A 0x09 reply with an empty status (one encoding per reply) or unknown bits: bad_request.
+    for s in [0u8, 0x08, 0x80, 0xff] {
+        let mut b = with.clone();
+        *b.last_mut().unwrap() = s;
+        assert_eq!(code(&b), ErrorCode::BadRequest, "status byte 0x{s:02x}");
+    }
+    assert_eq!(StepStatus::from_bits(0x08), None);
+    // A 0x02 reply followed by a status byte is trailing bytes, not a status.
+    let mut b = plain.clone();
+    b.push(1);
+    assert_eq!(code(&b), ErrorCode::BadRequest);
+    let mut b = with.clone();
+    b.push(0);
+    assert_eq!(code(&b), ErrorCode::BadRequest);
+    // Another version of either layout is version_mismatch, named.
+    for m in [&plain, &with] {
+        let mut b = m.clone();
+        b[2] = 2;
+        match StepReply::decode(&b) {
+            Err(Error::Protocol { code, message }) => {
+                assert_eq!(code, ErrorCode::VersionMismatch);
+                assert!(message.contains("protocol version 2"), "{message}");
+            }
+            other => panic!("expected version_mismatch, got {other:?}"),
+        }
+    }
+    // Fuzz-style: every single-byte change of the 0x09 reply decodes or is refused typed
+    // (never a panic), and one that decodes re-encodes to the same bytes.
+    for i in 0..with.len() {
+        for v in [0x01u8, 0x02, 0x08, 0x80, 0xff] {
+            let mut b = with.clone();
+            b[i] ^= v;
+            match StepReply::decode(&b) {
+                Ok(r) => assert_eq!(r.encode(), b, "byte {i} ^ 0x{v:02x}"),
+                Err(Error::Protocol { code, .. }) => assert!(
+                    matches!(
+                        code,
+                        ErrorCode::BadRequest | ErrorCode::VersionMismatch | ErrorCode::TooLarge
+                    ),
+                    "byte {i} ^ 0x{v:02x}: {code:?}"
+                ),
+                Err(other) => panic!("byte {i} ^ 0x{v:02x}: untyped {other:?}"),
+            }
+        }
+    }
 }
 
 #[test]
