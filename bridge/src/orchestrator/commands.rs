@@ -12,7 +12,9 @@ use crate::scenario::{CommandLine, HookPhase, HookSpec};
 /// The values of the placeholders of a run.
 #[derive(Clone, Debug)]
 pub struct Placeholders {
-    /// `{python}`: the repository's `.venv/bin/python`, else `python3`.
+    /// `{python}`: the Python with koopbridge installed, chosen by `program::python_for`: the
+    /// repository's `.venv`, then `KOOPBRIDGE_PYTHON`, then the venv above the binary, then
+    /// `python3`.
     pub python: PathBuf,
     /// `{out}`: the run's output folder (absolute).
     pub out: PathBuf,
