@@ -13,6 +13,7 @@ use bridge::adapter::{
     AdapterOptions, AdapterStats, CollectPlan, FreeRunOptions, ResetRequest, SimBackend, SimError,
     SimInfo, Windows,
 };
+use bridge::codec::StepStatus;
 use bridge::session::open_session;
 use bridge::zenoh::Wait;
 use pyo3::exceptions::{PyNotImplementedError, PyRuntimeError, PyValueError};
@@ -33,6 +34,15 @@ use crate::zenoh_args::zenoh_options;
 ///   ``seed`` asks for a random initial state, ``x0`` for a given one, neither for the default;
 /// - ``step(self, u) -> array`` applying ``u`` (``nu`` values, held over one ``dt``) and
 ///   returning the next state.
+///
+/// Optionally ``step_status()``, called right after every lockstep ``step`` that returned,
+/// returning ``None`` (nothing to report) or a dict of flags for that step, each optional
+/// (absent = ``False``): ``terminated`` (the task says the episode has ended at this state: a
+/// fall, a Gymnasium termination), ``truncated`` (a time limit cut it), ``clipped`` (the input
+/// was clipped into the bounds). They travel in the step reply (PROTOCOL.md §4, type ``0x09``;
+/// ``Client.step(id, u, with_status=True)`` returns them) and never stop serving. Another key
+/// or an exception there is a ``sim_failure`` reply for that step. Without the method every
+/// reply is the plain one, as before.
 ///
 /// Optionally ``collect(policy, seed, n_windows, T, start)`` returning an object with arrays
 /// ``x`` ``(n_windows, T+1, nx)`` and ``u`` ``(n_windows, T, nu)`` (``koopbridge.collect.Windows``;
@@ -175,6 +185,7 @@ impl Adapter {
         let backend = PyBackend {
             obj: slf.clone().into_any().unbind(),
             info,
+            has_status: slf.hasattr(pyo3::intern!(py, "step_status"))?,
         };
         let (tx, rx) = mpsc::channel();
         // A Mutex makes the receiver Sync, as waiting with the GIL released requires.
@@ -274,6 +285,8 @@ impl Adapter {
 struct PyBackend {
     obj: Py<PyAny>,
     info: SimInfo,
+    /// The object has a `step_status()` method (read once, when serving starts).
+    has_status: bool,
 }
 
 impl SimBackend for PyBackend {
@@ -311,6 +324,30 @@ impl SimBackend for PyBackend {
         })
     }
 
+    fn step_reporting(&mut self, u: &[f64]) -> Result<(Vec<f64>, StepStatus), SimError> {
+        if !self.has_status {
+            return Ok((self.step(u)?, StepStatus::EMPTY));
+        }
+        // One GIL take for the step and its status.
+        Python::attach(|py| {
+            let x = (|| -> PyResult<Vec<f64>> {
+                let x = self
+                    .obj
+                    .bind(py)
+                    .call_method1(pyo3::intern!(py, "step"), (array1(py, u),))?;
+                vec_f64(&x, "the state returned by step()")
+            })()
+            .map_err(|e| sim_error(py, e, "step"))?;
+            let status = self
+                .obj
+                .bind(py)
+                .call_method0(pyo3::intern!(py, "step_status"))
+                .and_then(|s| step_status(&s))
+                .map_err(|e| sim_error(py, e, "step_status"))?;
+            Ok((x, status))
+        })
+    }
+
     fn collect(&mut self, plan: &CollectPlan) -> Result<Windows, SimError> {
         let own = Python::attach(|py| {
             self.python_collect(py, plan)
@@ -339,6 +376,41 @@ impl PyBackend {
             })
         })())
     }
+}
+
+/// The flags `step_status()` returned: `None`, or a dict whose keys are among `terminated`,
+/// `truncated` and `clipped` (values read as booleans).
+fn step_status(obj: &Bound<'_, PyAny>) -> PyResult<StepStatus> {
+    if obj.is_none() {
+        return Ok(StepStatus::EMPTY);
+    }
+    let d = obj.cast::<PyDict>().map_err(|_| {
+        PyValueError::new_err(format!(
+            "step_status() must return None or a dict, got {}",
+            obj.get_type()
+                .name()
+                .map(|n| n.to_string())
+                .unwrap_or_default()
+        ))
+    })?;
+    let mut status = StepStatus::EMPTY;
+    for (k, v) in d.iter() {
+        let flag = match k.extract::<String>().as_deref() {
+            Ok("terminated") => StepStatus::TERMINATED,
+            Ok("truncated") => StepStatus::TRUNCATED,
+            Ok("clipped") => StepStatus::CLIPPED,
+            _ => {
+                return Err(PyValueError::new_err(format!(
+                    "step_status(): unknown key {} (the flags are terminated, truncated, clipped)",
+                    k.repr()?
+                )))
+            }
+        };
+        if v.is_truthy()? {
+            status = status | flag;
+        }
+    }
+    Ok(status)
 }
 
 /// The float64 values of array `obj`, which must have `shape`.

@@ -7,7 +7,7 @@ use std::sync::Mutex;
 use std::time::Duration;
 
 use bridge::client::{Client as Inner, Liveliness, SimClient};
-use bridge::codec::{SolveReply, SolveRequest, SolveStatus, StepReply, StepRequest};
+use bridge::codec::{SolveReply, SolveRequest, SolveStatus, StepReply, StepRequest, StepStatus};
 use bridge::collect::blocks::collect_block;
 use bridge::keyexpr::{Keys, SimLeaf};
 use bridge::messages::{CollectRequest, ResetRequest};
@@ -16,7 +16,7 @@ use bridge::zenoh::Wait;
 use numpy::{PyArray1, PyArray3, PyArrayMethods};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::{PyBytes, PyDict};
+use pyo3::types::{PyBytes, PyDict, PyTuple};
 
 use crate::control;
 use crate::convert::{array1, array2, check_finite, from_py_json, rows_f64, to_py_json, vec_f64};
@@ -101,27 +101,32 @@ impl Client {
     }
 
     /// One lockstep step of simulator ``id`` with input ``u``: returns ``(k, t, x)``, the new
-    /// step index, its time and state. A timed-out request is re-sent (answered from the
-    /// adapter's cache, never stepped twice); a simulator whose liveliness token disappears
-    /// raises ``GoneError`` naming it.
+    /// step index, its time and state; with ``with_status=True``, ``(k, t, x, status)`` where
+    /// ``status`` is the dict of the step's flags (``terminated``, ``truncated``, ``clipped``:
+    /// booleans, all ``False`` when the simulator reported none; PROTOCOL.md §4). A timed-out
+    /// request is re-sent (answered from the adapter's cache, never stepped twice); a simulator
+    /// whose liveliness token disappears raises ``GoneError`` naming it.
+    #[pyo3(signature = (id, u, *, with_status=false))]
     fn step<'py>(
         &self,
         py: Python<'py>,
         id: &str,
         u: &Bound<'py, PyAny>,
-    ) -> PyResult<(u64, f64, Bound<'py, PyArray1<f64>>)> {
+        with_status: bool,
+    ) -> PyResult<Bound<'py, PyTuple>> {
         let u = vec_f64(u, "u")?;
         let live = &self.live;
         let r: StepReply = self.with_sim(py, id, |s| s.step(&u, Some(live)))?;
-        Ok((r.k, r.t, array1(py, &r.x)))
+        step_tuple(py, &r, with_status)
     }
 
     /// Sends one step request for an explicit step index ``k`` of simulator ``id`` (connected
-    /// first with ``connect_sim``) and returns the reply's ``(k, t, x)`` without retries and
+    /// first with ``connect_sim``) and returns the reply's ``(k, t, x)`` (with
+    /// ``with_status=True``: ``(k, t, x, status)``, as ``step``) without retries and
     /// without moving this client's own step index. For checking lockstep semantics: a ``k``
     /// already taken with the same ``u`` is answered from the adapter's cache (the simulator is
     /// not stepped again); with another ``u`` it is a ``conflict`` error reply.
-    #[pyo3(signature = (id, k, u, timeout=10.0))]
+    #[pyo3(signature = (id, k, u, timeout=10.0, *, with_status=false))]
     fn step_at<'py>(
         &self,
         py: Python<'py>,
@@ -129,7 +134,8 @@ impl Client {
         k: u64,
         u: &Bound<'py, PyAny>,
         timeout: f64,
-    ) -> PyResult<(u64, f64, Bound<'py, PyArray1<f64>>)> {
+        with_status: bool,
+    ) -> PyResult<Bound<'py, PyTuple>> {
         let body = StepRequest {
             k,
             u: vec_f64(u, "u")?,
@@ -142,7 +148,7 @@ impl Client {
             .detach(|| self.inner.query(&key, body, t, &who))
             .map_err(bridge_err)?;
         let r = StepReply::decode(&bytes).map_err(bridge_err)?;
-        Ok((r.k, r.t, array1(py, &r.x)))
+        step_tuple(py, &r, with_status)
     }
 
     /// Asks simulator ``id`` for block ``block`` of a collection of windows it runs in its own
@@ -553,4 +559,31 @@ fn secs(t: f64) -> PyResult<Duration> {
 
 fn poisoned<T>(_: T) -> PyErr {
     PyRuntimeError::new_err("client state poisoned by an earlier panic")
+}
+
+/// A step reply as Python gets it: `(k, t, x)`, or `(k, t, x, status)` with `with_status`.
+fn step_tuple<'py>(
+    py: Python<'py>,
+    r: &StepReply,
+    with_status: bool,
+) -> PyResult<Bound<'py, PyTuple>> {
+    let (k, t, x) = (
+        r.k.into_pyobject(py)?.into_any(),
+        r.t.into_pyobject(py)?.into_any(),
+        array1(py, &r.x).into_any(),
+    );
+    if with_status {
+        PyTuple::new(py, [k, t, x, status_dict(py, r.status)?.into_any()])
+    } else {
+        PyTuple::new(py, [k, t, x])
+    }
+}
+
+/// A step status as the dict `{"terminated": bool, "truncated": bool, "clipped": bool}`.
+pub(crate) fn status_dict(py: Python<'_>, s: StepStatus) -> PyResult<Bound<'_, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("terminated", s.terminated())?;
+    d.set_item("truncated", s.truncated())?;
+    d.set_item("clipped", s.clipped())?;
+    Ok(d)
 }

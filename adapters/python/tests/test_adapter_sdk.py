@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import struct
 import threading
 import time
 
@@ -72,6 +73,74 @@ def test_lockstep_steps_errors_and_stop(session_id, serve_in_thread):
             np.testing.assert_array_equal(x, np.random.default_rng(5).uniform(-1, 1, 2))
     assert served.error is None, served.error
     assert served.stats["steps"] == 2 and served.stats["resets"] == 2 and served.stats["errors"] >= 3
+
+
+class Ending(Linear):
+    """Linear with a step status: it clips u to ±1 (``clipped``), ``terminated`` while
+    |a| > 1, ``truncated`` from its third step on; ``bad`` replaces the status when set."""
+
+    def reset(self, seed=None, x0=None):
+        self.k, self.bad = 0, None
+        return super().reset(seed, x0)
+
+    def step(self, u):
+        self.clipped = bool(np.any(np.abs(u) > 1))
+        self.k += 1
+        return super().step(np.clip(u, -1, 1))
+
+    def step_status(self):
+        if self.bad is not None:
+            return self.bad
+        return {"terminated": bool(abs(self.x[0]) > 1), "truncated": self.k >= 3, "clipped": self.clipped}
+
+
+def test_step_status_reaches_the_client_in_the_step_reply(session_id, serve_in_thread):
+    sim = Ending()
+    ep = free_endpoint()
+    with serve_in_thread(sim, session=session_id, id="end", listen=[ep]) as served:
+        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+            c.connect_sim("end", timeout=10)
+            c.reset("end", x0=[0.0, 0.0])
+            flags = lambda t, tr, cl: {"terminated": t, "truncated": tr, "clipped": cl}  # noqa: E731
+            k, _, x, status = c.step("end", [0.5, 0.0], with_status=True)
+            assert (k, status) == (1, flags(False, False, False))
+            # u = 2 is clipped to 1: a = 0.25 + 1 = 1.25 > 1, terminated; the plain call still
+            # returns (k, t, x).
+            k, t, x = c.step("end", [2.0, 0.0])
+            assert k == 2 and t == pytest.approx(0.2)
+            np.testing.assert_allclose(x, [1.25, 0.0])
+            k, _, x, status = c.step("end", [0.0, 0.0], with_status=True)
+            assert (k, status) == (3, flags(False, True, False))
+            # The retried step 1 comes from the adapter's cache with its status; on the wire it
+            # is type 0x09 ending in the status byte terminated | clipped = 0x05, while step 0's
+            # reply (no flag) is the plain type 0x02.
+            assert c.step_at("end", 1, [2.0, 0.0], with_status=True)[3] == flags(True, False, True)
+            key = "sim/end/step"
+            raw = c.query(key, struct.pack("<2sBBQI2d", b"KB", 1, 1, 1, 2, 2.0, 0.0))
+            assert raw[:4] == b"KB\x01\x09" and raw[-1] == 0x05 and len(raw) == 4 + 8 + 8 + 4 + 16 + 1
+            raw = c.query(key, struct.pack("<2sBBQI2d", b"KB", 1, 1, 0, 2, 0.5, 0.0))
+            assert raw[:4] == b"KB\x01\x02" and len(raw) == 4 + 8 + 8 + 4 + 16
+            assert sim.k == 3, "cached replies did not step the simulator"
+            # A status that is not None or a dict of the known flags: sim_failure, naming it;
+            # the adapter keeps serving.
+            for bad, text in [({"fallen": True}, "unknown key 'fallen'"), (3, "must return None or a dict")]:
+                sim.bad = bad
+                with pytest.raises(koopbridge.RemoteError) as e:
+                    c.step("end", [0.0, 0.0])
+                assert e.value.code == "sim_failure" and text in str(e.value), str(e.value)
+            c.reset("end", x0=[0.0, 0.0])
+            assert c.step("end", [0.0, 0.0], with_status=True)[3] == flags(False, False, False)
+    assert served.error is None, served.error
+
+
+def test_a_simulator_without_step_status_gives_empty_flags(session_id, serve_in_thread):
+    ep = free_endpoint()
+    with serve_in_thread(Linear(), session=session_id, id="lin", listen=[ep]):
+        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+            c.connect_sim("lin", timeout=10)
+            c.reset("lin", x0=[5.0, 5.0])
+            _, _, _, status = c.step("lin", [1.0, 1.0], with_status=True)
+            assert status == {"terminated": False, "truncated": False, "clipped": False}
 
 
 def test_the_gil_is_released_while_serving(session_id, serve_in_thread):

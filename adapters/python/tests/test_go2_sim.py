@@ -13,6 +13,9 @@ import pytest
 mujoco = pytest.importorskip("mujoco")
 ort = pytest.importorskip("onnxruntime")
 
+import koopbridge  # noqa: E402
+from conftest import free_endpoint  # noqa: E402
+from koopbridge import SimulatorAdapter  # noqa: E402
 from koopbridge.adapters import go2_model as g  # noqa: E402
 from koopbridge.adapters.go2_sim import Go2Simulator  # noqa: E402
 from koopbridge.adapters.legged_collect import ExpertPolicy  # noqa: E402
@@ -200,6 +203,41 @@ def test_a_fall_is_detected_counted_and_a_reset_recovers():
     assert sim.state()[34] < 0.15
     x = sim.reset(seed=5)
     assert not sim.fallen and np.all(np.isfinite(sim.step(np.array(g.DEFAULT_POSE))))
+
+
+def _fallen_from_state(x: np.ndarray) -> bool:
+    """The fall rule of go2_model.FALL written here from the state: base height x[34] under
+    0.15 m, or a tilt over 1 rad (body z from the quaternion x[0:4]: cos tilt = 1 - 2(qx² + qy²))."""
+    w, qx, qy, qz = x[0:4] / np.linalg.norm(x[0:4])
+    return bool(x[34] < 0.15 or math.acos(max(-1.0, min(1.0, 1 - 2 * (qx * qx + qy * qy)))) > 1.0)
+
+
+def test_a_fall_arrives_in_the_step_reply_over_zenoh(session_id, serve_in_thread):
+    sim = Go2Simulator(on_fall=None)
+    info = sim.info()
+    ep = free_endpoint()
+    # Legs folded in hard, the calf targets past their limit (-0.838 rad, so clipped to it): the
+    # body drops onto the floor.
+    folded = np.array([0.0, 3.4, -0.5, 0.0, 3.4, -0.5, 0.0, 4.5, -0.5, 0.0, 4.5, -0.5])
+    outside = bool(np.any(folded > np.array(info.u_max)) or np.any(folded < np.array(info.u_min)))
+    assert outside, "the folded targets must lie outside the bounds for this test"
+    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id="go2", listen=[ep]) as served:
+        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+            c.connect_sim("go2", timeout=20)
+            c.reset("go2", seed=5)
+            replies = [c.step("go2", np.array(g.DEFAULT_POSE), with_status=True) for _ in range(5)]
+            replies += [c.step("go2", folded, with_status=True) for _ in range(50)]
+    assert served.error is None, served.error
+    terminated = [r[3]["terminated"] for r in replies]
+    # Each reply's flag is the fall rule applied to the state that reply carries.
+    assert terminated == [_fallen_from_state(r[2]) for r in replies]
+    # The robot fell while folding (not while standing), and every upright -> fallen change of
+    # the flag is one of the adapter's counted falls.
+    assert not any(terminated[:5]) and any(terminated), terminated
+    assert sim.falls == sum(b and not a for a, b in zip([False, *terminated], terminated, strict=False)) >= 1
+    assert [r[3]["clipped"] for r in replies] == [False] * 5 + [True] * 50
+    assert not any(r[3]["truncated"] for r in replies)
+    assert sim.status()["fallen"] and sim.status()["clipped_targets"] > 0
 
 
 def test_reset_to_a_recorded_state(sim):

@@ -148,16 +148,20 @@ def test_termination_is_reported_and_stepping_goes_on(session_id, serve_in_threa
             env.reset(seed=1)
             fell = None
             for _ in range(40):
-                k, _, x = c.step("p", [3.0])
+                k, _, x, status = c.step("p", [3.0], with_status=True)
                 _, _, terminated, truncated, _ = env.step(np.array([3.0]))
                 np.testing.assert_array_equal(x, raw.state_vector())
                 assert sim.status()["terminated"] == terminated and not truncated
+                # The step reply carries the separate environment's own termination flag.
+                assert status == {"terminated": terminated, "truncated": False, "clipped": False}, (k, status)
                 if terminated and fell is None:
                     fell = k
             # Gymnasium's own rule (|hinge| > 0.2) ended the episode; the adapter stepped on past it.
             assert fell is not None and fell < 40 and k == 40 and abs(x[1]) > 0.2
             assert sim.status()["terminations"] == 1 and sim.terminated
             assert ended == [f"InvertedPendulum-v5: episode terminated at step {fell} (reward 0); stepping goes on until the next reset"]
+            # An action outside the Box (±3) is clipped, and the reply says so.
+            assert c.step("p", [5.0], with_status=True)[3] == {"terminated": True, "truncated": False, "clipped": True}
             c.reset("p", seed=1)
             assert not sim.terminated and sim.status()["k"] == 0 and sim.status()["episodes"] == 2
     assert served.error is None, served.error
@@ -176,6 +180,22 @@ def test_truncation_is_reported_and_stepping_goes_on():
     assert len(ended) == 1 and "episode truncated at step 5" in ended[0]
     assert sim.info().extra["gymnasium"]["max_episode_steps"] == 5
     sim.close()
+
+
+def test_truncation_arrives_in_the_step_reply(session_id, serve_in_thread):
+    sim = GymSimulator("Reacher-v5", make_kwargs={"max_episode_steps": 3}, on_episode_end=None)
+    ep = free_endpoint()
+    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id="r", listen=[ep]) as served:
+        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+            c.connect_sim("r", timeout=20)
+            for episode in range(2):
+                c.reset("r", seed=episode)
+                got = [c.step("r", [0.05, -0.05], with_status=True)[3] for _ in range(5)]
+                # Gymnasium's TimeLimit: truncated from step 3 on; stepping goes on past it.
+                assert [s["truncated"] for s in got] == [False, False, True, True, True], got
+                assert not any(s["terminated"] or s["clipped"] for s in got), got
+    assert served.error is None, served.error
+    assert sim.status()["truncations"] == 2
 
 
 def test_bad_requests_get_typed_errors_and_serving_goes_on(session_id, serve_in_thread):

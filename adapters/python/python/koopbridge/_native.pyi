@@ -3,7 +3,7 @@
 from collections.abc import Callable, Sequence
 from os import PathLike
 from types import TracebackType
-from typing import Any, Self, TypeAlias, final
+from typing import Any, Literal, Self, TypeAlias, final, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -56,6 +56,8 @@ class Adapter:
         ...
     def reset(self, seed: int | None = None, x0: _Vector | None = None) -> _ArrayLike: ...
     def step(self, u: _Vector) -> _ArrayLike: ...
+    # Optional, looked up when serving starts (not defined here): step_status(self) -> dict[str, bool] | None,
+    # the flags terminated / truncated / clipped of the step just taken, sent in the step reply.
     def serve(
         self,
         *,
@@ -158,11 +160,22 @@ class Client:
     def session(self) -> str: ...
     def connect_sim(self, id: str, timeout: float = 10.0) -> dict[str, Any]: ...
     def reset(self, id: str, seed: int | None = None, x0: _ArrayLike | None = None) -> _Vector: ...
-    def step(self, id: str, u: _ArrayLike) -> tuple[int, float, _Vector]: ...
-    def step_at(self, id: str, k: int, u: _ArrayLike, timeout: float = 10.0) -> tuple[int, float, _Vector]:
+    @overload
+    def step(self, id: str, u: _ArrayLike, *, with_status: Literal[False] = False) -> tuple[int, float, _Vector]: ...
+    @overload
+    def step(self, id: str, u: _ArrayLike, *, with_status: Literal[True]) -> tuple[int, float, _Vector, dict[str, bool]]:
+        """With ``with_status=True`` the fourth item is the step's flags ``terminated``,
+        ``truncated``, ``clipped`` (all ``False`` when the simulator reported none)."""
+        ...
+    @overload
+    def step_at(self, id: str, k: int, u: _ArrayLike, timeout: float = 10.0, *, with_status: Literal[False] = False) -> tuple[int, float, _Vector]:
         """One step request for an explicit k, no retries; a repeated (k, u) is answered from
         the adapter's cache."""
         ...
+    @overload
+    def step_at(
+        self, id: str, k: int, u: _ArrayLike, timeout: float = 10.0, *, with_status: Literal[True]
+    ) -> tuple[int, float, _Vector, dict[str, bool]]: ...
     def collect(
         self,
         id: str,

@@ -53,6 +53,12 @@ class SimulatorAdapter(Adapter):
         u = as_input(u, self.sim_info.nu, "u")
         return np.asarray(self.sim.step(u), dtype=np.float64)
 
+    def step_status(self) -> dict[str, bool] | None:
+        """The simulator's ``step_status()`` after a step (flags of the step reply, see
+        ``Simulator``), or ``None`` when it has none."""
+        own = getattr(self.sim, "step_status", None)
+        return own() if callable(own) else None
+
     def collect(self, policy: Policy | Mapping[str, Any], seed: int, n_windows: int, T: int, start: int = 0) -> Windows:
         """Windows ``start .. start + n_windows - 1`` of the collection with ``seed`` (see
         ``koopbridge.collect``), run in this process by the simulator's own ``collect`` if it has

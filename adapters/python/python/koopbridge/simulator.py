@@ -125,8 +125,12 @@ class Simulator(Protocol):
     """A discrete-time simulator ``x_{k+1} = f(x_k, u_k)`` that koopbridge can serve.
 
     Optional members, used when present: ``close()`` (free resources; called once when serving
-    ends) and ``collect(policy, seed, n_windows, T, start=0)`` (runs whole data windows
-    in-process, see ``koopbridge.collect``). Errors: raise ``koopbridge.InvalidInput`` for a
+    ends), ``collect(policy, seed, n_windows, T, start=0)`` (runs whole data windows
+    in-process, see ``koopbridge.collect``) and ``step_status()`` (called after each served
+    ``step``: ``None`` or a dict of the step's flags ``terminated`` (the task says the episode
+    has ended: a fall, a Gymnasium termination), ``truncated`` (a time limit), ``clipped`` (the
+    input was clipped to the bounds), each optional; they reach the client in the step reply
+    and never stop serving). Errors: raise ``koopbridge.InvalidInput`` for a
     request that is wrong (``bad_request`` reply), ``koopbridge.Unsupported`` for one this
     simulator cannot honour, anything else for a failure (``sim_failure`` reply; the simulator
     must accept a fresh ``reset`` afterwards).

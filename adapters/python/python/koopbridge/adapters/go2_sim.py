@@ -61,7 +61,8 @@ class Go2Simulator:
 
     Counters: ``steps``, ``falls`` (upright → fallen transitions, over every path: lockstep and
     collect), ``clipped_targets`` (target components outside the joint limits, clipped);
-    ``fallen`` is the last step's status.
+    ``fallen`` is the last step's status. ``step_status()`` gives it to the step reply
+    (``terminated`` while fallen, ``clipped`` when the step's targets were clipped).
     """
 
     def __init__(
@@ -109,7 +110,7 @@ class Go2Simulator:
         self._memory: OrderedDict[bytes, tuple[np.ndarray, np.ndarray]] = OrderedDict()
         self.memory = int(memory)
         self.ready = False
-        self.fallen = False
+        self.fallen = self.last_clipped = False
         self.k = self.steps = self.falls = self.clipped_targets = 0
 
     # ---- description ----
@@ -141,7 +142,7 @@ class Go2Simulator:
                         kd=g.KD,
                         torque_lag_s=self.drive.tau,
                         torque_limit=lay.torque_limit.tolist(),
-                        targets=f"clipped to u_min, u_max (the joint ranges widened by {self.target_margin} rad) and counted",
+                        targets=f"clipped to u_min, u_max (the joint ranges widened by {self.target_margin} rad), counted and flagged 'clipped' in the step reply",
                     ),
                     timestep=float(self.model.opt.timestep),
                     substeps=self.substeps,
@@ -285,6 +286,7 @@ class Go2Simulator:
             raise InvalidInput("Go2: not reset yet (or reset needed after a failure)")
         targets, n = clip_targets(as_input(u, self.nu, "u"), self.u_lo, self.u_hi)
         self.clipped_targets += n
+        self.last_clipped = n > 0
         x = self.advance(targets)
         self._remember(x)
         return x
@@ -360,9 +362,14 @@ class Go2Simulator:
         return {"steps": self.steps, "falls": self.falls, "clipped_targets": self.clipped_targets}
 
     def status(self) -> dict[str, bool | int]:
-        """The last step's status (``fallen``) and the counters: what a step reply's status
-        would carry (the protocol's step reply has no status field yet)."""
+        """The last step's status (``fallen``) and the counters."""
         return {"fallen": self.fallen, **self.counters()}
+
+    def step_status(self) -> dict[str, bool]:
+        """The last ``step``'s flags for the step reply (PROTOCOL.md §4): ``terminated`` while
+        the robot is fallen (base height or tilt past ``FALL``'s thresholds), ``clipped`` when
+        that step's targets were clipped to the joint limits. Stepping goes on either way."""
+        return {"terminated": self.fallen, "clipped": self.last_clipped}
 
     def close(self) -> None:
         """Prints the counters to standard error when there was a fall or a clipped target."""

@@ -114,7 +114,8 @@ class GymSimulator:
     Actions outside the Box are clipped to it (counted); an integer Box gets rounded actions.
     A step after termination or truncation steps the environment on, as it is; the episode
     restarts only at the next ``reset``. ``status()`` holds the last step's ``terminated``,
-    ``truncated`` and ``reward`` and the counters.
+    ``truncated`` and ``reward`` and the counters; ``step_status()`` gives the step reply its
+    ``terminated``, ``truncated`` and ``clipped`` flags.
     """
 
     def __init__(
@@ -168,7 +169,7 @@ class GymSimulator:
         self.memory = int(memory)
         self._memory: OrderedDict[bytes, np.ndarray] = OrderedDict()
         self.ready = False
-        self.terminated = self.truncated = False
+        self.terminated = self.truncated = self.last_clipped = False
         self.reward = 0.0
         self.k = self.steps = self.episodes = self.terminations = self.truncations = self.clipped_inputs = 0
 
@@ -245,9 +246,9 @@ class GymSimulator:
             action_space=str(env.action_space),
             observation_space=str(env.observation_space),
             max_episode_steps=spec.max_episode_steps if spec is not None else None,
-            episodes="termination and truncation are reported (stderr, status) and never stop the adapter: a step after "
+            episodes="termination and truncation are reported (stderr, the step reply's status) and never stop the adapter: a step after "
             "them steps the environment on; reset starts a new episode",
-            actions="clipped to the action Box (counted)",
+            actions="clipped to the action Box (counted, flagged 'clipped' in the step reply)",
             seeded_reset="env.reset(seed=seed)",
         )
         if self.mujoco is not None:
@@ -354,6 +355,7 @@ class GymSimulator:
             raise InvalidInput(f"{self.env_id}: not reset yet (or reset needed after a failure)")
         u = as_input(u, self.nu, "u")
         clipped = np.clip(u, self.u_lo, self.u_hi)
+        self.last_clipped = bool(np.any(clipped != u))
         self.clipped_inputs += int(np.count_nonzero(clipped != u))
         a = self.action_space
         if np.issubdtype(a.dtype, np.integer):
@@ -383,9 +385,14 @@ class GymSimulator:
 
     def status(self) -> dict[str, Any]:
         """The last step's status (``terminated``, ``truncated``, ``reward``, ``k``) and the
-        counters: what a step reply's status would carry (the protocol's step reply has no
-        status field yet; the command line prints every episode end)."""
+        counters (the command line prints every episode end)."""
         return dict(terminated=self.terminated, truncated=self.truncated, reward=self.reward, k=self.k, **self.counters())
+
+    def step_status(self) -> dict[str, bool]:
+        """The last ``step``'s flags for the step reply (PROTOCOL.md §4): Gymnasium's
+        ``terminated`` and ``truncated`` as the environment returned them, and ``clipped`` when
+        the action was clipped to the Box. Stepping goes on either way."""
+        return dict(terminated=self.terminated, truncated=self.truncated, clipped=self.last_clipped)
 
     def close(self) -> None:
         """Closes the environment; prints the counters to standard error when an episode ended or an action was clipped."""
