@@ -374,6 +374,7 @@ mod tests {
             mpc: None,
             error_state: false,
             position_loop: None,
+            step_flags: Default::default(),
         }
     }
 

@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 use super::position_loop::PositionLoop;
 use super::reference::Reference;
 use crate::client::{Client, Liveliness, SimClient};
-use crate::codec::{SolveReply, SolveRequest, SolveStatus, StateMsg};
+use crate::codec::{SolveReply, SolveRequest, SolveStatus, StateMsg, StepStatus};
 use crate::error::{Error, ErrorCode, Result};
 use crate::keyexpr::{Role, SimLeaf};
 use crate::messages::{ResetRequest, SimInfo};
@@ -82,6 +82,40 @@ pub struct ControlReport {
     /// The position loop that corrected the plan at every step (`[control] position_loop`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub position_loop: Option<crate::scenario::PositionLoopSpec>,
+    /// The steps the simulator flagged in its step replies (an episode end, a clipped input;
+    /// PROTOCOL.md §4); absent when it flagged none.
+    #[serde(default, skip_serializing_if = "StepFlags::is_empty")]
+    pub step_flags: StepFlags,
+}
+
+/// How many closed-loop steps the simulator's step replies flagged, by flag.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct StepFlags {
+    /// Steps flagged `terminated` (the task says the episode had ended: a fall, a Gymnasium
+    /// termination). The loop goes on; the states after it are in `x` as any other.
+    pub terminated: usize,
+    /// The step index `k` of the first state flagged `terminated`; `None` if none was.
+    pub first_terminated: Option<usize>,
+    /// Steps flagged `truncated` (a time limit of the simulator's own).
+    pub truncated: usize,
+    /// Steps whose input the simulator clipped into its bounds.
+    pub clipped: usize,
+}
+
+impl StepFlags {
+    /// Counts the status of the reply that brought state `k`.
+    pub fn count(&mut self, k: usize, s: StepStatus) {
+        if s.terminated() {
+            self.terminated += 1;
+            self.first_terminated.get_or_insert(k);
+        }
+        self.truncated += usize::from(s.truncated());
+        self.clipped += usize::from(s.clipped());
+    }
+    /// No step was flagged.
+    pub fn is_empty(&self) -> bool {
+        *self == StepFlags::default()
+    }
 }
 
 /// A closed-loop control task for the MPC service.
@@ -119,6 +153,7 @@ pub struct ControlRun<'a> {
     rt_us: Vec<f64>,
     step_us: Vec<f64>,
     not_solved: BTreeMap<String, usize>,
+    flags: StepFlags,
     publisher: Option<zenoh::pubsub::Publisher<'static>>,
 }
 
@@ -155,6 +190,7 @@ impl<'a> ControlRun<'a> {
             rt_us: Vec::new(),
             step_us: Vec::new(),
             not_solved: BTreeMap::new(),
+            flags: StepFlags::default(),
             publisher,
         };
         run.publish(first.k, first.t, &[])?;
@@ -225,6 +261,7 @@ impl<'a> ControlRun<'a> {
         let next = self.sim.step(&u, Some(live))?;
         self.step_us.push(t.elapsed().as_secs_f64() * 1e6);
         self.xs.push(next.x);
+        self.flags.count(self.xs.len() - 1, next.status);
         self.publish(next.k, next.t, &u)?;
         self.us.push(u);
         Ok(())
@@ -275,6 +312,7 @@ impl<'a> ControlRun<'a> {
             mpc: None,
             error_state: matches!(r, Reference::Plan { .. }),
             position_loop: self.task.position_loop.map(|p| p.spec().clone()),
+            step_flags: self.flags,
             x: self.xs,
             u: self.us,
         }
@@ -326,6 +364,24 @@ impl ControlReport {
     }
 }
 
+impl ControlReport {
+    /// The warning a loop whose simulator flagged an episode end deserves (`None` otherwise):
+    /// from which step, for how many, and that the loop went on.
+    pub fn terminated_warning(&self) -> Option<String> {
+        let f = &self.step_flags;
+        let first = f.first_terminated?;
+        Some(format!(
+            "control of '{}' (model '{}'): the simulator reported the episode ended \
+             (terminated: a fall or the task's end) at step {first}, and at {} of {} steps; the \
+             loop went on, so the metrics include the steps after it",
+            self.sim,
+            self.model,
+            f.terminated,
+            self.u.len()
+        ))
+    }
+}
+
 /// Closed-loop control of `sim` by the MPC service (lockstep): reset to `x0`, then `steps`
 /// times solve → apply the first input → step.
 pub fn closed_loop(
@@ -342,4 +398,47 @@ pub fn closed_loop(
         progress(k + 1, steps);
     }
     Ok(run.finish())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn step_flags_count_each_flag_and_the_first_termination() {
+        let mut f = StepFlags::default();
+        assert!(f.is_empty());
+        f.count(1, StepStatus::CLIPPED);
+        f.count(2, StepStatus::EMPTY);
+        f.count(3, StepStatus::TERMINATED | StepStatus::CLIPPED);
+        f.count(4, StepStatus::TERMINATED | StepStatus::TRUNCATED);
+        let want = StepFlags {
+            terminated: 2,
+            first_terminated: Some(3),
+            truncated: 1,
+            clipped: 2,
+        };
+        assert_eq!(f, want);
+        // A report written before the field reads (no flags, no warning) and is written as
+        // before; with the flags, they are in the JSON and the warning names the first step.
+        let mut r: ControlReport = serde_json::from_value(serde_json::json!({
+            "sim": "go2", "model": "m", "state_names": ["x"], "input_names": ["u"], "dt": 0.02,
+            "reference": [0.0], "x": [[0.0], [1.0], [2.0], [3.0], [4.0]],
+            "u": [[0.0], [0.0], [0.0], [0.0]], "final_error": 1.0, "solve_median_us": 1.0,
+            "solve_round_trip_median_us": 1.0, "not_solved": 0
+        }))
+        .unwrap();
+        assert!(r.step_flags.is_empty() && r.terminated_warning().is_none());
+        assert!(serde_json::to_value(&r)
+            .unwrap()
+            .get("step_flags")
+            .is_none());
+        r.step_flags = f;
+        let json = serde_json::to_value(&r).unwrap();
+        assert_eq!(json["step_flags"]["first_terminated"], 3);
+        let back: ControlReport = serde_json::from_value(json).unwrap();
+        assert_eq!(back.step_flags, want);
+        let w = r.terminated_warning().unwrap();
+        assert!(w.contains("at step 3, and at 2 of 4 steps"), "{w}");
+    }
 }
