@@ -29,7 +29,7 @@ def parser() -> argparse.ArgumentParser:
         prog="python -m koopbridge.adapters.gym",
         description="Serve a Gymnasium environment with a Box action space as a koopbridge simulator over Zenoh: "
         "inputs = the action components, dt = env.dt, state = the full MuJoCo state [qpos, qvel] for MuJoCo-based "
-        "environments (exact reset(x0)) or the observation. Episode ends are reported on stderr; stepping goes on.",
+        "environments (exact reset(x0)) or the observation. Episode ends are reported on stderr and in the step reply (terminated/truncated); stepping goes on.",
         epilog="Examples: python -m koopbridge.adapters.gym InvertedPendulum-v5 --session demo --id pend --listen tcp/127.0.0.1:7521\n"
         "          python -m koopbridge.adapters.gym Reacher-v5 --describe\n"
         "          python -m koopbridge.adapters.gym Pendulum-v1 --make-kwargs '{\"g\": 9.81}' --describe",
