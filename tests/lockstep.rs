@@ -142,6 +142,7 @@ fn collection_is_bit_for_bit_repeatable_and_equals_local_stepping() {
         steps: 5,
         seed: 42,
         split: Split::Train,
+        x0_box: None,
     };
     let run = |sims: &mut [SimClient]| collect(sims, &job, Some(&c.live), &mut |_, _| {}).unwrap();
     let first = run(&mut sims);

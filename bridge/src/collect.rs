@@ -4,11 +4,11 @@
 
 pub mod blocks;
 
-use koopman::data::{Dataset, DatasetMeta, Pairing};
+use koopman::data::{DataRegion, Dataset, DatasetMeta, Pairing};
 use koopman::rng::Rng;
 
 use crate::client::{step_all, Liveliness, SimClient};
-use crate::error::{Error, Result};
+use crate::error::{Error, ErrorCode, Result};
 use crate::messages::{InputBound, ResetRequest, SimInfo};
 use crate::scenario::Policy;
 
@@ -55,6 +55,78 @@ pub struct CollectJob<'a> {
     pub seed: u64,
     /// Which split (keeps the splits' seeds independent).
     pub split: Split,
+    /// The box `(low, high)` (`nx` values each) every window's initial state is drawn from,
+    /// uniformly and deterministically from the window's seed, and sent as `reset(x0)`;
+    /// `None` = the simulator's own seeded reset. Lockstep policies only.
+    pub x0_box: Option<&'a (Vec<f64>, Vec<f64>)>,
+}
+
+/// The initial state of window `i` of simulator `j` drawn uniformly in `x0_box` (component by
+/// component, in order) from the window's seed ([`window_seed`]); independent of the input
+/// stream, so a box changes the initial states and nothing else.
+pub fn window_x0(ws: u64, x0_box: &(Vec<f64>, Vec<f64>)) -> Vec<f64> {
+    let mut r = Rng::new(ws ^ 0x0B0C_5EED_u64);
+    x0_box
+        .0
+        .iter()
+        .zip(&x0_box.1)
+        .map(|(&lo, &hi)| r.uniform(lo, hi))
+        .collect()
+}
+
+/// Checks an initial-state box against the simulator `info` describes (its id `sim`): `nx`
+/// values each side, finite, `low ≤ high`. `keys` name the scenario keys the two sides came
+/// from (`["x0_low", "x0_high"]`, or `x0_center` twice). The error names the key, the simulator
+/// and its states.
+pub fn check_x0_box(
+    x0_box: &(Vec<f64>, Vec<f64>),
+    keys: [&str; 2],
+    sim: &str,
+    info: &SimInfo,
+) -> std::result::Result<(), String> {
+    let (lo, hi) = x0_box;
+    let nx = info.nx();
+    if let Some((key, n)) = [(keys[0], lo.len()), (keys[1], hi.len())]
+        .into_iter()
+        .find(|&(_, n)| n != nx)
+    {
+        return Err(format!(
+            "{key} has {n} values, simulator '{sim}' has {nx} states ({})",
+            info.state_names.join(", ")
+        ));
+    }
+    if let Some(i) = (0..nx).find(|&i| !(lo[i].is_finite() && hi[i].is_finite())) {
+        return Err(format!(
+            "the initial-state box of simulator '{sim}' is not finite at state {i} ({}): [{}, {}]",
+            info.state_names.get(i).map_or("?", String::as_str),
+            lo[i],
+            hi[i]
+        ));
+    }
+    if let Some(i) = (0..nx).find(|&i| lo[i] > hi[i]) {
+        return Err(format!(
+            "the initial-state box of simulator '{sim}' is empty at state {i} ({}): low {} > high {}",
+            info.state_names.get(i).map_or("?", String::as_str),
+            lo[i],
+            hi[i]
+        ));
+    }
+    Ok(())
+}
+
+/// The error of a simulator that cannot reset to a given state, with what to do about it.
+fn x0_unsupported(sim: &str, e: Error) -> Error {
+    match e {
+        Error::Remote { reply, .. } if reply.code == ErrorCode::Unsupported => {
+            Error::Config(format!(
+                "simulator '{sim}' cannot reset to a given state (reset(x0) answered unsupported: \
+                 {}); drop the x0 box from [collect] (x0_low/x0_high or x0_center/x0_radius) so \
+                 that its own seeded reset draws the initial states",
+                reply.message
+            ))
+        }
+        e => e,
+    }
 }
 
 /// Collects `job.windows` windows of `job.steps` transitions from every simulator in `sims`
@@ -73,8 +145,16 @@ pub fn collect(
         steps,
         seed,
         split,
+        x0_box,
     } = *job;
     if let Policy::Adapter { inputs, block } = policy {
+        if x0_box.is_some() {
+            return Err(Error::Config(
+                "an initial-state box needs a lockstep policy: the simulators draw the initial \
+                 states of the windows they run themselves"
+                    .into(),
+            ));
+        }
         let seeds: Vec<u64> = (0..sims.len())
             .map(|j| adapter_seed(seed, split, j))
             .collect();
@@ -108,17 +188,36 @@ pub fn collect(
             Policy::Adapter { .. } => "adapter".into(),
         };
         let source = format!("zenoh:sim/{}", s.id);
-        out.push(empty_dataset(info, windows, steps, seed, source, &kind));
+        let mut ds = empty_dataset(info, windows, steps, seed, source, &kind);
+        if let Some(xb) = x0_box {
+            check_x0_box(xb, ["x0_low", "x0_high"], &s.id, info).map_err(Error::Config)?;
+            let uniform = matches!(policy, Policy::Uniform { .. });
+            ds.meta.region = Some(DataRegion {
+                x0_low: Some(xb.0.clone()),
+                x0_high: Some(xb.1.clone()),
+                u_low: uniform.then(|| b.0.clone()),
+                u_high: uniform.then(|| b.1.clone()),
+            });
+        }
+        out.push(ds);
         bounds.push(b);
     }
     for i in 0..windows {
         let mut rngs = Vec::with_capacity(sims.len());
         for (j, s) in sims.iter_mut().enumerate() {
             let ws = window_seed(seed, split, j, i);
-            let first = s.reset(&ResetRequest {
-                seed: Some(ws),
-                x0: None,
-            })?;
+            let first = match x0_box {
+                Some(xb) => s
+                    .reset(&ResetRequest {
+                        seed: None,
+                        x0: Some(window_x0(ws, xb)),
+                    })
+                    .map_err(|e| x0_unsupported(&s.id, e))?,
+                None => s.reset(&ResetRequest {
+                    seed: Some(ws),
+                    x0: None,
+                })?,
+            };
             out[j].x.extend_from_slice(&first.x);
             rngs.push(Rng::new(ws ^ 0x5EED_u64));
         }

@@ -289,6 +289,7 @@ fn collect_phase(
         }
         _ => "collecting data (lockstep)",
     }));
+    let x0_box = c.x0_box()?;
     let tc = Instant::now();
     let mut per_split: Vec<Vec<Dataset>> = Vec::new();
     for (split, name, n) in [
@@ -302,6 +303,7 @@ fn collect_phase(
             steps: c.steps,
             seed: c.seed,
             split,
+            x0_box: x0_box.as_ref(),
         };
         let ds = collect(clients, &job, Some(&cluster.live), &mut |d, t| {
             on(Event::Collect(name, d, t))

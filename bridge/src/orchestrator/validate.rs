@@ -1,5 +1,6 @@
 //! The whole scenario checked against its simulators' `info` right after the readiness barrier,
-//! before the expensive phases: the uniform policy's bounds, `[train].config`, `[control].mpc`,
+//! before the expensive phases: the uniform policy's bounds, the initial-state box of
+//! `[collect]`, `[train].config`, `[control].mpc`,
 //! and the lengths of `control.x0`/`control.reference` (and a `reference_file` or
 //! `feedforward_file` that exists already), so that a typo fails in seconds, not after
 //! collection.
@@ -24,6 +25,12 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
         for (s, info) in sc.sims.iter().zip(infos) {
             crate::collect::uniform_bounds(low, high, info)
                 .map_err(|m| Error::Config(format!("simulator '{}': {m}", s.id)))?;
+        }
+    }
+    if let Some(xb) = sc.collect.x0_box()? {
+        for (s, info) in sc.sims.iter().zip(infos) {
+            crate::collect::check_x0_box(&xb, sc.collect.x0_keys(), &s.id, info)
+                .map_err(|m| Error::Config(format!("[collect]: {m}")))?;
         }
     }
     if let Some(t) = &sc.train {
