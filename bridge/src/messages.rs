@@ -288,7 +288,10 @@ impl CollectPolicy {
                 }
             }
             CollectPolicy::Expert(_) | CollectPolicy::ExpertNoise(_) => {
-                format!("adapter-{}", serde_json::to_string(self).unwrap_or_default())
+                format!(
+                    "adapter-{}",
+                    serde_json::to_string(self).unwrap_or_default()
+                )
             }
         }
     }

@@ -63,9 +63,11 @@ fn the_inverse_control_loss_is_off_by_default_and_refused_when_asked_for() {
     let (tr, va) = (poly_data(40, 1), poly_data(20, 2));
     assert_eq!(tr.nu, 0);
     // The library refuses ctrl on data without inputs, saying why.
-    let e = train(&small_cfg(10), &tr, &va, None, &mut |_| ControlFlow::Continue(()))
-        .err()
-        .expect("ctrl on an autonomous system must be refused");
+    let e = train(&small_cfg(10), &tr, &va, None, &mut |_| {
+        ControlFlow::Continue(())
+    })
+    .err()
+    .expect("ctrl on an autonomous system must be refused");
     let msg = e.to_string();
     assert!(
         msg.contains("needs inputs") && msg.contains("nu = 0"),
@@ -89,7 +91,14 @@ fn a_tiny_autonomous_model_follows_the_closed_form_map_and_cannot_be_controlled(
         ..small_cfg(1500)
     };
     cfg.settle_ctrl_for(tr.nu, false).unwrap();
-    let out = train(&cfg, &tr, &va, Some(&te), &mut |_| ControlFlow::Continue(())).unwrap();
+    let out = train(
+        &cfg,
+        &tr,
+        &va,
+        Some(&te),
+        &mut |_| ControlFlow::Continue(()),
+    )
+    .unwrap();
     let model = &out.model;
     assert_eq!((model.nx(), model.nu(), model.b().ncols()), (3, 0, 0));
 
@@ -106,7 +115,10 @@ fn a_tiny_autonomous_model_follows_the_closed_form_map_and_cannot_be_controlled(
         ]
     });
     eprintln!("rollout MSE: learnt {learnt:.3e}, hold x0 {hold:.3e}, linear part {linear:.3e}");
-    assert!(learnt.is_finite() && learnt < 0.05 * hold, "{learnt} vs {hold}");
+    assert!(
+        learnt.is_finite() && learnt < 0.05 * hold,
+        "{learnt} vs {hold}"
+    );
     assert!(learnt < 0.5 * linear, "{learnt} vs {linear}");
 
     // Saved and loaded as the MPC service would: controlling it is refused with the reason.

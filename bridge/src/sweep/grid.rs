@@ -324,14 +324,19 @@ mod tests {
     #[test]
     fn data_without_inputs_default_to_cov_and_refuse_ctrl() {
         let names = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
-        assert_eq!(Regularisers::for_data(&[], 1).unwrap(), [Regularisers::Both]);
+        assert_eq!(
+            Regularisers::for_data(&[], 1).unwrap(),
+            [Regularisers::Both]
+        );
         assert_eq!(Regularisers::for_data(&[], 0).unwrap(), [Regularisers::Cov]);
         assert_eq!(
             Regularisers::for_data(&names(&["none", "cov"]), 0).unwrap(),
             [Regularisers::None, Regularisers::Cov]
         );
         for asked in [["none", "both"], ["ctrl", "cov"]] {
-            let e = Regularisers::for_data(&names(&asked), 0).unwrap_err().to_string();
+            let e = Regularisers::for_data(&names(&asked), 0)
+                .unwrap_err()
+                .to_string();
             assert!(e.contains("needs inputs") && e.contains("nu = 0"), "{e}");
         }
         assert_eq!(

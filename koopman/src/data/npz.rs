@@ -319,7 +319,10 @@ mod tests {
             let e = Dataset::load_npz(&p).unwrap_err();
             assert!(matches!(e, Error::Format { .. }), "{e}");
             let msg = e.to_string();
-            assert!(msg.contains(says) && msg.contains(&format!("{width}")), "{msg}");
+            assert!(
+                msg.contains(says) && msg.contains(&format!("{width}")),
+                "{msg}"
+            );
         }
         // Without metadata it loads with defaults.
         let p = write_raw("plain.npz", (&[1, 2, 1], &[0.0, 1.0]), (&[1, 1, 1], &[0.5]));

@@ -48,7 +48,7 @@ pub use lqr::Lqr;
 pub use offset_free::{OffsetFree, OffsetFreeConfig, OffsetMode};
 pub use policy::{Action, ConstantPolicy, LqrPolicy, Policy, ShootingPolicy};
 pub use qp::{QpOutcome, QpSolver, QpStatus};
-pub use served::{LoadedModel, AUTONOMOUS_MPC, ModelController, ModelPlan, PlanStatus};
+pub use served::{LoadedModel, ModelController, ModelPlan, PlanStatus, AUTONOMOUS_MPC};
 pub use shooting::{OneStepModel, RandomShooting, SystemAsModel};
 
 #[cfg(test)]
