@@ -90,8 +90,8 @@ fn a_bad_box_fails_before_collection_naming_it() {
     let dir = common::scratch("x0-bad");
     for (i, (from, to, expect)) in [
         (
-            "x0_low = [0.5, -0.2]",
-            "x0_low = [0.5, -0.2, 0.0]",
+            "x0_low = [0.5, -0.2]\nx0_high = [0.9, 0.1]",
+            "x0_low = [0.5, -0.2, 0.0]\nx0_high = [0.9, 0.1, 0.1]",
             "x0_low has 3 values, simulator 'pend' has 2 states (theta, theta_dot)",
         ),
         (
