@@ -128,7 +128,7 @@ pub fn round_warnings(round: &AggregationRound) -> Vec<String> {
                 a.control.model
             ));
         }
-        out.extend(a.control.not_solved_warning());
+        out.extend(a.control.warnings());
     }
     out
 }

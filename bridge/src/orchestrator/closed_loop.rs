@@ -365,6 +365,15 @@ impl ControlReport {
 }
 
 impl ControlReport {
+    /// Every warning this loop deserves, in the order a reader should see them: the MPC's
+    /// unsolved steps, then the simulator's episode ends.
+    pub fn warnings(&self) -> Vec<String> {
+        self.not_solved_warning()
+            .into_iter()
+            .chain(self.terminated_warning())
+            .collect()
+    }
+
     /// The warning a loop whose simulator flagged an episode end deserves (`None` otherwise):
     /// from which step, for how many, and that the loop went on.
     pub fn terminated_warning(&self) -> Option<String> {
@@ -440,5 +449,6 @@ mod tests {
         assert_eq!(back.step_flags, want);
         let w = r.terminated_warning().unwrap();
         assert!(w.contains("at step 3, and at 2 of 4 steps"), "{w}");
+        assert_eq!(r.warnings(), vec![w], "the run's warnings carry the episode end");
     }
 }

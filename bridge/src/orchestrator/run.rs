@@ -47,7 +47,8 @@ pub struct Report {
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub aggregation: Vec<AggregationRound>,
     /// What the user should know about the results, also reported as [`Event::Warning`]: every
-    /// control run whose MPC did not solve every step ([`ControlReport::not_solved_warning`]),
+    /// control run whose MPC did not solve every step or whose simulator reported an episode end
+    /// ([`ControlReport::warnings`]),
     /// every aggregation round that made control worse ([`aggregate::round_warnings`]).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub warnings: Vec<String>,
@@ -220,7 +221,7 @@ pub fn run_scenario_with(
             },
             on,
         )?;
-        for w in c.iter().filter_map(ControlReport::not_solved_warning) {
+        for w in c.iter().flat_map(ControlReport::warnings) {
             on(Event::Warning(&w));
             warnings.push(w);
         }
