@@ -449,6 +449,10 @@ mod tests {
         assert_eq!(back.step_flags, want);
         let w = r.terminated_warning().unwrap();
         assert!(w.contains("at step 3, and at 2 of 4 steps"), "{w}");
-        assert_eq!(r.warnings(), vec![w], "the run's warnings carry the episode end");
+        assert_eq!(
+            r.warnings(),
+            vec![w],
+            "the run's warnings carry the episode end"
+        );
     }
 }
