@@ -1,6 +1,7 @@
-"""Robot-agnostic pieces of a legged robot in MuJoCo (the Go2 now, the G1 humanoid next): the
-floating-base state, joint PD at the physics rate with a first-order torque lag, fall detection
-and target clipping. No policy, no networking here (``legged_policy``, ``go2_sim``)."""
+"""Robot-agnostic pieces of a legged robot in MuJoCo (the Go2 quadruped, the G1 humanoid): the
+floating-base state, joint PD at the physics rate with a first-order torque lag (robots driven by
+torque motors), fall detection and target clipping. No policy, no networking here
+(``legged_policy``, ``go2_sim``, ``g1_sim``)."""
 
 from __future__ import annotations
 
@@ -99,6 +100,9 @@ class LeggedLayout:
         if free < 0 or model.jnt_type[free] != mujoco.mjtJoint.mjJNT_FREE:
             raise ValueError(f"body {base_body!r} has no free joint")
         actuators = np.array([motor_of[j] for j in ids])
+        # A motor's torque is its control (ctrlrange); a servo's control is a position (forcerange).
+        servo = np.asarray(model.actuator_biastype[actuators]) != mujoco.mjtBias.mjBIAS_NONE
+        limit = np.where(servo, model.actuator_forcerange[actuators, 1], model.actuator_ctrlrange[actuators, 1])
         return LeggedLayout(
             joints=tuple(joints),
             qpos=np.asarray(model.jnt_qposadr[ids]),
@@ -106,7 +110,7 @@ class LeggedLayout:
             actuators=actuators,
             base_qpos=int(model.jnt_qposadr[free]),
             base_dof=int(model.jnt_dofadr[free]),
-            torque_limit=np.asarray(model.actuator_ctrlrange[actuators, 1], dtype=np.float64).copy(),
+            torque_limit=np.asarray(limit, dtype=np.float64).copy(),
             q_min=np.asarray(model.jnt_range[ids, 0], dtype=np.float64).copy(),
             q_max=np.asarray(model.jnt_range[ids, 1], dtype=np.float64).copy(),
         )
@@ -141,20 +145,22 @@ def legged_state_units(n: int) -> list[str]:
     return ["1"] * 4 + ["m/s"] * 3 + ["rad/s"] * 3 + ["rad"] * n + ["rad/s"] * n + ["m"]
 
 
-def legged_state(layout: LeggedLayout, data: Any) -> np.ndarray:
+def legged_state(layout: LeggedLayout, data: Any, select: np.ndarray | None = None) -> np.ndarray:
     """The trimmed floating-base state ``[quaternion w x y z (4), base linear velocity in the
     body frame (3), base angular velocity in the body frame (3), joint q (n), joint q̇ (n), base
     height (1)]`` (11 + 2n values) from MuJoCo's ``qpos``/``qvel``: the free joint's linear
-    velocity is in the world frame (rotated here), its angular velocity already in the body's."""
+    velocity is in the world frame (rotated here), its angular velocity already in the body's.
+    ``select``: indices (the layout's order) of the joints in the state (default: all)."""
     q, v = layout.base_qpos, layout.base_dof
     quat = data.qpos[q + 3 : q + 7]
+    qpos, dofs = (layout.qpos, layout.dofs) if select is None else (layout.qpos[select], layout.dofs[select])
     return np.concatenate(
         [
             quat,
             body_from_world(quat, data.qvel[v : v + 3]),
             data.qvel[v + 3 : v + 6],
-            data.qpos[layout.qpos],
-            data.qvel[layout.dofs],
+            data.qpos[qpos],
+            data.qvel[dofs],
             data.qpos[q + 2 : q + 3],
         ]
     )
