@@ -258,3 +258,21 @@ def test_reset_to_a_recorded_state(sim):
     # Every state the expert walks through is accepted (the feet's contacts sunk in included).
     for state in w.x.reshape(-1, 53):
         other.reset(x0=state)
+
+
+def test_locked_holds_remove_the_six_joints_and_the_expert_still_walks():
+    locked = G1Simulator(held="locked")
+    m = locked.model
+    assert (m.nu, m.nq, m.nv) == (23, 30, 29) and locked.layout.joints == g.INPUT_JOINTS
+    assert all(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, j) < 0 for j in g.HELD)
+    info = check_adapter(locked, steps=6)
+    assert (info.nx, info.nu) == (53, 23) and info.extra["mujoco"]["held"].startswith("locked")
+    assert info.state_names == G1Simulator().info().state_names
+    fwd, falls = _walk(locked, (0.5, 0, 0), (0.5, 0, 0), 10)
+    assert falls == 0 and 0.3 < fwd.x[10:, :, 4].mean() < 0.5, (falls, fwd.x[10:, :, 4].mean())
+    rand, falls = _walk(locked, (-1, -1, -1), (1, 1, 1), 20, seed=3)
+    assert falls == 0
+    # The expert sees the locked joints at the default pose, at rest.
+    locked.reset(seed=1)
+    obs = locked.expert.observation(np.zeros(3), np.array([0, 0, -1.0]), np.zeros(3), np.r_[DEFAULT], np.zeros(29))
+    assert obs.shape == (100,)

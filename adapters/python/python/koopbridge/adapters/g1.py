@@ -17,7 +17,7 @@ import sys
 from collections.abc import Sequence
 
 from ..serving import run_main
-from .g1_model import MODEL_PACKAGE, MODEL_VERSION, POLICIES, POLICY_PACKAGE, POLICY_VERSION, ModelError
+from .g1_model import HOLDS, MODEL_PACKAGE, MODEL_VERSION, POLICIES, POLICY_PACKAGE, POLICY_VERSION, ModelError
 from .g1_sim import G1Simulator, SimFailure
 
 __all__ = ["G1Simulator", "ModelError", "SimFailure", "main", "parser", "simulator"]
@@ -37,6 +37,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--policy", metavar="FILE", help="the expert's ONNX policy, 100 observations -> 29 actions, kp/kd/dof_names in its "
                    f"metadata (default: --expert's file in {POLICY_PACKAGE}=={POLICY_VERSION})")
     p.add_argument("--expert", choices=sorted(POLICIES), default="fastsac", help="which shipped walking policy (default: %(default)s)")
+    p.add_argument("--held", choices=HOLDS, default="servo", help="how the 6 non-input joints are held at the default pose: by their "
+                   "servos (they give under load) or locked rigid, as on the 23-DoF G1 (default: %(default)s)")
     p.add_argument("--target-margin", type=float, default=0.0, metavar="RAD", help="input bounds = the joint ranges widened by RAD; "
                    "targets outside are clipped (default: %(default)s, the joint limits)")
     p.add_argument("--reset-range", type=float, default=0.05, help="seeded reset: default pose + U(+-this) rad per input joint, "
@@ -64,6 +66,7 @@ def simulator(args: argparse.Namespace) -> G1Simulator:
         args.model,
         args.policy,
         policy_name=args.expert,
+        held=args.held,
         target_margin=args.target_margin,
         reset_range=args.reset_range,
         env=args.env,

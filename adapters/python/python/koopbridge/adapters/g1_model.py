@@ -23,7 +23,8 @@ Sources (read as files, installed with ``pip install --no-deps``):
 
 The actuators are MuJoCo position servos at the metadata's gains (kp, kv = kd) with joint
 armature kp/ω², ω = 2π·10 Hz (mjlab's rule: its stiffness is armature·ω²), force-limited at the
-effort limits. Measured with this assembly (issue 30): both policies walk at 0.39–0.42 m/s on a
+effort limits. The six joints the paper's 23-input G1 does not drive are held by their servos or
+removed (``HOLDS``). Measured with this assembly (issue 30): both policies walk at 0.39–0.42 m/s on a
 forward command, stand on a zero command, no fall in 60 s of random commands.
 """
 
@@ -50,6 +51,7 @@ __all__ = [
     "FALL",
     "G1Model",
     "HELD",
+    "HOLDS",
     "INPUT_JOINTS",
     "JOINTS",
     "MODEL_PACKAGE",
@@ -195,13 +197,14 @@ def read_policy_meta(path: str) -> PolicyMeta:
 
 @dataclass
 class G1Model:
-    """The compiled scene (floor + G1 with position servos), the layout of its 29 joints (policy
-    order) and its files."""
+    """The compiled scene (floor + G1 with position servos), the layout of its joints (policy
+    order: all 29, or the 23 inputs when the held joints are ``locked``), its files and hold."""
 
     model: Any
     layout: LeggedLayout
     path: str
     meta: PolicyMeta
+    held: str = "servo"
 
     @property
     def substeps(self) -> int:
@@ -225,13 +228,23 @@ def _collision(spec: Any) -> None:
             geom.condim, geom.priority = 1, 0
 
 
-def build_g1(path: str | None = None, meta: PolicyMeta | None = None, *, timestep: float = TIMESTEP) -> G1Model:
+#: How the six ``HELD`` joints are held: ``servo`` (their servos hold the default pose: they
+#: still give under load, the waist roll/pitch by up to ~0.2 rad while walking) or ``locked``
+#: (the joints removed, their links rigid at the default pose — 0 rad for all six — as on the
+#: 23-DoF G1 hardware).
+HOLDS = ("servo", "locked")
+
+
+def build_g1(path: str | None = None, meta: PolicyMeta | None = None, *, held: str = "servo", timestep: float = TIMESTEP) -> G1Model:
     """The G1 on a floor plane with a position servo per joint at the policy metadata's gains
     (``meta``; default: the fastsac policy's), joint armature kp/ω², forces limited to the effort
-    limits; implicitfast, 10/20 solver iterations. ``path``: a g1.xml (default: mjlab's).
-    Raises ``ModelError`` naming the file on any problem."""
+    limits; implicitfast, 10/20 solver iterations. ``held``: see ``HOLDS`` (``locked``: the
+    layout has the 23 ``INPUT_JOINTS`` only). ``path``: a g1.xml (default: mjlab's). Raises
+    ``ModelError`` naming the file on any problem."""
     import mujoco
 
+    if held not in HOLDS:
+        raise ModelError(f"held must be one of {HOLDS}, got {held!r}")
     path = path or model_file()
     meta = meta or read_policy_meta(policy_file())
     if not os.path.isfile(path):
@@ -246,7 +259,13 @@ def build_g1(path: str | None = None, meta: PolicyMeta | None = None, *, timeste
         spec.option.iterations, spec.option.ls_iterations = 10, 20
         spec.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05])
         _collision(spec)
+        present = JOINTS if held == "servo" else INPUT_JOINTS
+        if held == "locked":
+            for name in HELD:  # every HELD joint's default is 0: removing it leaves its link at the default pose
+                spec.delete(spec.joint(name))
         for name, kp, kd, limit in zip(JOINTS, meta.kp, meta.kd, EFFORT_LIMIT, strict=True):
+            if name not in present:
+                continue
             spec.joint(name).armature = kp / NATURAL_FREQ**2
             act = spec.add_actuator(name=name.removesuffix("_joint"), target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
             act.set_to_position(kp=kp, kv=kd)
@@ -256,10 +275,10 @@ def build_g1(path: str | None = None, meta: PolicyMeta | None = None, *, timeste
     except Exception as e:
         raise ModelError(f"G1 model file {path}: {e}") from e
     try:
-        layout = LeggedLayout.from_model(model, list(JOINTS), BASE)
+        layout = LeggedLayout.from_model(model, list(present), BASE)
     except ValueError as e:
         raise ModelError(f"G1 model file {path}: {e}") from e
-    return G1Model(model=model, layout=layout, path=os.path.abspath(path), meta=meta)
+    return G1Model(model=model, layout=layout, path=os.path.abspath(path), meta=meta, held=held)
 
 
 def default_pose() -> np.ndarray:

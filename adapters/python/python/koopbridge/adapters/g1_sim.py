@@ -1,27 +1,33 @@
 """The Unitree G1 humanoid in MuJoCo as a discrete-time ``koopbridge.Simulator``: 23 joint position
 targets held over 0.02 s by position servos (4 × 0.005 s, implicitfast), the other 6 joints held
-at the default pose; the trimmed 53-D state; falls detected and counted; the holosoma walking
+at the default pose (by their servos, or locked); the trimmed 53-D state; falls detected and counted; the holosoma walking
 policy as the ``expert`` / ``expert+noise`` collect policies. Model, policy and every constant:
 ``g1_model``. No networking here (see ``g1.py``).
 
 Inputs ``u`` (23): targets of ``g1_model.INPUT_JOINTS`` — the 29 joints without waist roll and
-pitch and the wrist pitch and yaw (the paper's 23-input G1; those six servos hold the default
-pose, 0 rad).
+pitch and the wrist pitch and yaw (the paper's 23-input G1). Those six are held at the default
+pose (0 rad), ``held="servo"`` (default) by their own servos — they give under load, the waist
+roll/pitch by up to ~0.2 rad at ~1.4 rad/s while walking — or ``held="locked"``: removed from
+the model, their links rigid (the 23-DoF G1 hardware; the expert walks either way).
 
 State ``x`` (53), the Go2's 35-D pattern ``[base orientation quaternion (w, x, y, z) 4, base
 linear velocity in the body frame 3, base angular velocity in the body frame 3, q 21, q̇ 21,
 base (pelvis) height 1]`` over the 21 joints ``g1_model.STATE_JOINTS``: the 23 input joints
-without the two wrist rolls (the lightest distal joints, 25 N·m motors moving hands of 0.4 kg;
-their targets stay inputs). 11 + 2·21 = 53. Kept over the alternatives that also give 53
-(projected gravity 3 + angular velocity 3 + height 1 + 23 joints, dropping the base linear
-velocity; or quaternion + angular velocity + 23 joints, dropping velocity and height) because it
-keeps every base term the Go2 has, so the legged tooling (fall rule, ``reset(x0)``, error
-metrics on joint positions) reads both robots the same way.
+without the two wrist rolls (their targets stay inputs). 11 + 2·21 = 53. Kept over the other
+selections that give 53 (projected gravity + angular velocity + height + 23 joints, dropping the
+base velocity; quaternion + angular velocity + 23 joints, dropping velocity and height) because
+it keeps every base term the Go2 has, so the legged tooling (fall rule, ``reset(x0)``, joint
+errors) reads both robots alike. Measured (``g1_replay``, 10 references of 200 steps): replaying
+the expert's targets from ``reset(x0)`` with the wrist rolls restored exactly or at the default
+pose makes no difference (36.2 steps either way, servo-held); restoring the six servo-held
+joints exactly makes it 198.2 — the held joints, not the wrist rolls, are the state this
+selection misses, and ``held="locked"`` removes them (floor 198.6 over 50 references).
 
 ``reset(x0=x)``: as the Go2's — a state this simulator returned (or started a collected window
 at), among its last ``memory`` ones, is restored exactly (base x/y, the unobserved joints, the
 solver's warm start); any other is placed at x = y = 0 with its orientation and velocities, the
-eight joints outside the state at the default pose and at rest, a cold solver.
+joints outside the state (the wrist rolls; the six servo-held ones) at the default pose and at
+rest, a cold solver.
 """
 
 from __future__ import annotations
@@ -64,7 +70,7 @@ class G1Simulator:
 
     ``model``/``policy``: g1.xml and the ONNX expert (default: mjlab's model, holosoma's
     ``policy_name`` policy, ``fastsac`` or ``ppo``); the servo gains come from the policy's
-    metadata. ``target_margin``: the input bounds are the joint ranges widened by this (rad);
+    metadata. ``held``: ``servo`` or ``locked`` (module docstring). ``target_margin``: the input bounds are the joint ranges widened by this (rad);
     ``reset_range``: a seeded reset draws the 23 input joints from the default pose + U(±this)
     rad and the heading from U(±π); ``memory``: how many returned states ``reset(x0=)``
     restores exactly; ``on_fall``: called with a message at every fall.
@@ -80,6 +86,7 @@ class G1Simulator:
         policy: str | None = None,
         *,
         policy_name: str = "fastsac",
+        held: str = "servo",
         target_margin: float = 0.0,
         reset_range: float = 0.05,
         memory: int = 4096,
@@ -91,7 +98,8 @@ class G1Simulator:
         self._mj = mujoco
         policy_path = policy or g.policy_file(policy_name)
         meta = g.read_policy_meta(policy_path)
-        self.g1 = g.build_g1(model, meta)
+        self.g1 = g.build_g1(model, meta, held=held)
+        self.held_mode = held
         self.model, self.layout = self.g1.model, self.g1.layout
         self.data = mujoco.MjData(self.model)
         self._probe = mujoco.MjData(self.model)
@@ -101,10 +109,14 @@ class G1Simulator:
             self.expert = OnnxExpert(policy_path, g.OBSERVATION)
         except KoopbridgeError as e:
             raise g.ModelError(str(e)) from e
-        self.inputs = np.array([g.JOINTS.index(j) for j in g.INPUT_JOINTS])
-        self.held = np.array([g.JOINTS.index(j) for j in g.HELD])
-        self.observed = np.array([g.JOINTS.index(j) for j in g.STATE_JOINTS])
-        self.default_pose = g.default_pose()
+        # Index sets: ``present`` (policy order → the model's joints, the layout's order);
+        # ``inputs``/``observed``: the input and state joints within the layout.
+        present = list(self.layout.joints)
+        self.present = np.array([g.JOINTS.index(j) for j in present])
+        self.inputs = np.array([present.index(j) for j in g.INPUT_JOINTS])
+        self.observed = np.array([present.index(j) for j in g.STATE_JOINTS])
+        self.policy_default = g.default_pose()
+        self.default_pose = self.policy_default[self.present]
         q_min, q_max = self.layout.q_min[self.inputs], self.layout.q_max[self.inputs]
         if not (math.isfinite(target_margin) and target_margin >= 0):
             raise g.ModelError(f"target margin must be finite and >= 0, got {target_margin}")
@@ -148,7 +160,9 @@ class G1Simulator:
                     "(no licence file in the wheel; upstream amazon-far/holosoma: Apache-2.0)",
                     joints=list(g.JOINTS),
                     input_joints=list(g.INPUT_JOINTS),
-                    held_joints={j: float(self.default_pose[g.JOINTS.index(j)]) for j in g.HELD},
+                    held_joints={j: float(self.policy_default[g.JOINTS.index(j)]) for j in g.HELD},
+                    held=self.held_mode + (": the six joints' servos hold the default pose (they give under load)" if self.held_mode == "servo"
+                                           else ": the six joints removed, their links rigid at the default pose (the 23-DoF G1)"),
                     state_joints=list(g.STATE_JOINTS),
                     state="53 = base quaternion w,x,y,z (4) + base linear velocity, body frame (3) + base angular velocity, "
                     "body frame (3) + q (21) + qd (21) of state_joints (the 23 input joints without the wrist rolls) + pelvis height (1)",
@@ -177,7 +191,7 @@ class G1Simulator:
                         defaults=ExpertPolicy.from_json({"kind": "expert", **EXPERT_DEFAULTS}).to_json(),
                         held="the expert's targets for the 6 held joints are replaced by the default pose",
                     ),
-                    x0="base x = y = 0, orientation from the quaternion, body-frame velocities rotated to the world, the 8 joints "
+                    x0="base x = y = 0, orientation from the quaternion, body-frame velocities rotated to the world, the joints "
                     f"outside the state at the default pose and at rest; a state among the last {self.memory} returned (or collected "
                     "window starts) is restored exactly",
                 )
@@ -359,11 +373,13 @@ class G1Simulator:
 
     def expert_targets(self, command: np.ndarray) -> np.ndarray:
         """The expert's targets of the 23 input joints for the current state and ``command``
-        (vx, vy, ωz); the expert observes all 29 joints."""
+        (vx, vy, ωz); the expert observes all 29 joints (locked ones at the default pose, at rest)."""
         lay, d = self.layout, self.data
         v = lay.base_dof
-        full = self.expert.act(np.array(d.qvel[v + 3 : v + 6]), projected_gravity(lay.quat(d)), command, d.qpos[lay.qpos], d.qvel[lay.dofs])
-        return full[self.inputs]
+        q, qd = self.policy_default.copy(), np.zeros(len(g.JOINTS))
+        q[self.present], qd[self.present] = d.qpos[lay.qpos], d.qvel[lay.dofs]
+        full = self.expert.act(np.array(d.qvel[v + 3 : v + 6]), projected_gravity(lay.quat(d)), command, q, qd)
+        return full[self.present[self.inputs]]
 
     def push(self, dv_xy: np.ndarray) -> None:
         """Adds ``dv_xy`` (m/s) to the base's horizontal velocity (world frame)."""
