@@ -111,18 +111,22 @@ def test_dataset_script_writes_the_trainers_layout(tmp_path):
     from koopbridge.experiments import g1_data
 
     out = tmp_path / "g1"
-    args = ["--out", str(out), "--windows", "18", "--train", "12", "--val", "3", "--steps", "4", "--windows-per-episode", "3", "--block", "6"]
+    args = ["--out", str(out), "--windows", "18", "--train", "12", "--val", "3", "--steps", "4", "--windows-per-episode", "3", "--block", "6",
+            "--held", "locked"]
     assert g1_data.main(args) == 0
     with zipfile.ZipFile(out / "train.npz") as z:
         assert sorted(z.namelist()) == ["meta.json", "u.npy", "x.npy"]
         meta = json.loads(z.read("meta.json"))
-    assert (meta["n"], meta["steps"], meta["nx"], meta["nu"], meta["env"], meta["seed"]) == (12, 4, 53, 23, "unitree-g1", 42)
+    assert (meta["n"], meta["steps"], meta["nx"], meta["nu"], meta["env"], meta["seed"]) == (12, 4, 53, 23, "unitree-g1-locked", 42)
     assert "holosoma" in meta["policy"] and meta["state_names"][-1] == "base_height"
     with np.load(out / "test.npz") as z:
         assert z["x"].shape == (3, 5, 53) and z["u"].shape == (3, 4, 23)
         # The same windows as the simulator's own collect (the script adds nothing).
-        ref = G1Simulator().collect(G1Simulator().expert_policy({"kind": "expert", "windows_per_episode": 3, "push": 0.0}), 42, 3, 4, start=15)
+        locked = G1Simulator(held="locked")
+        ref = locked.collect(locked.expert_policy({"kind": "expert", "windows_per_episode": 3, "push": 0.0}), 42, 3, 4, start=15)
         np.testing.assert_array_equal(z["x"], ref.x)
     summary = json.loads((out / "collect.json").read_text())
-    assert summary["collected"] == 18 and summary["policy"]["kind"] == "expert" and not (out / ".blocks").exists()
+    assert summary["collected"] == 18 and summary["policy"]["kind"] == "expert" and summary["options"] == {"held": "locked", "policy_name": "fastsac"}
+    assert not any(p.name.startswith(".blocks") for p in out.iterdir())
+    assert "'held': 'locked'" in meta["source"] or '"held": "locked"' in meta["source"]
     assert g1_data.main(["--out", str(tmp_path / "bad"), "--windows", "18", "--train", "13", "--val", "2", "--windows-per-episode", "3"]) == 2

@@ -266,7 +266,7 @@ def test_locked_holds_remove_the_six_joints_and_the_expert_still_walks():
     assert (m.nu, m.nq, m.nv) == (23, 30, 29) and locked.layout.joints == g.INPUT_JOINTS
     assert all(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, j) < 0 for j in g.HELD)
     info = check_adapter(locked, steps=6)
-    assert (info.nx, info.nu) == (53, 23) and info.extra["mujoco"]["held"].startswith("locked")
+    assert (info.nx, info.nu, info.env) == (53, 23, "unitree-g1-locked") and info.extra["mujoco"]["held"].startswith("locked")
     assert info.state_names == G1Simulator().info().state_names
     fwd, falls = _walk(locked, (0.5, 0, 0), (0.5, 0, 0), 10)
     assert falls == 0 and 0.3 < fwd.x[10:, :, 4].mean() < 0.5, (falls, fwd.x[10:, :, 4].mean())

@@ -43,7 +43,7 @@ def parser() -> argparse.ArgumentParser:
                    "targets outside are clipped (default: %(default)s, the joint limits)")
     p.add_argument("--reset-range", type=float, default=0.05, help="seeded reset: default pose + U(+-this) rad per input joint, "
                    "heading U(+-pi) (default: %(default)s)")
-    p.add_argument("--env", default="unitree-g1", help="environment name reported in info (default: %(default)s)")
+    p.add_argument("--env", help="environment name reported in info (default: unitree-g1, with --held locked unitree-g1-locked)")
     p.add_argument("--quiet", action="store_true", help="do not print a line at every fall")
     return p
 

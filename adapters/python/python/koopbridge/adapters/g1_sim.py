@@ -73,7 +73,9 @@ class G1Simulator:
     metadata. ``held``: ``servo`` or ``locked`` (module docstring). ``target_margin``: the input bounds are the joint ranges widened by this (rad);
     ``reset_range``: a seeded reset draws the 23 input joints from the default pose + U(±this)
     rad and the heading from U(±π); ``memory``: how many returned states ``reset(x0=)``
-    restores exactly; ``on_fall``: called with a message at every fall.
+    restores exactly; ``env``: the name in ``info`` (default ``unitree-g1``, with locked holds
+    ``unitree-g1-locked``, so that data of the two robots do not mix); ``on_fall``: called with
+    a message at every fall.
 
     Counters: ``steps``, ``falls`` (upright → fallen transitions, lockstep and collect),
     ``clipped_targets``; ``fallen`` is the last step's status; ``step_status()`` gives the step
@@ -90,7 +92,7 @@ class G1Simulator:
         target_margin: float = 0.0,
         reset_range: float = 0.05,
         memory: int = 4096,
-        env: str = "unitree-g1",
+        env: str | None = None,
         on_fall: Callable[[str], None] | None = None,
     ) -> None:
         import mujoco
@@ -124,7 +126,7 @@ class G1Simulator:
         self.u_lo, self.u_hi = q_min - self.target_margin, q_max + self.target_margin
         self.command_slew = np.full(3, np.inf)
         self.reset_range = float(reset_range)
-        self.env = env
+        self.env = env or ("unitree-g1" if held == "servo" else "unitree-g1-locked")
         self.on_fall = on_fall
         self.nx, self.nu = 11 + 2 * len(self.observed), len(self.inputs)
         self.feet = [self.model.geom(f"{side}_foot{i}_collision").id for side in ("left", "right") for i in range(1, 8)]

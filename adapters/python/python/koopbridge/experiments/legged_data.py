@@ -30,7 +30,7 @@ from .dataset_npz import DatasetMeta, load_block, save_dataset_npz
 
 __all__ = ["DataRobot", "collect_block", "main", "parser", "policy_json"]
 
-_WORKER: dict[tuple[str, float], Any] = {}
+_WORKER: dict[str, Any] = {}
 
 
 @dataclass(frozen=True)
@@ -45,12 +45,14 @@ class DataRobot:
     expert: str
 
 
-def _sim(simulator: str, target_margin: float) -> Any:
-    key = (simulator, target_margin)
+def _sim(simulator: str, target_margin: float, options: dict[str, Any] | None = None) -> Any:
+    """The process's simulator (``"module:Class"`` built with ``target_margin`` and ``options``), reused while they stay the same."""
+    kwargs = {"target_margin": target_margin, **(options or {})}
+    key = json.dumps([simulator, kwargs], sort_keys=True)
     if key not in _WORKER:
         module, cls = simulator.split(":")
         _WORKER.clear()
-        _WORKER[key] = getattr(importlib.import_module(module), cls)(target_margin=target_margin)
+        _WORKER[key] = getattr(importlib.import_module(module), cls)(**kwargs)
     return _WORKER[key]
 
 
@@ -62,13 +64,13 @@ def policy_json(a: argparse.Namespace) -> dict[str, Any]:
 
 
 def collect_block(simulator: str, policy: dict[str, Any], seed: int, start: int, n: int, T: int, path: str,
-                  target_margin: float = 0.0) -> tuple[str, float, int]:
-    """Collects windows ``start .. start + n - 1`` with the ``simulator`` (``"module:Class"``,
-    one per process) into the block file ``path`` (atomically); returns the path, the seconds
-    spent collecting and the falls (restarts) on the way."""
+                  target_margin: float = 0.0, options: dict[str, Any] | None = None) -> tuple[str, float, int]:
+    """Collects windows ``start .. start + n - 1`` with the ``simulator`` (``"module:Class"``
+    with ``options``, one per process) into the block file ``path`` (atomically); returns the
+    path, the seconds spent collecting and the falls (restarts) on the way."""
     from ..collect import policy_from_json
 
-    sim = _sim(simulator, target_margin)
+    sim = _sim(simulator, target_margin, options)
     falls = sim.falls
     t0 = time.perf_counter()
     w = sim.collect(policy_from_json(policy), seed, n, T, start=start)
@@ -97,9 +99,11 @@ def parser(robot: DataRobot, description: str, windows: int = 180_000) -> argpar
     return p
 
 
-def main(robot: DataRobot, a: argparse.Namespace) -> int:
-    """Collects (or resumes) the blocks of ``robot``'s expert data, then writes the three
-    splits; returns the exit code (2 for bad sizes)."""
+def main(robot: DataRobot, a: argparse.Namespace, options: dict[str, Any] | None = None) -> int:
+    """Collects (or resumes) the blocks of ``robot``'s expert data with its simulator built with
+    ``options`` (besides ``target_margin``), then writes the three splits; returns the exit code
+    (2 for bad sizes). Blocks of another policy, seed, size or options are not reused: the
+    options are part of the block folder's name."""
     tag = robot.name
     n_train = a.train if a.train is not None else a.windows * 7 // 9
     n_val = a.val if a.val is not None else a.windows // 9
@@ -112,11 +116,12 @@ def main(robot: DataRobot, a: argparse.Namespace) -> int:
         print(f"{tag}: train, val, total and block sizes must be multiples of --windows-per-episode {K}", file=sys.stderr)
         return 2
     policy = policy_json(a)
-    blocks_dir = os.path.join(a.out, ".blocks")
+    options = dict(options or {})
+    blocks_dir = os.path.join(a.out, ".blocks" + "".join(f"-{k}-{v}" for k, v in sorted(options.items())))
     os.makedirs(blocks_dir, exist_ok=True)
     spec = [(s, min(a.block, a.windows - s), os.path.join(blocks_dir, f"block-{s:07d}.npz")) for s in range(0, a.windows, a.block)]
     todo = sorted((b for b in spec if load_block(b[2], a.seed, b[0], b[1], a.steps) is None), key=lambda b: (b[0] < n_train, b[0]))
-    print(f"{tag}: policy {json.dumps(policy)}; {len(spec) - len(todo)} of {len(spec)} blocks present, "
+    print(f"{tag}: policy {json.dumps(policy)}, simulator options {json.dumps(options)}; {len(spec) - len(todo)} of {len(spec)} blocks present, "
           f"collecting {len(todo)} with {a.procs} process(es)", flush=True)
     t0 = time.perf_counter()
     done = falls = 0
@@ -131,11 +136,11 @@ def main(robot: DataRobot, a: argparse.Namespace) -> int:
     args = (robot.simulator, policy, a.seed)
     if a.procs == 1:
         for s, n, path in todo:
-            report(n, collect_block(*args, s, n, a.steps, path, a.target_margin)[2])
+            report(n, collect_block(*args, s, n, a.steps, path, a.target_margin, options)[2])
     else:
         # spawn: the workers share nothing with this process (no MuJoCo or onnxruntime state forked).
         with ProcessPoolExecutor(a.procs, mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = [pool.submit(collect_block, *args, s, n, a.steps, path, a.target_margin) for s, n, path in todo]
+            futures = [pool.submit(collect_block, *args, s, n, a.steps, path, a.target_margin, options) for s, n, path in todo]
             for f, (_, n, _) in zip(futures, todo, strict=True):
                 report(n, f.result()[2])
     wall = time.perf_counter() - t0
@@ -145,21 +150,21 @@ def main(robot: DataRobot, a: argparse.Namespace) -> int:
         return 1
     x = np.concatenate([b.x for b in blocks if b is not None])
     u = np.concatenate([b.u for b in blocks if b is not None])
-    info = _sim(robot.simulator, a.target_margin).info()
+    info = _sim(robot.simulator, a.target_margin, options).info()
     meta = DatasetMeta(
         env=info.env,
         dt=info.dt,
         state_names=list(info.state_names),
         input_names=list(info.input_names),
         seed=a.seed,
-        source=f"{robot.simulator} collect (MuJoCo {info.extra['mujoco']['version']}, {info.extra['mujoco']['source']})",
+        source=f"{robot.simulator}({json.dumps(options)}) collect (MuJoCo {info.extra['mujoco']['version']}, {info.extra['mujoco']['source']})",
         policy=f"{json.dumps(policy)}: {robot.expert}, {a.windows_per_episode} windows back to back per episode after 1 s of "
         f"warm-up; inputs = the joint targets applied (clipped to the joint ranges widened by {a.target_margin} rad)",
     )
     for name, (lo, hi) in {"train": (0, n_train), "val": (n_train, n_train + n_val), "test": (n_train + n_val, a.windows)}.items():
         save_dataset_npz(os.path.join(a.out, f"{name}.npz"), x[lo:hi], u[lo:hi], meta)
     summary = dict(windows=a.windows, train=n_train, val=n_val, test=n_test, steps=a.steps, seed=a.seed, procs=a.procs, policy=policy,
-                   target_margin=a.target_margin, collected=sum(n for _, n, _ in todo), falls=falls, wall_s=round(wall, 1))
+                   target_margin=a.target_margin, options=options, collected=sum(n for _, n, _ in todo), falls=falls, wall_s=round(wall, 1))
     with open(os.path.join(a.out, "collect.json"), "w") as f:
         json.dump(summary, f, indent=2)
     print(json.dumps(summary), flush=True)
@@ -170,6 +175,8 @@ def main(robot: DataRobot, a: argparse.Namespace) -> int:
     return 0
 
 
-def run(robot: DataRobot, description: str, argv: Sequence[str] | None = None) -> int:
-    """Parses ``argv`` with ``robot``'s command line and runs ``main``."""
-    return main(robot, parser(robot, description).parse_args(argv))
+def run(robot: DataRobot, p: argparse.ArgumentParser, argv: Sequence[str] | None = None, options: Sequence[str] = ()) -> int:
+    """Parses ``argv`` with ``p`` (``parser`` plus the robot's own options) and runs ``main``
+    with the parsed values of ``options`` (argparse destinations) as simulator options."""
+    a = p.parse_args(argv)
+    return main(robot, a, {k: getattr(a, k) for k in options})
