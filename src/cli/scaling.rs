@@ -175,7 +175,8 @@ fn read_run(dir: &Path) -> anyhow::Result<Option<RunPoint>> {
                 file.display()
             )
         })?;
-    let latent_dim = store::read_config(dir)?
+    let config = store::read_config(dir)?;
+    let latent_dim = config
         .get("latent_dim")
         .and_then(Value::as_u64)
         .with_context(|| {
@@ -184,9 +185,17 @@ fn read_run(dir: &Path) -> anyhow::Result<Option<RunPoint>> {
                 dir.join("config.json").display()
             )
         })?;
+    // Built-in systems with parameters (the polynomial system's n_poly) are different curves.
+    let parameters = config
+        .pointer("/metadata/dataset/source")
+        .and_then(Value::as_str)
+        .and_then(koopman::data::builtin_source_parameters);
     Ok(Some(RunPoint {
         path: dir.to_path_buf(),
-        env: run.env,
+        env: match parameters {
+            Some(p) => format!("{} {p}", run.env),
+            None => run.env,
+        },
         pairing: run.pairing,
         m: run.train_samples,
         n_mult: run.config.n_mult,
@@ -416,6 +425,39 @@ mod tests {
         let saved: Value =
             serde_json::from_slice(&std::fs::read(out.join("scaling.json")).unwrap()).unwrap();
         assert_eq!(saved["curves"].as_array().unwrap().len(), 2);
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    #[test]
+    fn built_in_systems_with_different_parameters_are_different_curves() {
+        let root = temp("params");
+        for (n_poly, scale) in [(3, 1.0), (10, 100.0)] {
+            for (k, m) in [1000usize, 4000, 16000].into_iter().enumerate() {
+                let dir = root.join(format!("p{n_poly}-{k}"));
+                write_run(&dir, m, 16, 1, scale * (m as f64).powf(-1.0));
+                let config = serde_json::json!({
+                    "kind": "koopman",
+                    "latent_dim": 34,
+                    "metadata": { "dataset": {
+                        "source": koopman::data::builtin_source(&format!("n_poly={n_poly}"))
+                    } }
+                });
+                std::fs::write(dir.join("config.json"), config.to_string()).unwrap();
+            }
+        }
+        let curves = fit_curves(&collect_runs(&[root.clone()]).unwrap(), Axis::M);
+        let labels: Vec<&str> = curves.iter().map(|c| c.label.as_str()).collect();
+        assert_eq!(curves.len(), 2, "{labels:?}");
+        for n_poly in [3, 10] {
+            let c = curves
+                .iter()
+                .find(|c| {
+                    c.label
+                        .contains(&format!("damped-pendulum n_poly={n_poly} "))
+                })
+                .unwrap_or_else(|| panic!("no curve for n_poly={n_poly} in {labels:?}"));
+            assert!((c.fit.as_ref().unwrap().alpha - 1.0).abs() < 0.05);
+        }
         std::fs::remove_dir_all(&root).unwrap();
     }
 

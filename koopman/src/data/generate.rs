@@ -102,10 +102,7 @@ pub fn generate_with_progress(
         input_names: system.input_names(),
         pairing,
         seed,
-        source: match system.parameters() {
-            p if p.is_empty() => "koopman::systems".to_string(),
-            p => format!("koopman::systems ({p})"),
-        },
+        source: builtin_source(&system.parameters()),
         policy: "uniform random input each step (zero-order hold)".to_string(),
         region: None,
     };
@@ -158,6 +155,28 @@ fn window(
         }
     }
 }
+
+/// The `source` recorded for data generated from a built-in system: `koopman::systems`, with the
+/// instance's parameters in parentheses when it has any (`koopman::systems (n_poly=10)`).
+pub fn builtin_source(parameters: &str) -> String {
+    if parameters.is_empty() {
+        BUILTIN_SOURCE.to_string()
+    } else {
+        format!("{BUILTIN_SOURCE} ({parameters})")
+    }
+}
+
+/// The parameters named by a [`builtin_source`] (`n_poly=10`), or `None` for a source without
+/// any or one that is not a built-in system's.
+pub fn builtin_source_parameters(source: &str) -> Option<&str> {
+    source
+        .strip_prefix(BUILTIN_SOURCE)?
+        .strip_prefix(" (")?
+        .strip_suffix(')')
+        .filter(|p| !p.is_empty())
+}
+
+const BUILTIN_SOURCE: &str = "koopman::systems";
 
 #[cfg(test)]
 mod tests {
@@ -247,5 +266,18 @@ mod tests {
         assert!(generate(s.as_ref(), 5, 0, 1, Pairing::Aligned).is_err());
         assert!(generate(s.as_ref(), usize::MAX / 2, 15, 1, Pairing::Aligned).is_err());
         assert!(generate(s.as_ref(), 5, usize::MAX / 2, 1, Pairing::Aligned).is_err());
+    }
+
+    #[test]
+    fn builtin_source_parameters_read_back_what_the_source_records() {
+        let poly = crate::systems::polynomial::PolynomialSystem::new(10).unwrap();
+        let one = generate(&poly, 2, 1, 1, Pairing::Aligned).unwrap();
+        assert_eq!(
+            builtin_source_parameters(&one.meta.source),
+            Some("n_poly=10")
+        );
+        assert_eq!(builtin_source_parameters(&builtin_source("")), None);
+        assert_eq!(builtin_source_parameters("zenoh:sim/fmu0 (n_poly=3)"), None);
+        assert_eq!(builtin_source_parameters("koopman::systems ()"), None);
     }
 }

@@ -23,7 +23,9 @@ pub mod npz;
 pub mod region;
 pub mod splits;
 
-pub use generate::{generate, generate_with_progress, worker_threads};
+pub use generate::{
+    builtin_source, builtin_source_parameters, generate, generate_with_progress, worker_threads,
+};
 pub use normalise::Normalisation;
 pub use region::{DataRegion, InRegion};
 pub use splits::{generate_splits, generate_splits_with_progress, SplitSpec, Splits};
