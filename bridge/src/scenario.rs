@@ -1,5 +1,14 @@
 //! Scenario files (`scenarios/*.toml`): which simulators, how data is collected, how the model
 //! is trained and how it is used for control.
+//!
+//! `[train] model` chooses the kind of model: `"koopman"` (the default), `"bilinear"`, `"edmd"`,
+//! `"nndm"`, or a list of distinct kinds (`model = ["koopman", "edmd"]`) to train one model of
+//! each per simulator and run `[control]` with each — the MPC service picks the controller by
+//! the model's kind — so that the report sets them side by side ([`train`]). An unknown or
+//! repeated kind, or one that cannot do what the file asks (a `[train].config` setting it cannot
+//! honour, `feedforward_file` with a bilinear or NNDM model, `offset_free` with an NNDM), is
+//! refused when the file is read; `bilinear` on a simulator without inputs, once its `info` is
+//! known, before collection.
 
 use std::path::{Path, PathBuf};
 
@@ -9,8 +18,10 @@ use crate::error::{Error, Result};
 use crate::keyexpr::validate_chunk;
 
 pub mod extras;
+pub mod train;
 
 pub use extras::{CommandLine, HookPhase, HookSpec, ParticipantRole, ParticipantSpec};
+pub use train::TrainSpec;
 
 /// A whole scenario.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -25,7 +36,8 @@ pub struct Scenario {
     pub sims: Vec<SimSpec>,
     /// Data collection.
     pub collect: CollectSpec,
-    /// Training (through the trainer service); absent = no training, no control.
+    /// Training (through the trainer service): which kinds of model, with which settings
+    /// ([`TrainSpec`]); absent = no training, no control.
     #[serde(default)]
     pub train: Option<TrainSpec>,
     /// Closed-loop control (through the MPC service): one `[control]` table, or one
@@ -285,15 +297,6 @@ fn default_seed() -> u64 {
     42
 }
 
-/// Training through the trainer service.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct TrainSpec {
-    /// `koopman::train::TrainConfig` fields to override (JSON object; the rest = SPEC defaults).
-    #[serde(default)]
-    pub config: serde_json::Map<String, serde_json::Value>,
-}
-
 /// Closed-loop control of one simulator with the MPC service.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -496,8 +499,12 @@ impl Scenario {
             Error::Config(format!("{what}: {m}"))
         };
         if let Some(t) = &self.train {
-            train_config(&t.config).map_err(|e| config("[train].config", e))?;
+            // The model kind is `model`, not a TrainConfig field: checked with the kinds.
+            let mut c = t.config.clone();
+            c.remove(crate::services::model_kind::KIND_KEY);
+            train_config(&c).map_err(|e| config("[train].config", e))?;
         }
+        self.check_train()?;
         if let Some(f) = &self.full {
             train_config(&f.train_config).map_err(|e| config("[full].train_config", e))?;
         }

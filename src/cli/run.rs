@@ -21,6 +21,9 @@ use bridge::scenario::Scenario;
     data and models whose sections are unchanged are reused (and it says so), and an\n\
     interrupted training resumes from its checkpoint (results/{scenario}/state/trainer/jobs/).\n\
     External simulator commands run in the repository of the scenario file.\n\n\
+    [train] model = [\"koopman\", \"edmd\"] (kinds: koopman, bilinear, edmd, nndm) trains one model\n\
+    of each kind per simulator and controls with each; the models are printed side by side\n\
+    (test prediction error, final error, tracking RMS, time to goal; report.json's `models`).\n\n\
     Warnings (on stderr, and in report.json's `warnings`): an MPC that did not solve every\n\
     step (`not_solved`, by status: suboptimal, inaccurate, fallback), an aggregation round that\n\
     made control worse. They do not change the exit code unless --fail-on-warning is given."
@@ -184,11 +187,20 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             t.metrics
         );
     }
-    let several = report.controls.len() > 1;
+    // With several model kinds, each control run is named by its model (`{scenario}-{sim}-{kind}`).
+    let kinds = report
+        .models
+        .iter()
+        .filter(|m| report.models[0].sim == m.sim)
+        .count();
+    // Several simulators in the control loop (each kind has its own loop of them).
+    let several = report.controls.len() > kinds.max(1);
     for (i, c) in report.controls.iter().enumerate() {
         // The first entry's plot keeps the name of a one-simulator run.
         let png = if i == 0 {
             out_dir.join("control.png")
+        } else if kinds > 1 {
+            out_dir.join(format!("control-{}.png", c.model))
         } else {
             out_dir.join(format!("control-{}.png", c.sim))
         };
@@ -197,8 +209,13 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             Err(e) => eprintln!("warning: could not draw {}: {e:#}", png.display()),
         }
         println!(
-            "  control of '{}': final error {:.4}, tracking RMS {:.4}, time to goal {}, not solved {}, solve median {:.0} µs, round trip median {:.0} µs",
+            "  control of '{}'{}: final error {:.4}, tracking RMS {:.4}, time to goal {}, not solved {}, solve median {:.0} µs, round trip median {:.0} µs",
             c.sim,
+            if kinds > 1 {
+                format!(" with model '{}'", c.model)
+            } else {
+                String::new()
+            },
             c.final_error,
             c.tracking_rms_total,
             time_to_goal(c.time_to_goal_steps),
@@ -223,6 +240,12 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                 l.deprioritised.len()
             ))
         );
+    }
+    if kinds > 1 {
+        println!("  the models side by side:");
+        for line in bridge::orchestrator::compare::table(&report.models).lines() {
+            println!("    {line}");
+        }
     }
     if !report.aggregation.is_empty() {
         for r in &report.aggregation {

@@ -15,12 +15,14 @@
 //! - [`validate`]: the whole scenario checked against the simulators' `info` before collection;
 //! - [`reuse`]: a rerun into the same folder reuses unchanged data and models;
 //! - [`train`]: one simulator's model trained through the trainer service ([`TrainReport`]);
+//! - [`compare`]: the models of a run (one per simulator and `[train].model` kind) side by side;
 //! - [`run`]: the whole scenario ([`run_scenario`]) and its report.
 
 pub mod aggregate;
 pub mod closed_loop;
 pub mod cluster;
 pub mod commands;
+pub mod compare;
 pub mod control;
 pub mod control_loop;
 pub mod control_settings;

@@ -1,8 +1,9 @@
 //! Reuse of a previous run's work in the same output folder: the collected datasets when the
 //! scenario's `[[sims]]` and `[collect]` sections and the simulators' `info` are unchanged, a
-//! trained model when, in addition, `[train]` is unchanged. Each finished phase writes a record
-//! (its inputs as a key, its report) atomically; a phase about to run removes its record first,
-//! so a record never describes files that a later, interrupted run half replaced.
+//! trained model when, in addition, its kind and the `[train]` settings it uses are unchanged.
+//! Each finished phase writes a record (its inputs as a key, its report) atomically; a phase
+//! about to run removes its record first, so a record never describes files that a later,
+//! interrupted run half replaced.
 
 use std::path::{Path, PathBuf};
 
@@ -12,7 +13,8 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::fsutil::write_atomic;
 use crate::messages::SimInfo;
-use crate::scenario::{Scenario, TrainSpec};
+use crate::scenario::Scenario;
+use crate::services::model_kind::ModelKind;
 
 #[derive(Serialize, Deserialize)]
 struct Record<T> {
@@ -25,9 +27,14 @@ pub fn collect_key(sc: &Scenario, infos: &[&SimInfo]) -> serde_json::Value {
     serde_json::json!({"sims": sc.sims, "infos": infos, "collect": sc.collect})
 }
 
-/// What a trained model depends on: the data (`collect_key`) and `[train]`.
-pub fn train_key(collect_key: &serde_json::Value, train: &TrainSpec) -> serde_json::Value {
-    serde_json::json!({"collect": collect_key, "train": train})
+/// What a trained model depends on: the data (`collect_key`) and the job config it is trained
+/// with (its kind and the `[train].config` settings that kind uses,
+/// [`super::train::job_config`]); so adding a kind to `[train].model` retrains no other kind.
+pub fn train_key(
+    collect_key: &serde_json::Value,
+    job_config: &serde_json::Map<String, serde_json::Value>,
+) -> serde_json::Value {
+    serde_json::json!({"collect": collect_key, "train": job_config})
 }
 
 /// The record of the collection phase in `out_dir`.
@@ -35,12 +42,14 @@ pub fn collect_record(out_dir: &Path) -> PathBuf {
     out_dir.join("data").join("collect.json")
 }
 
-/// The record of the training of simulator `sim`'s model in `out_dir`.
-pub fn train_record(out_dir: &Path, sim: &str) -> PathBuf {
-    out_dir
-        .join("state")
-        .join("orchestrator")
-        .join(format!("train-{sim}.json"))
+/// The record of the training of simulator `sim`'s model of kind `kind` in `out_dir`
+/// (`train-{sim}.json` for `koopman`, `train-{sim}-{kind}.json` for the others).
+pub fn train_record(out_dir: &Path, sim: &str, kind: ModelKind) -> PathBuf {
+    let file = match kind {
+        ModelKind::Koopman => format!("train-{sim}.json"),
+        k => format!("train-{sim}-{k}.json"),
+    };
+    out_dir.join("state").join("orchestrator").join(file)
 }
 
 /// The report stored at `path` if the record exists, parses and was made from `key`.
@@ -89,5 +98,30 @@ mod tests {
         forget(&p).unwrap();
         assert_eq!(load::<u32>(&p, &k1), None);
         std::fs::remove_dir_all(&d).ok();
+    }
+
+    #[test]
+    fn each_kind_has_its_own_record_and_key() {
+        let d = Path::new("/o");
+        let records: Vec<PathBuf> = ModelKind::ALL
+            .iter()
+            .map(|&k| train_record(d, "pend", k))
+            .collect();
+        assert_eq!(records[0], d.join("state/orchestrator/train-pend.json"));
+        assert_eq!(
+            records[2],
+            d.join("state/orchestrator/train-pend-edmd.json")
+        );
+        for (i, r) in records.iter().enumerate() {
+            assert!(!records[..i].contains(r), "{r:?} twice");
+        }
+        let c = serde_json::json!({"seed": 1});
+        let fields = serde_json::json!({"iterations": 5})
+            .as_object()
+            .unwrap()
+            .clone();
+        let key = |k: ModelKind| train_key(&c, &k.job_config(&fields));
+        assert_ne!(key(ModelKind::Koopman), key(ModelKind::Nndm));
+        assert_ne!(key(ModelKind::Koopman), key(ModelKind::Bilinear));
     }
 }

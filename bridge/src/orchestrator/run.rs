@@ -1,5 +1,6 @@
-//! A whole scenario: start the cluster, collect in lockstep, train through the trainer service,
-//! regulate through the MPC service, and the report of it all.
+//! A whole scenario: start the cluster, collect in lockstep, train through the trainer service
+//! (one model per simulator and `[train].model` kind), regulate through the MPC service with
+//! each kind's models, and the report of it all.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -9,10 +10,11 @@ use serde::{Deserialize, Serialize};
 
 use super::aggregate::{self, AggregationRound};
 use super::commands::{run_hooks, Placeholders};
+use super::compare::{self, ModelResult};
 use super::control::{control_phase, ControlPhase};
 use super::control_loop::LoopReport;
 use super::reuse;
-use super::train::{train_model, TrainReport};
+use super::train::{job_config, train_model_as, TrainReport};
 use super::validate::validate_scenario;
 use super::{Cluster, ControlReport, Event, RunOptions};
 use crate::client::SimClient;
@@ -21,6 +23,7 @@ use crate::error::{Error, Result};
 use crate::keyexpr::fresh_session_id;
 use crate::messages::SimInfo;
 use crate::scenario::{HookPhase, Scenario};
+use crate::services::model_kind::ModelKind;
 use crate::services::Service;
 
 /// The outcome of one scenario run (written as `report.json`).
@@ -32,14 +35,21 @@ pub struct Report {
     pub session: String,
     /// Collection summary.
     pub collect: CollectReport,
-    /// Training results, one per simulator.
+    /// Training results, one per simulator and model kind (the kinds in `[train].model` order,
+    /// the simulators in `[[sims]]` order within each).
     pub train: Vec<TrainReport>,
     /// Closed-loop control result of the first `[control]` entry (as `controls[0]`).
     pub control: Option<ControlReport>,
-    /// Closed-loop control results, one per `[control]` entry (in order).
+    /// Closed-loop control results, one per `[control]` entry (in order) and model kind: the
+    /// first kind's entries, then the next kind's.
     #[serde(default)]
     pub controls: Vec<ControlReport>,
-    /// The figures of the control loop (all controlled simulators in one lockstep loop).
+    /// The models side by side: per simulator and model kind, the test prediction error and
+    /// the control result ([`compare::side_by_side`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub models: Vec<ModelResult>,
+    /// The figures of the control loop with the first model kind (all controlled simulators in
+    /// one lockstep loop).
     #[serde(default)]
     pub control_loop: Option<LoopReport>,
     /// On-policy aggregation rounds (`koopbridge run --aggregate ROUNDS`): per round and
@@ -157,6 +167,19 @@ pub fn run_scenario_with(
             "--aggregate needs [train] and [control] (it retrains on closed-loop rollouts)".into(),
         ));
     }
+    let kinds = sc.train.as_ref().map(|t| t.kinds()).unwrap_or_default();
+    if extras.aggregate > 0 && kinds.len() > 1 {
+        return Err(Error::Config(format!(
+            "--aggregate retrains one model per simulator; [train].model lists {} kinds ({}): \
+             list one",
+            kinds.len(),
+            kinds
+                .iter()
+                .map(|k| k.name())
+                .collect::<Vec<_>>()
+                .join(", ")
+        )));
+    }
     let session_id = opts.session.clone().unwrap_or_else(fresh_session_id);
     on(Event::Phase("starting simulators and services"));
     let cluster = Cluster::launch_with(
@@ -188,25 +211,37 @@ pub fn run_scenario_with(
     hooks(HookPhase::BeforeCollect, on)?;
 
     let collect_report = collect_phase(sc, opts, &cluster, &mut clients, &collect_key, on)?;
-    let mut train_reports = Vec::new();
-    if let Some(t) = &sc.train {
-        on(Event::Phase("training (trainer service)"));
-        let key = reuse::train_key(&collect_key, t);
+    let mut trained: Vec<(ModelKind, TrainReport)> = Vec::new();
+    for &kind in &kinds {
+        on(Event::Phase(&if kinds.len() > 1 {
+            format!("training the {kind} models (trainer service)")
+        } else {
+            "training (trainer service)".to_string()
+        }));
+        let key = reuse::train_key(&collect_key, &job_config(sc, kind)?);
         for s in &sc.sims {
-            train_reports.push(train_one(sc, opts, &cluster, &s.id, &key, on)?);
+            trained.push((kind, train_one(sc, opts, &cluster, &s.id, kind, &key, on)?));
         }
     }
 
     hooks(HookPhase::BeforeControl, on)?;
     let (mut controls, mut control_loop, mut aggregation) = (Vec::new(), None, Vec::new());
     let mut warnings = Vec::new();
-    if !sc.control.is_empty() {
-        on(Event::Phase("closed-loop control (MPC service)"));
-        let record = extras.aggregate > 0;
+    for (i, &kind) in kinds.iter().enumerate().filter(|_| !sc.control.is_empty()) {
+        on(Event::Phase(&if kinds.len() > 1 {
+            format!(
+                "closed-loop control with the {kind} models (MPC service: {})",
+                kind.controller()
+            )
+        } else {
+            "closed-loop control (MPC service)".to_string()
+        }));
+        // Aggregation (one kind only) records and retrains the first run.
+        let record = extras.aggregate > 0 && i == 0;
         if record {
             aggregate::start_recording(sc, &cluster)?;
         }
-        let model_of = |id: &str| aggregate::model_name(sc, id, 0);
+        let model_of = |id: &str| sc.model_name(id, kind);
         let (c, l) = control_phase(
             sc,
             &cluster.client,
@@ -216,7 +251,7 @@ pub fn run_scenario_with(
             &ControlPhase {
                 model_of: &model_of,
                 publish: record,
-                baseline: extras.loop_baseline,
+                baseline: extras.loop_baseline && i == 0,
                 deprioritise: &|id| cluster.deprioritise_sim(id),
             },
             on,
@@ -237,17 +272,21 @@ pub fn run_scenario_with(
                 on,
             )?;
         }
-        warnings.extend(aggregation.iter().flat_map(aggregate::round_warnings));
-        controls = c;
-        control_loop = Some(l);
+        if i == 0 {
+            control_loop = Some(l);
+        }
+        controls.extend(c);
     }
+    warnings.extend(aggregation.iter().flat_map(aggregate::round_warnings));
+    let models = compare::side_by_side(&trained, &controls);
     let report = Report {
         scenario: sc.name.clone(),
         session: session_id,
         collect: collect_report,
-        train: train_reports,
+        train: trained.into_iter().map(|(_, t)| t).collect(),
         control: controls.first().cloned(),
         controls,
+        models,
         control_loop,
         aggregation,
         warnings,
@@ -341,18 +380,19 @@ fn collect_phase(
     Ok(report)
 }
 
-/// Trains simulator `sim`'s model through the trainer service, or reuses the model a previous
-/// run with the same `key` trained into the store.
+/// Trains simulator `sim`'s model of kind `kind` through the trainer service, or reuses the
+/// model a previous run with the same `key` trained into the store.
 fn train_one(
     sc: &Scenario,
     opts: &RunOptions,
     cluster: &Cluster,
     sim: &str,
+    kind: ModelKind,
     key: &serde_json::Value,
     on: &mut dyn FnMut(Event<'_>),
 ) -> Result<TrainReport> {
-    let model = format!("{}-{}", sc.name, sim);
-    let record = reuse::train_record(&opts.out_dir, sim);
+    let model = sc.model_name(sim, kind);
+    let record = reuse::train_record(&opts.out_dir, sim, kind);
     let stored = opts.out_dir.join("models").join(&model);
     if let Some(mut r) = reuse::load::<TrainReport>(&record, key) {
         if stored.join("config.json").is_file() {
@@ -366,7 +406,16 @@ fn train_one(
     }
     reuse::forget(&record)?;
     let dir = opts.out_dir.join("data").join(sim);
-    let report = train_model(sc, opts, cluster, sim, &model, &dir.join("train.npz"), on)?;
+    let report = train_model_as(
+        sc,
+        opts,
+        cluster,
+        sim,
+        kind,
+        &model,
+        &dir.join("train.npz"),
+        on,
+    )?;
     reuse::store(&record, key, &report)?;
     Ok(report)
 }

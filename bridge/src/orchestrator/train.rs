@@ -9,6 +9,7 @@ use super::{Cluster, Event, RunOptions, SERVICES_ID};
 use crate::error::{Error, ErrorCode, Result};
 use crate::keyexpr::Role;
 use crate::scenario::Scenario;
+use crate::services::model_kind::ModelKind;
 use crate::services::trainer::{submit_and_wait_watching, DatasetRef, JobSpec};
 
 /// Training result of one simulator's model.
@@ -30,7 +31,8 @@ pub struct TrainReport {
 
 /// Trains model `model` of simulator `sim` through the trainer service on the training windows
 /// in file `train` (validation and test: the collected `val.npz`/`test.npz` of `sim`), with the
-/// scenario's `[train]` settings.
+/// scenario's `[train]` settings and its first model kind (what aggregation retrains; a run
+/// trains each kind with [`train_model_as`]).
 pub fn train_model(
     sc: &Scenario,
     opts: &RunOptions,
@@ -40,10 +42,41 @@ pub fn train_model(
     train: &Path,
     on: &mut dyn FnMut(Event<'_>),
 ) -> Result<TrainReport> {
+    let kind = sc
+        .train
+        .as_ref()
+        .map(|t| t.kinds()[0])
+        .ok_or_else(|| Error::Config("no [train]".into()))?;
+    train_model_as(sc, opts, cluster, sim, kind, model, train, on)
+}
+
+/// The job config of a `kind` model with the scenario's `[train].config`
+/// ([`ModelKind::job_config`]: the settings the kind uses, and the kind).
+pub fn job_config(
+    sc: &Scenario,
+    kind: ModelKind,
+) -> Result<serde_json::Map<String, serde_json::Value>> {
     let t = sc
         .train
         .as_ref()
         .ok_or_else(|| Error::Config("no [train]".into()))?;
+    Ok(kind.job_config(&t.config))
+}
+
+/// [`train_model`] of a model of kind `kind` (the trainer service trains each kind with its own
+/// `koopman` training path, the MPC service controls it with its kind's controller).
+#[allow(clippy::too_many_arguments)]
+pub fn train_model_as(
+    sc: &Scenario,
+    opts: &RunOptions,
+    cluster: &Cluster,
+    sim: &str,
+    kind: ModelKind,
+    model: &str,
+    train: &Path,
+    on: &mut dyn FnMut(Event<'_>),
+) -> Result<TrainReport> {
+    let config = job_config(sc, kind)?;
     let dir = opts.out_dir.join("data").join(sim);
     let abs = |p: PathBuf| -> DatasetRef {
         DatasetRef::Path {
@@ -55,7 +88,7 @@ pub fn train_model(
         train: abs(train.to_path_buf()),
         val: abs(dir.join("val.npz")),
         test: (sc.collect.test_windows > 0).then(|| abs(dir.join("test.npz"))),
-        config: t.config.clone(),
+        config,
     };
     // The simulators are needed again after training: a lost one ends the run now.
     let sims: Vec<(Role, String)> = sc.sims.iter().map(|s| (Role::Sim, s.id.clone())).collect();

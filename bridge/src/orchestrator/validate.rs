@@ -1,6 +1,6 @@
 //! The whole scenario checked against its simulators' `info` right after the readiness barrier,
 //! before the expensive phases: the uniform policy's bounds, the initial-state box of
-//! `[collect]`, `[train].config`, `[control].mpc`,
+//! `[collect]`, `[train].config` and its model kinds, `[control].mpc`,
 //! and the lengths of `control.x0`/`control.reference` (and a `reference_file` or
 //! `feedforward_file` that exists already), so that a typo fails in seconds, not after
 //! collection.
@@ -15,6 +15,7 @@ use crate::error::{Error, Result};
 use crate::messages::SimInfo;
 use crate::scenario::{ControlSpec, Scenario};
 use crate::services::koopman_trainer::train_config;
+use crate::services::model_kind::ModelKind;
 
 /// Checks every setting of `sc` that the services would only check later: the training
 /// settings, and for `[control]` the MPC settings (by building a controller on a stand-in
@@ -40,6 +41,16 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
                 train_setting_names().join(", ")
             ))
         })?;
+        if t.kinds().contains(&ModelKind::Bilinear) {
+            if let Some(s) = sc.sims.iter().zip(infos).find(|(_, i)| i.nu() == 0) {
+                return Err(Error::Config(format!(
+                    "[train].model: a bilinear model cannot be trained for simulator '{}': it has \
+                     no inputs (nu = 0), and the bilinear terms Σ u_i N_i z need them (use \
+                     koopman, edmd or nndm)",
+                    s.0.id
+                )));
+            }
+        }
         if t.config.get("ctrl") == Some(&serde_json::Value::Bool(true)) {
             if let Some(s) = sc.sims.iter().zip(infos).find(|(_, i)| i.nu() == 0) {
                 return Err(Error::Config(format!(

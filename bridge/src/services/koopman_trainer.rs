@@ -1,7 +1,8 @@
-//! The trainer service's [`Trainer`] for the neural Koopman model of `koopman::train` (linear, or
-//! bilinear with `bilinear = true` in the job's config): loads the job's datasets (files or
-//! recordings fetched over Zenoh), trains from scratch or from the job's checkpoint,
-//! checkpoints at every validation, saves the model.
+//! The trainer service's [`Trainer`] for every model kind of `koopman` ([`ModelKind`], named by
+//! the job config's `"kind"`): the neural Koopman model (linear, or bilinear), the NNDM baseline
+//! and EDMD; loads the job's datasets (files or recordings fetched over Zenoh), trains a Koopman
+//! model from scratch or from the job's checkpoint (checkpointing at every validation; an NNDM
+//! or EDMD job starts anew), saves the model.
 
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
@@ -15,6 +16,7 @@ use koopman::train::checkpoint::data_fingerprint;
 use koopman::train::{train_bilinear_resumable, train_resumable, Checkpoint, TrainConfig};
 use zenoh::Session;
 
+use super::model_kind::ModelKind;
 use super::trainer::{serve_with, DatasetRef, JobSpec, TrainProgress, Trainer};
 use crate::client::Client;
 use crate::error::{Error, ErrorCode, ErrorReply, Result};
@@ -143,7 +145,7 @@ impl Trainer for KoopmanTrainer {
     /// Refuses a job whose settings do not make a `TrainConfig` (`bad_request`, naming the
     /// valid settings) before it is queued.
     fn validate(&self, spec: &JobSpec) -> std::result::Result<(), ErrorReply> {
-        train_config(&spec.config)
+        job_settings(&spec.config)
             .map(|_| ())
             .map_err(|e| e.to_reply())
     }
@@ -155,16 +157,40 @@ impl Trainer for KoopmanTrainer {
         checkpoint: &Path,
         progress: &mut dyn FnMut(&TrainProgress) -> ControlFlow<()>,
     ) -> Result<serde_json::Value> {
-        let mut cfg = train_config(&spec.config)?;
+        let (kind, mut cfg) = job_settings(&spec.config)?;
         if !spec.config.contains_key("threads") {
             cfg.threads = self.threads;
         }
         let tr = self.load(&spec.train)?;
+        let va = self.load(&spec.val)?;
+        let te = spec.test.as_ref().map(|t| self.load(t)).transpose()?;
+        let with_kind = |v: serde_json::Value| -> Result<serde_json::Value> {
+            let mut v = v;
+            if let Some(o) = v.as_object_mut() {
+                o.insert("kind".into(), kind.name().into());
+            }
+            Ok(v)
+        };
+        match kind {
+            ModelKind::Edmd => return with_kind(fit_edmd(&cfg, &tr, &va, te.as_ref(), out_dir)?),
+            ModelKind::Nndm => {
+                let mut obs = |p: &koopman::train::Progress| {
+                    progress(&TrainProgress {
+                        resumed_from: 0,
+                        train: p.clone(),
+                    })
+                };
+                let o = koopman::train::nndm::train_nndm(&cfg, &tr, &va, te.as_ref(), &mut obs)?;
+                o.model.save(out_dir)?;
+                return with_kind(
+                    serde_json::to_value(&o.metrics).map_err(|e| Error::Config(e.to_string()))?,
+                );
+            }
+            ModelKind::Koopman | ModelKind::Bilinear => {}
+        }
         let explicit_ctrl = spec.config.get("ctrl") == Some(&serde_json::Value::Bool(true));
         cfg.settle_ctrl_for(tr.nu, explicit_ctrl)
             .map_err(|e| Error::protocol(ErrorCode::BadRequest, e.to_string()))?;
-        let va = self.load(&spec.val)?;
-        let te = spec.test.as_ref().map(|t| self.load(t)).transpose()?;
         let resume = usable_checkpoint(checkpoint, &cfg, &tr, &va);
         let resumed_from = resume.as_ref().map_or(0, |c| c.iteration);
         if resumed_from > 0 {
@@ -215,8 +241,53 @@ impl Trainer for KoopmanTrainer {
         if let Some(o) = metrics.as_object_mut() {
             o.insert("resumed_from".into(), resumed_from.into());
         }
-        Ok(metrics)
+        with_kind(metrics)
     }
+}
+
+/// A job config's kind and its `TrainConfig` ([`ModelKind::of_job`] over [`train_config`]);
+/// what the kind cannot do is a `bad_request` naming it.
+pub fn job_settings(
+    config: &serde_json::Map<String, serde_json::Value>,
+) -> Result<(ModelKind, TrainConfig)> {
+    let (kind, fields) = ModelKind::of_job(config)
+        .map_err(|m| Error::protocol(ErrorCode::BadRequest, format!("training config: {m}")))?;
+    Ok((kind, train_config(&fields)?))
+}
+
+/// EDMD with control (`koopman::model::edmd`, its default dictionary) on the first
+/// `cfg.train_samples` training windows, saved into `out_dir`; the metrics are those of
+/// `koopbridge train --model edmd` (prediction errors with `cfg.gamma`).
+fn fit_edmd(
+    cfg: &TrainConfig,
+    tr: &Dataset,
+    va: &Dataset,
+    te: Option<&Dataset>,
+    out_dir: &Path,
+) -> Result<serde_json::Value> {
+    let started = std::time::Instant::now();
+    let m = cfg.train_samples.unwrap_or(tr.n);
+    let edmd = koopman::model::edmd::EdmdConfig::default();
+    let model = koopman::model::edmd::fit(&tr.head(m)?, &edmd)?;
+    let fit_seconds = started.elapsed().as_secs_f64();
+    model.save(out_dir)?;
+    let test = te
+        .map(|t| model.prediction_error(t, cfg.gamma))
+        .transpose()?;
+    let val = model.prediction_error(va, cfg.gamma)?;
+    Ok(serde_json::json!({
+        "test_prediction_error": test,
+        "validation_prediction_error": val,
+        "best_validation_prediction_error": val,
+        "fit_seconds": fit_seconds,
+        "wall_seconds": started.elapsed().as_secs_f64(),
+        "train_samples": m,
+        "pairing": tr.meta.pairing,
+        "env": tr.meta.env,
+        "gamma": cfg.gamma,
+        "config": edmd,
+        "fit": model.info,
+    }))
 }
 
 /// Serves trainer `id` with the Koopman trainer (see [`serve_with`]); jobs that do not set

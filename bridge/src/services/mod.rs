@@ -2,6 +2,7 @@
 //! Zenoh callbacks only forward queries into that thread's channel.
 
 pub mod koopman_trainer;
+pub mod model_kind;
 pub mod models;
 pub mod mpc;
 pub mod recorder;
