@@ -1,5 +1,6 @@
-"""The Go2 survival figures: a histogram of survival steps per controller (the open-loop replay
-floor among them) and the joint tracking of one reference (12 joints, reference dashed)."""
+"""A legged robot's survival figures (the Go2's and the G1's): a histogram of survival steps per
+controller (the open-loop replay floor among them) and the joint tracking of one reference (the
+state's joints, reference dashed)."""
 
 from __future__ import annotations
 
@@ -45,9 +46,10 @@ def histogram(path: str, survivals: dict[str, list[int]], length: int, threshold
 
 
 def tracking(path: str, ref: np.ndarray, runs: dict[str, np.ndarray], survivals: dict[str, int], dt: float,
-             joint_names: list[str], q0: int = 10) -> None:
-    """Joint positions of each run against the reference (dashed) for the 12 joints, each run
-    drawn up to where it stopped, its survival step marked."""
+             joint_names: list[str], q0: int = 10, robot: str = "Go2") -> None:
+    """Joint positions of each run against the reference (dashed) for the joints of
+    ``joint_names`` (state columns from ``q0``), each run drawn up to where it stopped, its
+    survival step marked; ``robot`` names the robot in the title."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -73,6 +75,6 @@ def tracking(path: str, ref: np.ndarray, runs: dict[str, np.ndarray], survivals:
     axes[0, 0].legend(fontsize=7, loc="best")
     for ax in axes[-1, :]:
         ax.set_xlabel("time (s)")
-    fig.suptitle("Go2 joint tracking (rad): reference dashed; dotted lines: each run's survival step", fontsize=10)
+    fig.suptitle(f"{robot} joint tracking (rad): reference dashed; dotted lines: each run's survival step", fontsize=10)
     fig.tight_layout()
     _save(fig, path)

@@ -1,10 +1,11 @@
-"""The Go2 tracking task's parts (SPEC "Legged robots", issue 25 §3): held-out expert references,
+"""The legged tracking task's parts (SPEC "Legged robots", issues 25 §3 and 30; the Go2's state
+layout by default, another robot's through ``StateLayout``): held-out expert references,
 the survival metric, one closed loop through the bridge (adapter in lockstep, MPC service
 deciding every step), the open-loop replay floor, and the closed loops cut into training
 windows (on-policy aggregation).
 
 Survival of a run ``x_0 .. x_n`` against a reference ``r_0 .. r_L``: with
-``e_k = mean_j |q_k,j − q^ref_k,j|`` (the 12 joint positions, rad) and ``fail_k`` = ``e_k >
+``e_k = mean_j |q_k,j − q^ref_k,j|`` (the state's joint positions, rad: the Go2's 12, the G1's 21) and ``fail_k`` = ``e_k >
 threshold`` or the base fallen at step k (``FallRule``), survival = ``min{k ≥ 1 : fail_k} − 1``
 — the steps completed before the first failing one — or ``L`` when no step of the reference
 fails (a run cut short by a failure has ``n = `` that step).
@@ -20,7 +21,9 @@ from typing import Any
 import numpy as np
 
 __all__ = [
+    "GO2_LAYOUT",
     "REFERENCE_SEED",
+    "StateLayout",
     "Reference",
     "Rollout",
     "fallen_mask",
@@ -42,6 +45,20 @@ REFERENCE_SEED = 90_042
 Q_SLICE = slice(10, 22)
 QUAT_SLICE = slice(0, 4)
 HEIGHT_INDEX = 34
+
+
+@dataclass(frozen=True)
+class StateLayout:
+    """Where a legged robot's state keeps what survival scores: the joint positions ``q`` (a
+    slice), the base quaternion ``quat`` (a slice) and the base height (an index)."""
+
+    q: slice
+    quat: slice
+    height: int
+
+
+#: The Go2's 35-D state (the default of every function here).
+GO2_LAYOUT = StateLayout(Q_SLICE, QUAT_SLICE, HEIGHT_INDEX)
 
 
 @dataclass(frozen=True)
@@ -82,9 +99,10 @@ def joint_errors(x: np.ndarray, ref: np.ndarray, q: slice = Q_SLICE) -> np.ndarr
     return np.mean(np.abs(np.asarray(x)[:, q] - np.asarray(ref)[:n, q]), axis=1)
 
 
-def fallen_mask(x: np.ndarray, fallen: Callable[[np.ndarray, float], bool]) -> np.ndarray:
-    """Whether each state's base has fallen (``fallen(quat, height)``, the Go2's ``FallRule``)."""
-    return np.array([bool(fallen(xi[QUAT_SLICE], float(xi[HEIGHT_INDEX]))) for xi in np.asarray(x)], dtype=bool)
+def fallen_mask(x: np.ndarray, fallen: Callable[[np.ndarray, float], bool], layout: StateLayout = GO2_LAYOUT) -> np.ndarray:
+    """Whether each state's base has fallen (``fallen(quat, height)``, the robot's ``FallRule``;
+    ``layout``: where the state keeps them, the Go2's by default)."""
+    return np.array([bool(fallen(xi[layout.quat], float(xi[layout.height]))) for xi in np.asarray(x)], dtype=bool)
 
 
 def survival(errors: np.ndarray, fell: np.ndarray, length: int, threshold: float = 0.16) -> int:
@@ -105,7 +123,7 @@ def survival(errors: np.ndarray, fell: np.ndarray, length: int, threshold: float
 
 
 def make_references(n: int, steps: int, seed: int = REFERENCE_SEED, *, warmup: float = 1.0, command_every: float = 2.0,
-                    sim: Any = None, skipped: list[dict[str, Any]] | None = None) -> list[Reference]:
+                    sim: Any = None, skipped: list[dict[str, Any]] | None = None, probe: Any = None, policy: Any = None) -> list[Reference]:
     """``n`` held-out expert references of ``steps`` transitions, in-process on a fresh
     ``Go2Simulator`` (the adapter's defaults): rollout i is the expert collection's window i
     with one window per episode (``windows_per_episode`` 1, T = ``steps``), under ``seed``: a
@@ -113,7 +131,9 @@ def make_references(n: int, steps: int, seed: int = REFERENCE_SEED, *, warmup: f
     random velocity command changed every ``command_every`` s. The references are the first
     ``n`` rollouts whose first state a fresh simulator accepts as ``reset(x0)`` (it refuses a
     base or leg too deep in the floor; until the adapter's 06:13 change of 4 Dec 2026 that
-    refused 2 of the first 50 expert starts); the refused ones are appended to ``skipped``."""
+    refused 2 of the first 50 expert starts); the refused ones are appended to ``skipped``.
+    Another robot: ``sim`` (collecting), ``probe`` (a memoryless simulator judging the starts)
+    and ``policy`` (its expert's settings with one window per episode) given."""
     from .._native import InvalidInput
     from ..adapters.go2_sim import Go2Simulator
     from ..adapters.legged_collect import ExpertPolicy
@@ -121,8 +141,8 @@ def make_references(n: int, steps: int, seed: int = REFERENCE_SEED, *, warmup: f
     if n < 1 or steps < 1:
         raise ValueError(f"references: need n >= 1 and steps >= 1, got {n}, {steps}")
     sim = sim or Go2Simulator(on_fall=None)
-    probe = Go2Simulator(on_fall=None, memory=0)
-    policy = ExpertPolicy(windows_per_episode=1, warmup=warmup, command_every=command_every)
+    probe = probe or Go2Simulator(on_fall=None, memory=0)
+    policy = policy or ExpertPolicy(windows_per_episode=1, warmup=warmup, command_every=command_every)
     out: list[Reference] = []
     start = 0
     while len(out) < n:
@@ -148,22 +168,24 @@ def reference_window(ref: np.ndarray, k: int, horizon: int) -> np.ndarray:
     return ref[idx]
 
 
-def _failed(x: np.ndarray, ref_row: np.ndarray, fallen: Callable[[np.ndarray, float], bool], threshold: float) -> tuple[bool, bool]:
-    e = float(np.mean(np.abs(x[Q_SLICE] - ref_row[Q_SLICE])))
-    f = bool(fallen(x[QUAT_SLICE], float(x[HEIGHT_INDEX])))
+def _failed(x: np.ndarray, ref_row: np.ndarray, fallen: Callable[[np.ndarray, float], bool], threshold: float,
+            layout: StateLayout = GO2_LAYOUT) -> tuple[bool, bool]:
+    e = float(np.mean(np.abs(x[layout.q] - ref_row[layout.q])))
+    f = bool(fallen(x[layout.quat], float(x[layout.height])))
     return (not np.isfinite(e)) or e > threshold or f, f
 
 
 def track(client: Any, sim_id: str, mpc_id: str, model: str, ref: Reference, fallen: Callable[[np.ndarray, float], bool], *,
           horizon: int = 15, threshold: float = 0.16, stop_at_failure: bool = True, solve_timeout: float = 60.0,
-          error_state: bool = False) -> Rollout:
+          error_state: bool = False, layout: StateLayout = GO2_LAYOUT) -> Rollout:
     """Resets simulator ``sim_id`` to the reference's first state and lets MPC service ``mpc_id``
     (model ``model``, configured already) choose every input from the state and the next
     ``horizon`` reference states (SPEC's formulation); stops at the first failing step
     (``stop_at_failure``), a fall or the reference's end. A step the simulator refuses
     (``sim_failure``) ends the run as a fall, and is noted. ``error_state``: instead the
     error-state MPC about the reference as a plan (its state at step k, the expert's targets
-    k .. k+H−1 as feed-forward; lifted-linear models only), not SPEC's formulation."""
+    k .. k+H−1 as feed-forward; lifted-linear models only), not SPEC's formulation. ``layout``:
+    the robot's state layout (the Go2's by default)."""
     from .. import KoopbridgeError
 
     nu = ref.u.shape[1]
@@ -190,21 +212,23 @@ def track(client: Any, sim_id: str, mpc_id: str, model: str, ref: Reference, fal
             break
         xs.append(x)
         us.append(u)
-        failed, fell = _failed(x, ref.x[k + 1], fallen, threshold)
+        failed, fell = _failed(x, ref.x[k + 1], fallen, threshold, layout)
         if fell or (failed and stop_at_failure):
             break
     out.x, out.u = np.array(xs), np.array(us)
     x_scored = out.x.copy()
     x_scored[~np.all(np.isfinite(x_scored), axis=1)] = np.nan
-    fell_mask = np.array([not np.all(np.isfinite(r)) or bool(fallen(r[QUAT_SLICE], float(r[HEIGHT_INDEX]))) for r in x_scored])
-    out.survival = survival(joint_errors(x_scored, ref.x), fell_mask, ref.steps, threshold)
+    fell_mask = np.array([not np.all(np.isfinite(r)) or bool(fallen(r[layout.quat], float(r[layout.height]))) for r in x_scored])
+    out.survival = survival(joint_errors(x_scored, ref.x, layout.q), fell_mask, ref.steps, threshold)
     out.fell = bool(fell_mask.any())
     return out
 
 
-def replay(client: Any, sim_id: str, ref: Reference, fallen: Callable[[np.ndarray, float], bool], *, threshold: float = 0.16) -> Rollout:
+def replay(client: Any, sim_id: str, ref: Reference, fallen: Callable[[np.ndarray, float], bool], *, threshold: float = 0.16,
+           layout: StateLayout = GO2_LAYOUT) -> Rollout:
     """The open-loop floor: the expert's recorded targets replayed from the reference's first
-    state through the same adapter (every step, so that the whole run can be plotted)."""
+    state through the same adapter (every step, so that the whole run can be plotted) until its
+    end or a fall; ``layout``: the robot's state layout (the Go2's by default)."""
     from .. import KoopbridgeError
 
     x = np.asarray(client.reset(sim_id, x0=ref.x[0]), float)
@@ -218,21 +242,22 @@ def replay(client: Any, sim_id: str, ref: Reference, fallen: Callable[[np.ndarra
             xs.append(np.full_like(x, np.nan))
             break
         xs.append(x)
-        if fallen(x[QUAT_SLICE], float(x[HEIGHT_INDEX])):
+        if fallen(x[layout.quat], float(x[layout.height])):
             break
     X = np.array(xs)
-    fell_mask = np.array([not np.all(np.isfinite(r)) or bool(fallen(r[QUAT_SLICE], float(r[HEIGHT_INDEX]))) for r in X])
-    s = survival(joint_errors(X, ref.x), fell_mask, ref.steps, threshold)
+    fell_mask = np.array([not np.all(np.isfinite(r)) or bool(fallen(r[layout.quat], float(r[layout.height]))) for r in X])
+    s = survival(joint_errors(X, ref.x, layout.q), fell_mask, ref.steps, threshold)
     return Rollout(x=X, u=ref.u[: len(X) - 1].copy(), survival=s, fell=bool(fell_mask.any()), errors=errors)
 
 
-def rollout_windows(rollouts: list[Rollout], T: int, fallen: Callable[[np.ndarray, float], bool]) -> tuple[np.ndarray, np.ndarray]:
+def rollout_windows(rollouts: list[Rollout], T: int, fallen: Callable[[np.ndarray, float], bool],
+                    layout: StateLayout = GO2_LAYOUT) -> tuple[np.ndarray, np.ndarray]:
     """The closed loops cut into back-to-back windows of ``T`` transitions (the dataset layout:
     ``x`` ``(n, T+1, nx)``, ``u`` ``(n, T, nu)``), each run only up to its last finite, upright
     state (a window never holds a fallen state, as the expert data's never do)."""
     xs, us = [], []
     for r in rollouts:
-        ok = np.all(np.isfinite(r.x), axis=1) & ~fallen_mask(np.nan_to_num(r.x), fallen)
+        ok = np.all(np.isfinite(r.x), axis=1) & ~fallen_mask(np.nan_to_num(r.x), fallen, layout)
         bad = np.flatnonzero(~ok)
         n = int(bad[0]) - 1 if bad.size else len(r.x) - 1  # transitions whose both ends are good
         for s in range(0, n - T + 1, T):
