@@ -101,6 +101,17 @@ pub struct TrainArgs {
     /// the same model on every machine (and what the trainer service uses).
     #[arg(long, default_value_t = 2)]
     pub threads: usize,
+    /// EDMD only: total degree of the polynomial dictionary (default: the largest with at most
+    /// --edmd-max-features features — degree 20 on a 2-D state, 6 on a 4-D one; a low degree,
+    /// e.g. 3, is the robust first try on a small state whose high powers leave the data).
+    #[arg(long, value_name = "D")]
+    pub edmd_degree: Option<usize>,
+    /// EDMD only: the feature budget that chooses the degree when --edmd-degree is not given.
+    #[arg(long, value_name = "F", default_value_t = 250)]
+    pub edmd_max_features: usize,
+    /// EDMD only: ridge weight λ on the mean squared residual.
+    #[arg(long, value_name = "LAMBDA", default_value_t = 1e-10)]
+    pub edmd_ridge: f64,
     /// Print the metrics as one JSON object on the last line of stdout.
     #[arg(long)]
     pub json: bool,
@@ -126,6 +137,18 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     if args.normalise && args.model != ModelKind::Koopman {
         anyhow::bail!(
             "--normalise is implemented for the Koopman model only (asked for {:?})",
+            args.model
+        );
+    }
+    let edmd_defaults = koopman::model::edmd::EdmdConfig::default();
+    if args.model != ModelKind::Edmd
+        && (args.edmd_degree.is_some()
+            || args.edmd_max_features != edmd_defaults.max_features
+            || args.edmd_ridge != edmd_defaults.ridge)
+    {
+        anyhow::bail!(
+            "--edmd-degree, --edmd-max-features and --edmd-ridge set the EDMD dictionary; \
+             they do nothing for --model {:?} (use --model edmd)",
             args.model
         );
     }
@@ -284,7 +307,12 @@ fn train_edmd(args: &TrainArgs, splits: &Splits) -> anyhow::Result<()> {
     let started = Instant::now();
     let m = args.train_samples.unwrap_or(splits.train.n);
     let data = splits.train.head(m)?;
-    let cfg = koopman::model::edmd::EdmdConfig::default();
+    let cfg = koopman::model::edmd::EdmdConfig {
+        degree: args.edmd_degree,
+        max_features: args.edmd_max_features,
+        ridge: args.edmd_ridge,
+        ..Default::default()
+    };
     let model = koopman::model::edmd::fit(&data, &cfg)?;
     let fit_seconds = started.elapsed().as_secs_f64();
     model
