@@ -4,7 +4,8 @@
 //! the one that kind's controller computes in this process from the stored model), the report
 //! and the printed summary set them side by side, and the test prediction errors the trainer
 //! reported equal the ones computed here; a rerun with the kinds in the other order reuses both
-//! models. Bad kinds are refused with the reason.
+//! models. Bad kinds are refused with the reason (an NNDM's random shooting with an input
+//! weight, a bilinear model without inputs: before collection).
 
 mod common;
 
@@ -180,6 +181,13 @@ fn bad_kinds_are_refused_with_the_reason() {
         &SCENARIO.replace(r#""edmd"]"#, r#""edmd", "koopman"]"#),
     );
     assert!(e.contains("'koopman' is listed twice"), "{e}");
+    // Random shooting on an NNDM has no input weight: refused before collection.
+    let e = run("shooting", &SCENARIO.replace(r#""edmd"]"#, r#""nndm"]"#));
+    assert!(
+        e.contains("with model kind 'nndm'") && e.contains("no input weight r"),
+        "{e}"
+    );
+    assert!(!dir.join("shooting/data/pend/train.npz").exists());
     // A bilinear model of a system without inputs: refused once its info is known, before
     // collection.
     let auto = r#"

@@ -1,11 +1,12 @@
 //! The whole scenario checked against its simulators' `info` right after the readiness barrier,
 //! before the expensive phases: the uniform policy's bounds, the initial-state box of
-//! `[collect]`, `[train].config` and its model kinds, `[control].mpc`,
+//! `[collect]`, `[train].config` and its model kinds, `[control].mpc` (for an NNDM, what random
+//! shooting honours),
 //! and the lengths of `control.x0`/`control.reference` (and a `reference_file` or
 //! `feedforward_file` that exists already), so that a typo fails in seconds, not after
 //! collection.
 
-use koopman::mpc::{MpcController, AUTONOMOUS_MPC};
+use koopman::mpc::{LoadedModel, MpcController, AUTONOMOUS_MPC};
 use koopman::train::stand_in::{self, StandIn};
 use koopman::train::TrainConfig;
 
@@ -64,6 +65,18 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
     for ctrl in &sc.control {
         let j = controlled_sim(sc, ctrl);
         validate_control(ctrl, &sc.sims[j].id, infos[j])?;
+        if sc
+            .train
+            .as_ref()
+            .is_some_and(|t| t.kinds().contains(&ModelKind::Nndm))
+        {
+            shooting_accepts(ctrl, infos[j]).map_err(|e| {
+                Error::Config(format!(
+                    "[control].mpc for simulator '{}' with model kind 'nndm' ([train].model): {e}",
+                    sc.sims[j].id
+                ))
+            })?;
+        }
         if let Some(o) = &ctrl.offset_free {
             let at = |m: String| {
                 Error::Config(format!(
@@ -107,6 +120,19 @@ pub fn train_setting_names() -> Vec<String> {
         .ok()
         .and_then(|v| v.as_object().map(|o| o.keys().cloned().collect()))
         .unwrap_or_default()
+}
+
+/// Whether the MPC service's controller for an NNDM (random shooting, which honours the horizon,
+/// `q` and the input bounds only) accepts `ctrl`'s settings: the service's own constructor
+/// ([`LoadedModel::controller`]) on a stand-in NNDM of the simulator's dimensions.
+fn shooting_accepts(ctrl: &ControlSpec, info: &SimInfo) -> Result<()> {
+    use koopman::model::nndm::{init_params, NndmArch, NndmModel};
+    let cfg = mpc_config(info, &ctrl.mpc)?;
+    let arch = NndmArch::new(info.nx(), info.nu(), &[4])?;
+    let params = init_params(&arch, &mut koopman::rng::Rng::new(1))?;
+    let model = LoadedModel::OneStep(std::sync::Arc::new(NndmModel::from_params(arch, params)?));
+    model.controller(&cfg, ctrl.offset_free.as_ref())?;
+    Ok(())
 }
 
 fn validate_control(ctrl: &ControlSpec, sim: &str, info: &SimInfo) -> Result<()> {
