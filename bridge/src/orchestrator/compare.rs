@@ -19,6 +19,10 @@ pub struct ModelResult {
     /// Its test prediction error (SPEC's `L_pred` on the test windows), as the trainer reported
     /// it; `None` without test windows.
     pub test_prediction_error: Option<f64>,
+    /// True when that error is in z-scored units (a model trained with `normalise = true`),
+    /// false in the data's own units.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub test_error_normalised: bool,
     /// The control run with it; `None` when the simulator is not controlled.
     pub control: Option<ControlSummary>,
 }
@@ -54,6 +58,7 @@ pub fn side_by_side(
                 .metrics
                 .get("test_prediction_error")
                 .and_then(serde_json::Value::as_f64),
+            test_error_normalised: t.metrics["config"]["normalise"] == true,
             control: controls
                 .iter()
                 .find(|c| c.sim == t.sim && c.model == t.model)
@@ -69,7 +74,8 @@ pub fn side_by_side(
 }
 
 /// `results` as text, one header and one line per model, simulators together:
-/// `sim  kind  test L_pred  final error  tracking RMS  time to goal  not solved`.
+/// `sim  kind  test L_pred  final error  tracking RMS  time to goal  not solved` (an error in
+/// z-scored units marked `(z)`).
 pub fn table(results: &[ModelResult]) -> String {
     let mut rows = vec![[
         "simulator".to_string(),
@@ -89,8 +95,10 @@ pub fn table(results: &[ModelResult]) -> String {
         rows.push([
             r.sim.clone(),
             r.kind.to_string(),
-            r.test_prediction_error
-                .map_or_else(dash, |e| format!("{e:.3e}")),
+            r.test_prediction_error.map_or_else(dash, |e| {
+                let z = if r.test_error_normalised { " (z)" } else { "" };
+                format!("{e:.3e}{z}")
+            }),
             c.map_or_else(dash, |c| format!("{:.4}", c.final_error)),
             c.map_or_else(dash, |c| format!("{:.4}", c.tracking_rms_total)),
             c.map_or_else(dash, |c| {
@@ -135,10 +143,7 @@ mod tests {
         let t = vec![
             (ModelKind::Koopman, trained("a", "s-a", 0.02.into())),
             (ModelKind::Edmd, trained("a", "s-a-edmd", 0.5.into())),
-            (
-                ModelKind::Koopman,
-                trained("b", "s-b", serde_json::Value::Null),
-            ),
+            (ModelKind::Koopman, trained("b", "s-b", 0.3.into())),
         ];
         let control = |model: &str, final_error: f64| {
             let mut c: ControlReport = serde_json::from_value(serde_json::json!({
@@ -151,6 +156,8 @@ mod tests {
             c.time_to_goal_steps = (final_error < 0.1).then_some(7);
             c
         };
+        let mut t = t;
+        t[2].1.metrics["config"] = serde_json::json!({"normalise": true});
         let r = side_by_side(&t, &[control("s-a-edmd", 0.9), control("s-a", 0.01)]);
         assert_eq!(r.len(), 3);
         assert_eq!(
@@ -160,7 +167,11 @@ mod tests {
         assert_eq!(r[0].control.as_ref().unwrap().final_error, 0.01);
         assert_eq!(r[1].control.as_ref().unwrap().final_error, 0.9);
         assert_eq!(r[1].control.as_ref().unwrap().steps, 2);
-        assert_eq!((r[2].test_prediction_error, &r[2].control), (None, &None));
+        assert_eq!(
+            (r[2].test_prediction_error, &r[2].control),
+            (Some(0.3), &None)
+        );
+        assert!(r[2].test_error_normalised && !r[0].test_error_normalised);
         let text = table(&r);
         let lines: Vec<&str> = text.lines().collect();
         assert_eq!(lines.len(), 4, "{text}");
@@ -177,5 +188,6 @@ mod tests {
             lines[3].starts_with("b ") && lines[3].ends_with('-'),
             "{text}"
         );
+        assert!(lines[3].contains("3.000e-1 (z)"), "{text}");
     }
 }

@@ -224,6 +224,9 @@ steps = 20
         assert!(err("model = []").contains("lists no kind"));
         assert!(err("model = 3").contains("a kind or a list of kinds"));
         // An option only some kinds honour.
+        // EDMD beside a normalised koopman model: it scales its own dictionary.
+        let both = "model = [\"koopman\", \"edmd\"]\nconfig = { normalise = true }";
+        assert!(with_train(both).is_ok());
         let e = err("model = [\"koopman\", \"nndm\"]\nconfig = { normalise = true }");
         assert!(
             e.contains("model kind 'nndm'") && e.contains("koopman model only"),

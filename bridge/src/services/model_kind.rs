@@ -12,10 +12,11 @@
 //! | `ctrl`, `cov` (the Koopman losses) | ✓ | ✓ | – | – |
 //! | `normalise` | ✓ | – | – | – |
 //!
-//! A setting a kind does not use is refused for that kind when it asks for something the kind
+//! In a job, a setting its kind does not use is refused when it asks for something the kind
 //! cannot do ([`ModelKind::refusal`]: `ctrl`/`cov`/`normalise` = true, or any optimiser setting
 //! for EDMD, a least-squares fit) and otherwise ignored (`ctrl = false` for an NNDM, which has no
-//! such loss anyway).
+//! such loss anyway). Settings shared by several kinds (a scenario's) are checked with
+//! [`check_settings_for`].
 
 use std::fmt;
 
@@ -187,10 +188,12 @@ impl fmt::Display for ModelKind {
 }
 
 /// Why `kinds` cannot all train with the settings `fields` (`TrainConfig` settings shared by
-/// every kind, e.g. a scenario's `[train].config`), or `Ok`: a setting that asks for something
-/// one of them cannot do ([`ModelKind::refusal`] of `ctrl`/`cov`/`normalise`/`bilinear`) is
-/// refused, naming the kind; an optimiser setting is refused only when none of them uses it
-/// (EDMD alone).
+/// every kind, e.g. a scenario's `[train].config`), or `Ok`: a setting that asks a
+/// gradient-trained kind for something it cannot do ([`ModelKind::refusal`] of
+/// `ctrl`/`cov`/`normalise`/`bilinear`: `normalise = true` for nndm or bilinear, `ctrl = true`
+/// for nndm) is refused, naming the kind; EDMD, a least-squares fit, ignores the settings meant
+/// for the gradient-trained kinds listed beside it; a setting that no listed kind uses is
+/// refused (an optimiser setting, or `normalise`, with EDMD alone).
 pub fn check_settings_for(
     kinds: &[ModelKind],
     fields: &serde_json::Map<String, serde_json::Value>,
@@ -207,10 +210,13 @@ pub fn check_settings_for(
             .collect();
         let flag = matches!(k.as_str(), "ctrl" | "cov" | "normalise" | "bilinear");
         let everyone = refusals.len() == kinds.len();
-        if let Some((kind, why)) = refusals.into_iter().next() {
-            if flag || everyone {
-                return Err(format!("model kind '{kind}': {why}"));
-            }
+        // A gradient-trained kind's reason first (EDMD's, "does not apply", says less).
+        let pick = refusals
+            .iter()
+            .find(|(kind, _)| flag && *kind != ModelKind::Edmd)
+            .or(refusals.first().filter(|_| everyone));
+        if let Some((kind, why)) = pick {
+            return Err(format!("model kind '{kind}': {why}"));
         }
     }
     Ok(())
@@ -302,8 +308,15 @@ mod tests {
             e.contains("'nndm'") && e.contains("koopman model only"),
             "{e}"
         );
+        let e = check_settings_for(&[Edmd, Bilinear], &norm).unwrap_err();
+        assert!(e.contains("'bilinear'"), "{e}");
+        // EDMD ignores what is meant for the gradient-trained kinds beside it, not alone.
+        assert_eq!(check_settings_for(&[Koopman, Edmd], &norm), Ok(()));
+        assert!(check_settings_for(&[Edmd], &norm).is_err());
         let ctrl = map(json!({"ctrl": true}));
-        assert!(check_settings_for(&[Bilinear, Edmd], &ctrl).is_err());
+        assert_eq!(check_settings_for(&[Bilinear, Edmd], &ctrl), Ok(()));
+        let e = check_settings_for(&[Nndm, Edmd], &ctrl).unwrap_err();
+        assert!(e.contains("'nndm'"), "{e}");
         assert_eq!(
             check_settings_for(&[Nndm, Edmd], &map(json!({"ctrl": false}))),
             Ok(())
