@@ -7,8 +7,9 @@
 //! the model's kind — so that the report sets them side by side ([`train`]). An unknown or
 //! repeated kind, or one that cannot do what the file asks (a `[train].config` setting it cannot
 //! honour, `feedforward_file` with a bilinear or NNDM model, `offset_free` with an NNDM), is
-//! refused when the file is read; `bilinear` on a simulator without inputs, once its `info` is
-//! known, before collection.
+//! refused when the file is read; `bilinear` on a simulator without inputs and `nndm` with
+//! `[control].mpc` settings random shooting cannot honour, once the simulators' `info` is known,
+//! before collection.
 
 use std::path::{Path, PathBuf};
 
