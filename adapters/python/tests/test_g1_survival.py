@@ -2,12 +2,16 @@
 ``g1_replay``'s, its replay floor through the real adapter (``--held locked``, over Zenoh) equals
 the in-process replay and its score, bad models are refused with the G1's sizes, and the
 scenario at CI's smoke budget runs data → train → track through the real MPC service with
-finite survival figures beside the floor."""
+finite survival figures beside the floor — as the Python driver (``g1_scenario``) and as
+``scenarios/g1-survival.toml`` through ``koopbridge run``."""
 
 from __future__ import annotations
 
 import json
+import shutil
+import subprocess
 import sys
+import uuid
 
 import numpy as np
 import pytest
@@ -15,7 +19,7 @@ import pytest
 pytest.importorskip("mujoco")
 pytest.importorskip("onnxruntime")
 
-from conftest import Child, free_endpoint, koopbridge_binary_or_skip  # noqa: E402
+from conftest import ROOT, Child, free_endpoint, koopbridge_binary_or_skip  # noqa: E402
 from koopbridge.adapters import g1_model as g  # noqa: E402
 from koopbridge.adapters.g1_sim import G1Simulator  # noqa: E402
 from koopbridge.experiments import g1_replay, g1_survival, legged_survival  # noqa: E402
@@ -104,3 +108,36 @@ def test_the_g1_scenario_at_the_smoke_budget(tmp_path):
     with open(out / "round0" / "track" / "tracking.mcap", "rb") as f:
         topics = {c.topic for c in make_reader(f).get_summary().channels.values()}
     assert topics == {"/koopbridge/g1/state", "/koopbridge/g1/input", "/koopbridge/g1/reference"}
+
+
+def test_the_g1_survival_toml_through_koopbridge_run(tmp_path):
+    """scenarios/g1-survival.toml shrunk to a smoke budget: the locked G1's expert collects
+    through the collect request, the trainer service trains, the hook tracks with g1_survival."""
+    exe = koopbridge_binary_or_skip()
+    text = (ROOT / "scenarios" / "g1-survival.toml").read_text()
+    for old, new in [("block = 250", "block = 40"), ("train_windows = 3000\n", "train_windows = 120\n"),
+                     ("val_windows = 500\n", "val_windows = 40\n"), ("test_windows = 500\n", "test_windows = 40\n"),
+                     ("iterations = 3000, n_mult = 4, hidden = [128, 128], validate_every = 500",
+                      "iterations = 40, n_mult = 1, hidden = [32], validate_every = 20"),
+                     ('"--references", "50", "--steps", "200"', '"--references", "2", "--steps", "40"')]:
+        assert old in text, f"scenarios/g1-survival.toml has no {old!r}"
+        text = text.replace(old, new)
+    # Inside the repository, so that {python} is its venv, as for the shipped file.
+    (ROOT / "target").mkdir(exist_ok=True)
+    toml = ROOT / "target" / f"kb-py-g1-{uuid.uuid4().hex[:10]}.toml"
+    toml.write_text(text)
+    out = tmp_path / "run"
+    try:
+        r = subprocess.run([str(exe), "run", str(toml), "--out", str(out)], capture_output=True, text=True, timeout=600)
+    finally:
+        toml.unlink()
+    assert r.returncode == 0, r.stderr[-3000:]
+    rep = json.loads((out / "survival" / "report.json").read_text())
+    rows = {row["controller"]: row for row in rep["table"]}
+    assert set(rows) == {"open-loop replay (floor)", "g1-survival-g1 (koopman)"}
+    for row in rows.values():
+        assert row["n"] == 2 and np.isfinite(row["mean"]) and 0 <= row["min"] <= row["mean"] <= row["max"] <= 40, row
+    assert rep["task"]["held"] == "locked" and rep["task"]["steps"] == 40
+    assert json.loads((out / "report.json").read_text())["train"][0]["model"] == "g1-survival-g1"
+    assert (out / "models" / "g1-survival-g1" / "config.json").is_file()
+    shutil.rmtree(out, ignore_errors=True)
