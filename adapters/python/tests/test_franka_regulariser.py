@@ -120,4 +120,4 @@ def test_table_means_and_relative_change(tmp_path):
     assert raw["errors"]["both"]["spec"] == {1: 8.0, 2: 9.0}
     both = next(line for line in md.splitlines() if line.startswith("| both |"))
     assert "8.500 ± 0.707 (n=2)" in both and f"{100 * (8.5 / 11 - 1):+.1f} %" in both
-    assert "| base | 11.000 ± 1.414 (n=2) | 2.000 |" in md
+    assert "| base | — | 11.000 ± 1.414 (n=2) | 2.000 |" in md

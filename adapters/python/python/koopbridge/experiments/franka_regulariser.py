@@ -81,17 +81,23 @@ def table(runs: Path) -> tuple[str, dict[str, Any]]:
     """The Markdown table and the raw errors of the runs ``runs/{row}-s{seed}-{q}/report.json``."""
     errs: dict[str, dict[str, dict[int, float]]] = {r: {q: {} for q in QS} for r in ROWS}
     base_line: dict[str, float] = {}
+    pred: dict[str, dict[int, float]] = {r: {} for r in ROWS}
     for rep in sorted(runs.glob("*-s*-*/report.json")):
         m = re.fullmatch(r"(?P<row>[a-z]+)-s(?P<seed>\d+)-(?P<q>[a-z0-9]+)", rep.parent.name)
         if m is None or m["row"] not in ROWS or m["q"] not in QS:
             continue
-        f8 = json.loads(rep.read_text()).get("figure8")
+        report = json.loads(rep.read_text())
+        f8 = report.get("figure8")
         if not f8:
             continue
+        for entry in report.get("models") or []:
+            if entry.get("test_prediction_error") is not None:
+                pred[m["row"]][int(m["seed"])] = float(entry["test_prediction_error"])
+                break
         errs[m["row"]][m["q"]][int(m["seed"])] = float(f8["errors"]["koopman-mpc"])
         for k in ("zero-input", "joint-follower"):
             base_line.setdefault(k, float(f8["errors"][k]))
-    lines = ["| row | SPEC Q = I | q̇ weight 0.01 | vs base (Q = I / q̇ 0.01) | seeds |", "|---|---|---|---|---|"]
+    lines = ["| row | test L_pred | SPEC Q = I | q̇ weight 0.01 | vs base (Q = I / q̇ 0.01) | seeds |", "|---|---|---|---|---|---|"]
     for r in ROWS:
         cells, rel = [], []
         for q in QS:
@@ -100,10 +106,12 @@ def table(runs: Path) -> tuple[str, dict[str, Any]]:
             b = list(errs["base"][q].values())
             rel.append(f"{100 * (np.mean(v) / np.mean(b) - 1):+.1f} %" if v and b and r != "base" else "—")
         seeds = sorted(set(errs[r]["spec"]) | set(errs[r]["qd001"]))
-        lines.append(f"| {r} | {cells[0]} | {cells[1]} | {rel[0]} / {rel[1]} | {', '.join(map(str, seeds)) or '—'} |")
+        lp = list(pred[r].values())
+        lines.append(f"| {r} | {np.mean(lp):.3e} | {cells[0]} |" if lp else f"| {r} | — | {cells[0]} |")
+        lines[-1] += f" {cells[1]} | {rel[0]} / {rel[1]} | {', '.join(map(str, seeds)) or '—'} |"
     for k, v in base_line.items():
-        lines.append(f"| {k} (no model) | {v:.3f} | {v:.3f} | | |")
-    return "\n".join(lines), {"errors": errs, "baselines": base_line}
+        lines.append(f"| {k} (no model) | | {v:.3f} | {v:.3f} | | |")
+    return "\n".join(lines), {"errors": errs, "baselines": base_line, "test_prediction_error": pred}
 
 
 def parser() -> argparse.ArgumentParser:
