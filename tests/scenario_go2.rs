@@ -1,7 +1,7 @@
 //! `scenarios/go2-survival.toml` end to end at a smoke budget, in several processes over Zenoh
 //! (issue 25): the Go2 adapter's expert collects through the `collect` request, the trainer
-//! service trains the z-scored Koopman model, and the before-control hook tracks held-out
-//! expert references with the MPC service — the survival table (floor and model rows, finite),
+//! service trains the z-scored Koopman model and EDMD, and the before-control hook tracks held-out
+//! expert references with the MPC service — the survival table (floor and both models, finite),
 //! its plots and the MCAP recording are written under the run's folder.
 
 use std::path::PathBuf;
@@ -76,7 +76,11 @@ fn go2_survival_scenario_runs_collect_train_and_the_survival_hook() {
             .find(|r| r["controller"].as_str().unwrap().starts_with(name))
             .unwrap_or_else(|| panic!("no '{name}' row in {table:?}"))
     };
-    for r in [row("open-loop replay"), row("go2-survival-go2 (koopman)")] {
+    for r in [
+        row("open-loop replay"),
+        row("go2-survival-go2 (koopman)"),
+        row("go2-survival-go2-edmd (edmd)"),
+    ] {
         let mean = r["mean"].as_f64().unwrap();
         assert!(r["n"] == 2 && (0.0..=40.0).contains(&mean), "{r}");
     }

@@ -445,7 +445,7 @@ mod tests {
                 std::fs::write(dir.join("config.json"), config.to_string()).unwrap();
             }
         }
-        let curves = fit_curves(&collect_runs(&[root.clone()]).unwrap(), Axis::M);
+        let curves = fit_curves(&collect_runs(std::slice::from_ref(&root)).unwrap(), Axis::M);
         let labels: Vec<&str> = curves.iter().map(|c| c.label.as_str()).collect();
         assert_eq!(curves.len(), 2, "{labels:?}");
         for n_poly in [3, 10] {
