@@ -61,6 +61,9 @@ def variant(text: str, row: str, seed: int, q: str) -> str:
         cfg = ", ".join(p for p in (m.group("cfg"), extra, f"seed = {seed}") if p)
     train = f'[train]\nmodel = ["{kind}"]\nconfig = {{ {cfg} }}\n'
     out = text[: m.start()] + train + text[m.end() :]
+    if kind == "edmd":
+        # [full].train_config is checked against the kind even without --full; EDMD refuses iterations.
+        out = re.sub(r"^train_config = \{[^}]*\}\n", "", out, flags=re.M)
     if q == "spec":
         out = _MPC.sub("mpc = { horizon = 15 }\n", out)
     out = out.replace(_AFTER, _AFTER + " --no-error-state")
