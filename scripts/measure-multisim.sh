@@ -17,7 +17,12 @@ mkdir -p "$work"
 # The scenario beside the original (its relative paths are the repository's).
 sc=scenarios/.multisim-timing.toml
 trap 'rm -f "$sc"' EXIT
-sed "s/^steps = 100$/steps = $steps/" scenarios/multi-sim.toml > "$sc"
+# At CI's smoke budget (the models of tests/multi_sim.rs; the default budget takes minutes), every
+# simulator STEPS control steps.
+sed -e "s/^steps = \(100\|200\|300\)$/steps = $steps/" \
+    -e "s/^train_windows = 1000$/train_windows = 60/; s/^val_windows = 100$/val_windows = 12/; s/^test_windows = 100$/test_windows = 12/" \
+    -e "s/^config = { iterations = 5000, hidden = \[128, 128\], n_mult = 8, /config = { iterations = 200, hidden = [32, 32], n_mult = 2, batch = 32, /" \
+    scenarios/multi-sim.toml > "$sc"
 for r in $(seq 1 "$rounds"); do
   for i in "${!bins[@]}"; do
     out=$work/bin$i-round$r

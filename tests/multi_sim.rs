@@ -1,7 +1,7 @@
-//! `scenarios/multi-sim.toml` end to end at its small default budget: two FMUs (FMI 2 and 3), a
-//! built-in Rust system, the MuJoCo Franka and the Drake Kinova collected, trained and
-//! controlled in one lockstep loop; and (ignored: a measurement) the loop's macro-step rate
-//! against the slowest simulator alone in the same run.
+//! `scenarios/multi-sim.toml` end to end at a smoke budget (its default budget takes minutes):
+//! two FMUs (FMI 2 and 3), a built-in Rust system, the MuJoCo Franka and the Drake Kinova
+//! collected, trained and controlled in one lockstep loop; and (ignored: a measurement) the
+//! loop's macro-step rate against the slowest simulator alone in the same run.
 
 mod common;
 
@@ -25,6 +25,39 @@ fn python_ready() -> Result<(), String> {
     Ok(())
 }
 
+/// The file's budget lines and CI's smoke values for them (60 windows, a small model, 100 control
+/// steps for every simulator).
+const SMOKE: [(&str, &str); 4] = [
+    (
+        "train_windows = 1000\nval_windows = 100\ntest_windows = 100\n",
+        "train_windows = 60\nval_windows = 12\ntest_windows = 12\n",
+    ),
+    (
+        "config = { iterations = 5000, hidden = [128, 128], n_mult = 8, ctrl = false, cov = false, validate_every = 500 }",
+        "config = { iterations = 200, hidden = [32, 32], n_mult = 2, batch = 32, ctrl = false, cov = false, validate_every = 100 }",
+    ),
+    ("\nsteps = 300\n", "\nsteps = 100\n"),
+    ("\nsteps = 200\n", "\nsteps = 100\n"),
+];
+
+/// `scenarios/multi-sim.toml` at the smoke budget with `steps = 100` replaced by `steps`, written
+/// inside the repository as `target/{file}` (so that its commands resolve there); the scenario
+/// name, and so the model names, are unchanged.
+fn smoke_scenario(file: &str, steps: usize) -> PathBuf {
+    let mut text = std::fs::read_to_string(root().join("scenarios/multi-sim.toml")).unwrap();
+    for (from, to) in SMOKE {
+        assert!(
+            text.contains(from),
+            "scenarios/multi-sim.toml no longer has {from:?}: update SMOKE"
+        );
+        text = text.replace(from, to);
+    }
+    let text = text.replace("\nsteps = 100\n", &format!("\nsteps = {steps}\n"));
+    let path = root().join("target").join(file);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
 fn run(scenario: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {
     let o = common::run_scenario(scenario, out, extra);
     eprintln!("{}", String::from_utf8_lossy(&o.stdout));
@@ -40,7 +73,7 @@ fn the_multi_sim_scenario_collects_trains_and_controls_every_simulator_in_one_lo
         return;
     }
     let out = common::scratch("multi-sim").join("out");
-    let r = run(&root().join("scenarios/multi-sim.toml"), &out, &[]);
+    let r = run(&smoke_scenario("multi-sim-smoke.toml", 100), &out, &[]);
     assert_eq!(r["collect"]["sims"], serde_json::json!(SIMS));
     let nx = [2, 4, 2, 14, 14];
     for (j, id) in SIMS.iter().enumerate() {
@@ -85,18 +118,14 @@ fn the_multi_sim_scenario_collects_trains_and_controls_every_simulator_in_one_lo
 }
 
 /// The figure of issue 14: the macro-step rate of the five-simulator control loop against the
-/// slowest simulator alone in the same loop, measured in one run (500 control steps). Run with
+/// slowest simulator alone in the same loop, measured in one run (500 control steps, the smoke
+/// budget's models). Run with
 /// `cargo test --release --test multi_sim -- --ignored --nocapture`.
 #[test]
 #[ignore]
 fn the_multi_sim_loop_against_the_slowest_simulator_alone() {
     python_ready().expect("the Python set-up");
-    let text = std::fs::read_to_string(root().join("scenarios/multi-sim.toml"))
-        .unwrap()
-        .replace("steps = 100", "steps = 500");
-    // Inside the repository, so that its commands resolve there.
-    let file = root().join("target/multi-sim-bench.toml");
-    std::fs::write(&file, text).unwrap();
+    let file = smoke_scenario("multi-sim-bench.toml", 500);
     let out = common::scratch("multi-sim-bench").join("out");
     let r = run(&file, &out, &["--loop-baseline"]);
     let l = &r["control_loop"];
