@@ -97,6 +97,37 @@ fn two_kinds_are_trained_and_each_controls() {
         );
         first_inputs.push(u[0]);
 
+        // Its diagnosis: the one-step error along the closed loop, computed here step by step
+        // with the model's lift and matrices; the test set's window error; the commands at
+        // the pendulum's ±8 bounds.
+        let d = &r["diagnoses"][i];
+        assert_eq!((&d["sim"], &d["model"]), (&c["sim"], &c["model"]));
+        let xs: Vec<Vec<f64>> = serde_json::from_value(c["x"].clone()).unwrap();
+        let (a, b) = (model.a(), model.b());
+        let mut sq = 0.0;
+        for (k, uk) in u.iter().enumerate() {
+            let z = model.lift(&xs[k]);
+            for (j, want) in xs[k + 1].iter().enumerate() {
+                let pred: f64 =
+                    (0..z.len()).map(|l| a[(j, l)] * z[l]).sum::<f64>() + b[(j, 0)] * uk;
+                sq += (pred - want).powi(2);
+            }
+        }
+        let one_step = sq / (2.0 * u.len() as f64);
+        let got = d["one_step_closed_loop"].as_f64().unwrap();
+        assert!(
+            (got - one_step).abs() <= 1e-9 * (1.0 + one_step),
+            "{kind}: diagnosis says {got}, the loop's one-step error is {one_step}"
+        );
+        let window = koopman::analysis::prediction_error(model.as_ref(), &test, 1.0).unwrap();
+        assert_eq!(d["window_test"].as_f64(), Some(window));
+        let at_bound = u.iter().filter(|u| u.abs() >= 8.0 - 1e-5).count();
+        assert_eq!(
+            d["saturated_fraction"].as_f64(),
+            Some(at_bound as f64 / u.len() as f64)
+        );
+        assert!(!d["next_step"].as_str().unwrap().is_empty());
+
         // Side by side.
         let m = &r["models"][i];
         assert_eq!(

@@ -8,6 +8,7 @@
 //! - [`control_loop`]: several controlled simulators in one lockstep loop, concurrently;
 //! - [`control`]: the control phase of a run (models configured, references read, the loop);
 //! - [`control_settings`]: a `[control]` entry's simulator, MPC settings and position loop;
+//! - [`diagnose`]: why a control run missed: closed-loop vs test prediction, saturation, next step;
 //! - [`reference`]: fixed and time-varying (`reference_file`) references and their windows;
 //! - [`commands`]: command placeholders and `[[hooks]]`;
 //! - [`program`]: the program an external command runs (`{python}`, relative paths);
@@ -26,6 +27,7 @@ pub mod compare;
 pub mod control;
 pub mod control_loop;
 pub mod control_settings;
+pub mod diagnose;
 pub mod position_loop;
 pub mod program;
 pub mod reference;

@@ -13,6 +13,7 @@ use super::commands::{run_hooks, Placeholders};
 use super::compare::{self, ModelResult};
 use super::control::{control_phase, ControlPhase};
 use super::control_loop::LoopReport;
+use super::diagnose::{self, ControlDiagnosis};
 use super::reuse;
 use super::train::{job_config, train_model_as, TrainReport};
 use super::validate::validate_scenario;
@@ -56,6 +57,11 @@ pub struct Report {
     /// controlled simulator, the error before and after retraining on the rollouts.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub aggregation: Vec<AggregationRound>,
+    /// Per control run, what the numbers say about a miss: the model's prediction error along
+    /// the closed loop against the test set, the commands at a bound, one next step
+    /// ([`diagnose::diagnose`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub diagnoses: Vec<ControlDiagnosis>,
     /// What the user should know about the results, also reported as [`Event::Warning`]: every
     /// control run whose MPC did not solve every step or whose simulator reported an episode end
     /// ([`ControlReport::warnings`]),
@@ -278,6 +284,16 @@ pub fn run_scenario_with(
         controls.extend(c);
     }
     warnings.extend(aggregation.iter().flat_map(aggregate::round_warnings));
+    let diagnoses = diagnose_controls(&opts.out_dir, &controls, on);
+    for d in &diagnoses {
+        let c = controls
+            .iter()
+            .find(|c| c.sim == d.sim && c.model == d.model);
+        if let Some(w) = c.and_then(|c| diagnose::missed_goal_warning(c, d)) {
+            on(Event::Warning(&w));
+            warnings.push(w);
+        }
+    }
     let models = compare::side_by_side(&trained, &controls);
     let report = Report {
         scenario: sc.name.clone(),
@@ -289,6 +305,7 @@ pub fn run_scenario_with(
         models,
         control_loop,
         aggregation,
+        diagnoses,
         warnings,
         wall_seconds: t0.elapsed().as_secs_f64(),
     };
@@ -418,4 +435,39 @@ fn train_one(
     )?;
     reuse::store(&record, key, &report)?;
     Ok(report)
+}
+
+/// The diagnosis of every control run with its model and its simulator's test windows (the
+/// validation windows when the scenario keeps no test split); a run that cannot be diagnosed
+/// (a missing file) is reported as a phase note and skipped.
+fn diagnose_controls(
+    out: &std::path::Path,
+    controls: &[ControlReport],
+    on: &mut dyn FnMut(Event<'_>),
+) -> Vec<ControlDiagnosis> {
+    let mut all = Vec::new();
+    for c in controls {
+        let data = out.join("data").join(&c.sim);
+        let split = ["test.npz", "val.npz"]
+            .iter()
+            .map(|f| data.join(f))
+            .find(|p| p.is_file());
+        let diagnosis = split
+            .ok_or_else(|| {
+                Error::Config(format!(
+                    "no test or validation windows in {}",
+                    data.display()
+                ))
+            })
+            .and_then(|p| Dataset::load_npz(&p).map_err(|e| Error::Config(e.to_string())))
+            .and_then(|test| diagnose::diagnose(c, &out.join("models").join(&c.model), &test));
+        match diagnosis {
+            Ok(d) => all.push(d),
+            Err(e) => on(Event::Phase(&format!(
+                "no diagnosis of '{}' with '{}': {e}",
+                c.sim, c.model
+            ))),
+        }
+    }
+    all
 }

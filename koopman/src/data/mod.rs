@@ -22,6 +22,7 @@ pub mod npy;
 pub mod npz;
 pub mod region;
 pub mod splits;
+pub mod trajectory;
 
 pub use generate::{
     builtin_source, builtin_source_parameters, generate, generate_with_progress, worker_threads,
@@ -45,7 +46,7 @@ pub enum Pairing {
 }
 
 /// Metadata stored next to every dataset (JSON inside the `.npz` and beside it).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct DatasetMeta {
     /// Environment or simulator name.
     pub env: String,

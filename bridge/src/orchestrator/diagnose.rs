@@ -1,0 +1,265 @@
+//! What a control run that missed its goal can say about why: how well the model predicts the
+//! closed loop against how well it predicts the test set (did the loop leave the data?), how
+//! often the commands sat at a bound, and one concrete next step.
+
+use std::path::Path;
+
+use koopman::data::Dataset;
+use serde::{Deserialize, Serialize};
+
+use super::closed_loop::ControlReport;
+use crate::error::{Error, Result};
+
+/// Closed-loop prediction error this many times the test set's means the loop left the data.
+pub const OFF_DATA_RATIO: f64 = 3.0;
+/// Commands at a bound more often than this means the input lacks authority (or the model
+/// asks for the wrong amount).
+pub const SATURATED_FRACTION: f64 = 0.5;
+
+/// The diagnosis of one control run (`report.json`'s `diagnoses`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ControlDiagnosis {
+    /// Simulator id.
+    pub sim: String,
+    /// Model name.
+    pub model: String,
+    /// Fraction of the input components the MPC sent at a bound (within 1e-6 of the range).
+    pub saturated_fraction: f64,
+    /// Transitions per prediction window of the two errors below: the dataset's T.
+    pub window_steps: usize,
+    /// Mean squared prediction error (raw units, γ = 1) of the one-step predictions along the
+    /// closed loop; `None` for a model kind without a lifted form (nndm, bilinear) or a loop
+    /// shorter than a window.
+    pub one_step_closed_loop: Option<f64>,
+    /// The same on the test set.
+    pub one_step_test: Option<f64>,
+    /// Mean squared error of the `window_steps`-step predictions along the closed loop.
+    pub window_closed_loop: Option<f64>,
+    /// The same on the test set.
+    pub window_test: Option<f64>,
+    /// One concrete next step.
+    pub next_step: String,
+}
+
+/// Diagnoses `c` with the model saved in `model_dir` and the run's test windows `test`.
+pub fn diagnose(c: &ControlReport, model_dir: &Path, test: &Dataset) -> Result<ControlDiagnosis> {
+    let saturated_fraction = saturated_fraction(c);
+    let errors = koopman::model::load_lifted(model_dir)
+        .ok()
+        .map(|model| prediction_errors(model.as_ref(), c, test))
+        .transpose()?;
+    let [one_cl, one_test, win_cl, win_test] = errors.unwrap_or([None; 4]);
+    let ratio = match (win_cl.or(one_cl), win_test.or(one_test)) {
+        (Some(cl), Some(t)) if t > 0.0 => Some(cl / t),
+        _ => None,
+    };
+    let next_step = next_step(c, ratio, saturated_fraction);
+    Ok(ControlDiagnosis {
+        sim: c.sim.clone(),
+        model: c.model.clone(),
+        saturated_fraction,
+        window_steps: test.steps,
+        one_step_closed_loop: one_cl,
+        one_step_test: one_test,
+        window_closed_loop: win_cl,
+        window_test: win_test,
+        next_step,
+    })
+}
+
+/// The warning a run that missed a fixed goal deserves (`None` when it reached it or tracked a
+/// trajectory, whose goal is the whole path): the diagnosis in one sentence.
+pub fn missed_goal_warning(c: &ControlReport, d: &ControlDiagnosis) -> Option<String> {
+    if c.time_to_goal_steps.is_some() || c.reference_trajectory.is_some() {
+        return None;
+    }
+    let prediction = match (d.window_closed_loop, d.window_test) {
+        (Some(cl), Some(t)) => format!(
+            "{}-step prediction error {cl:.3e} along the closed loop vs {t:.3e} on the test set; ",
+            d.window_steps
+        ),
+        _ => String::new(),
+    };
+    Some(format!(
+        "control of '{}' (model '{}') did not reach its goal (final error {:.4}): {prediction}\
+         {:.0}% of the commands at a bound; next: {}",
+        c.sim,
+        c.model,
+        c.final_error,
+        100.0 * d.saturated_fraction,
+        d.next_step
+    ))
+}
+
+/// The share of input components within 1e-6 of the range of a finite MPC bound.
+fn saturated_fraction(c: &ControlReport) -> f64 {
+    let Some(mpc) = &c.mpc else { return 0.0 };
+    let bound = |b: &Option<Vec<f64>>, i: usize| b.as_ref().and_then(|v| v.get(i).copied());
+    let (mut at, mut all) = (0usize, 0usize);
+    for u in &c.u {
+        for (i, &ui) in u.iter().enumerate() {
+            all += 1;
+            let (lo, hi) = (bound(&mpc.u_min, i), bound(&mpc.u_max, i));
+            let tol = match (lo, hi) {
+                (Some(l), Some(h)) if l.is_finite() && h.is_finite() => 1e-6 * (h - l).max(1e-12),
+                _ => 1e-9,
+            };
+            let near = |b: Option<f64>| b.is_some_and(|b| b.is_finite() && (ui - b).abs() <= tol);
+            at += usize::from(near(lo) || near(hi));
+        }
+    }
+    if all == 0 {
+        0.0
+    } else {
+        at as f64 / all as f64
+    }
+}
+
+/// [one-step closed loop, one-step test, T-step closed loop, T-step test].
+fn prediction_errors(
+    model: &dyn koopman::model::LiftedModel,
+    c: &ControlReport,
+    test: &Dataset,
+) -> Result<[Option<f64>; 4]> {
+    let err = |d: &Dataset| -> Result<Option<f64>> {
+        if d.n == 0 {
+            return Ok(None);
+        }
+        koopman::analysis::prediction_error(model, d, 1.0)
+            .map(Some)
+            .map_err(|e| Error::Config(format!("diagnosing '{}': {e}", c.model)))
+    };
+    let loop_windows = |steps: usize| {
+        Dataset::from_trajectory(&c.x, &c.u, steps, 1, test.meta.clone())
+            .map_err(|e| Error::Config(format!("closed loop of '{}': {e}", c.sim)))
+    };
+    let t = test.steps;
+    Ok([
+        err(&loop_windows(1)?)?,
+        err(&first_step_windows(test))?,
+        err(&loop_windows(t)?)?,
+        err(test)?,
+    ])
+}
+
+/// Every transition of `d` as its own one-step window.
+fn first_step_windows(d: &Dataset) -> Dataset {
+    let mut x = Vec::with_capacity(d.transitions() * 2 * d.nx);
+    for i in 0..d.n {
+        for t in 0..d.steps {
+            x.extend_from_slice(d.state(i, t));
+            x.extend_from_slice(d.state(i, t + 1));
+        }
+    }
+    Dataset {
+        n: d.transitions(),
+        steps: 1,
+        nx: d.nx,
+        nu: d.nu,
+        x,
+        u: d.u.clone(),
+        meta: d.meta.clone(),
+    }
+}
+
+/// The one next step the numbers point to.
+fn next_step(c: &ControlReport, off_data: Option<f64>, saturated: f64) -> String {
+    if c.time_to_goal_steps.is_some() {
+        return "none: the goal was reached".into();
+    }
+    if c.not_solved * 2 > c.u.len() {
+        return "the MPC did not solve most steps: raise [control].mpc max_iterations or \
+                time_limit, or loosen x_min/x_max"
+            .into();
+    }
+    if let Some(r) = off_data.filter(|r| *r > OFF_DATA_RATIO) {
+        return format!(
+            "the model predicts the closed loop {r:.1}x worse than its test set: the loop left \
+             the data — collect around the task ([collect] x0 box around the goal or reference, \
+             input bounds the task needs) or run on-policy aggregation (--aggregate 2)"
+        );
+    }
+    if saturated > SATURATED_FRACTION {
+        return format!(
+            "{:.0}% of the commands sat at a bound: the input lacks authority for this task at \
+             these bounds, or the model's input gain is wrong — check the input's effect in the \
+             data, widen the bounds only where the data had such inputs",
+            100.0 * saturated
+        );
+    }
+    "the model predicts the loop as well as its test set and the inputs have room: tune the \
+     MPC ([control].mpc q, r, horizon; offset_free for a steady offset) or train longer \
+     ([train].config iterations)"
+        .into()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn report(u: Vec<Vec<f64>>, goal: Option<usize>) -> ControlReport {
+        let mut r: ControlReport = serde_json::from_value(serde_json::json!({
+            "sim": "s", "model": "m", "state_names": ["x"], "input_names": ["u"], "dt": 0.1,
+            "reference": [0.0], "x": [[0.0]], "u": [], "final_error": 1.0,
+            "time_to_goal_steps": null, "error": [1.0], "tracking_rms": [1.0],
+            "tracking_rms_total": 1.0, "solve_median_us": 1.0, "solve_round_trip_median_us": 1.0,
+            "step_round_trip_median_us": 1.0, "not_solved": 0, "not_solved_by_status": {},
+            "error_state": false
+        }))
+        .unwrap();
+        r.x = vec![vec![0.0]; u.len() + 1];
+        r.u = u;
+        r.time_to_goal_steps = goal;
+        r.mpc = Some(koopman::mpc::MpcConfig {
+            u_min: Some(vec![-2.0]),
+            u_max: Some(vec![2.0]),
+            ..Default::default()
+        });
+        r
+    }
+
+    #[test]
+    fn saturation_counts_commands_at_either_bound() {
+        let r = report(vec![vec![2.0], vec![-2.0], vec![1.9], vec![0.0]], None);
+        assert_eq!(saturated_fraction(&r), 0.5);
+        let r = report(
+            vec![vec![2.0], vec![-2.0], vec![2.0 - 1e-7], vec![0.0]],
+            None,
+        );
+        assert_eq!(saturated_fraction(&r), 0.75);
+    }
+
+    #[test]
+    fn the_next_step_follows_the_numbers() {
+        let reached = report(vec![vec![0.0]], Some(0));
+        assert!(next_step(&reached, Some(10.0), 1.0).starts_with("none"));
+        let missed = report(vec![vec![0.0]], None);
+        assert!(next_step(&missed, Some(10.0), 0.0).contains("left the data"));
+        assert!(next_step(&missed, Some(1.2), 0.9).contains("90% of the commands"));
+        assert!(next_step(&missed, Some(1.2), 0.1).contains("tune the MPC"));
+        let mut unsolved = report(vec![vec![0.0]; 4], None);
+        unsolved.not_solved = 3;
+        assert!(next_step(&unsolved, None, 0.0).contains("did not solve"));
+    }
+
+    #[test]
+    fn one_step_windows_hold_every_transition() {
+        let d = Dataset {
+            n: 2,
+            steps: 2,
+            nx: 1,
+            nu: 1,
+            x: vec![0.0, 1.0, 2.0, 10.0, 11.0, 12.0],
+            u: vec![5.0, 6.0, 7.0, 8.0],
+            meta: koopman::data::DatasetMeta {
+                state_names: vec!["x".into()],
+                input_names: vec!["u".into()],
+                ..Default::default()
+            },
+        };
+        let one = first_step_windows(&d);
+        assert_eq!(one.n, 4);
+        assert_eq!(one.x, vec![0.0, 1.0, 1.0, 2.0, 10.0, 11.0, 11.0, 12.0]);
+        one.validate().unwrap();
+    }
+}
