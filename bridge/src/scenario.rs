@@ -20,6 +20,7 @@ use crate::keyexpr::validate_chunk;
 
 pub mod extras;
 pub mod train;
+mod train_names;
 
 pub use extras::{CommandLine, HookPhase, HookSpec, ParticipantRole, ParticipantSpec};
 pub use train::TrainSpec;

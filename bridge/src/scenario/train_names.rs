@@ -1,0 +1,186 @@
+//! What a scenario's `[train]` kinds mean for the rest of the file: the model store's names and
+//! the checks of the kinds against `[control]`, and the tests of `[train]` as a scenario reads it.
+
+use super::Scenario;
+use crate::error::{Error, Result};
+use crate::services::model_kind::ModelKind;
+
+impl Scenario {
+    /// The name in the model store of simulator `sim`'s model of kind `kind`: `{name}-{sim}`
+    /// for `koopman`, `{name}-{sim}-{kind}` for the others (so that no two kinds share a
+    /// folder, and a `koopman` model keeps the name it always had).
+    pub fn model_name(&self, sim: &str, kind: ModelKind) -> String {
+        match kind {
+            ModelKind::Koopman => format!("{}-{sim}", self.name),
+            k => format!("{}-{sim}-{k}", self.name),
+        }
+    }
+
+    /// Checks `[train]` ([`super::train::TrainSpec::check`]) and what its kinds are asked to do elsewhere: no
+    /// two models share a name ([`Scenario::model_name`]), and every kind can serve each
+    /// `[control]` entry (`feedforward_file`, the error-state MPC, needs a lifted-linear model:
+    /// koopman or edmd; `offset_free` is not for an NNDM's random shooting).
+    pub(crate) fn check_train(&self) -> Result<()> {
+        let Some(t) = &self.train else {
+            return Ok(());
+        };
+        let empty = serde_json::Map::new();
+        t.check(self.full.as_ref().map_or(&empty, |f| &f.train_config))?;
+        let kinds = t.kinds();
+        let mut names: Vec<(String, &str, ModelKind)> = Vec::new();
+        for s in &self.sims {
+            for &k in &kinds {
+                let name = self.model_name(&s.id, k);
+                if let Some((_, o, ok)) = names.iter().find(|(n, _, _)| *n == name) {
+                    return Err(Error::Config(format!(
+                        "the {ok} model of simulator '{o}' and the {k} model of simulator '{}' \
+                         would both be called '{name}': rename one of the simulators",
+                        s.id
+                    )));
+                }
+                names.push((name, &s.id, k));
+            }
+        }
+        for ctrl in &self.control {
+            let sim = self.controlled_id(ctrl);
+            for &k in &kinds {
+                let why = if ctrl.feedforward_file.is_some()
+                    && matches!(k, ModelKind::Bilinear | ModelKind::Nndm)
+                {
+                    "`feedforward_file` (the error-state MPC) needs a lifted-linear model \
+                     (koopman or edmd)"
+                } else if ctrl.offset_free.is_some() && k == ModelKind::Nndm {
+                    "`offset_free` corrects the MPC of a lifted-linear or bilinear model, not the \
+                     random shooting of an NNDM"
+                } else {
+                    continue;
+                };
+                return Err(Error::Config(format!(
+                    "[control] for '{sim}': model kind '{k}' in [train].model cannot do this: {why}"
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::scenario::Scenario;
+    use crate::services::model_kind::ModelKind::*;
+
+    const BASE: &str = r#"
+name = "demo"
+[[sims]]
+id = "pend"
+env = "damped-pendulum"
+[collect]
+policy = { kind = "uniform" }
+train_windows = 10
+val_windows = 2
+test_windows = 2
+[control]
+x0 = [-2.5, 0.1]
+reference = [0.0, 0.0]
+steps = 20
+"#;
+
+    fn with_train(train: &str) -> crate::error::Result<Scenario> {
+        Scenario::parse(&format!("{BASE}[train]\n{train}\n"))
+    }
+
+    fn err(train: &str) -> String {
+        with_train(train).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn one_kind_or_a_list_and_the_defaults() {
+        let kinds = |t: &str| with_train(t).unwrap().train.unwrap().kinds();
+        assert_eq!(kinds("config = { iterations = 5 }"), vec![Koopman]);
+        assert_eq!(kinds("config = { bilinear = true }"), vec![Bilinear]);
+        assert_eq!(kinds("model = \"nndm\""), vec![Nndm]);
+        assert_eq!(
+            kinds("model = [\"koopman\", \"edmd\", \"bilinear\"]\nconfig = { iterations = 5 }"),
+            vec![Koopman, Edmd, Bilinear]
+        );
+    }
+
+    #[test]
+    fn bad_kinds_are_refused_with_the_reason() {
+        let e = err("model = \"dmd\"");
+        assert!(
+            e.contains("unknown model kind 'dmd'; valid kinds: koopman, bilinear, edmd, nndm"),
+            "{e}"
+        );
+        let e = err("model = [\"koopman\", \"sindy\"]");
+        assert!(e.contains("unknown model kind 'sindy'"), "{e}");
+        let e = err("model = [\"koopman\", \"edmd\", \"koopman\"]");
+        assert!(e.contains("'koopman' is listed twice"), "{e}");
+        assert!(err("model = []").contains("lists no kind"));
+        assert!(err("model = 3").contains("a kind or a list of kinds"));
+        // An option only some kinds honour.
+        // EDMD beside a normalised koopman model: it scales its own dictionary.
+        let both = "model = [\"koopman\", \"edmd\"]\nconfig = { normalise = true }";
+        assert!(with_train(both).is_ok());
+        let e = err("model = [\"koopman\", \"nndm\"]\nconfig = { normalise = true }");
+        assert!(
+            e.contains("model kind 'nndm'") && e.contains("koopman model only"),
+            "{e}"
+        );
+        let e = err("model = \"edmd\"\nconfig = { iterations = 5 }");
+        assert!(
+            e.contains("iterations does not apply to an edmd model"),
+            "{e}"
+        );
+        // … but an optimiser setting for the kinds that use it is fine beside EDMD.
+        assert!(with_train("model = [\"edmd\", \"nndm\"]\nconfig = { iterations = 5 }").is_ok());
+        let e = err("model = \"edmd\"\nconfig = { ctrl = true }");
+        assert!(
+            e.contains("ctrl = true asks for a loss of the Koopman models"),
+            "{e}"
+        );
+        let e = err("model = \"koopman\"\nconfig = { bilinear = true }");
+        assert!(e.contains("older spelling of model = \"bilinear\""), "{e}");
+        let e = err("model = \"edmd\"\n[full]\ntrain_config = { iterations = 9 }");
+        assert!(e.contains("[full].train_config"), "{e}");
+        let e = err("config = { kind = \"edmd\" }");
+        assert!(e.contains("[train].model"), "{e}");
+    }
+
+    #[test]
+    fn kinds_get_their_own_model_names_and_must_fit_the_control() {
+        let s = with_train("model = [\"koopman\", \"edmd\"]").unwrap();
+        assert_eq!(s.model_name("pend", Koopman), "demo-pend");
+        assert_eq!(s.model_name("pend", Edmd), "demo-pend-edmd");
+        // Simulator ids that would give two models one name.
+        let two = BASE.replace(
+            "[collect]",
+            "[[sims]]\nid = \"pend-edmd\"\nenv = \"damped-pendulum\"\n[collect]",
+        );
+        let e = Scenario::parse(&format!("{two}[train]\nmodel = [\"koopman\", \"edmd\"]\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("would both be called 'demo-pend-edmd'"), "{e}");
+        let off =
+            "offset_free = { mode = \"trajectory\", radius = 1.0, gain = [0.5, 0.5] }\nsteps = 20";
+        let nndm = format!(
+            "{}[train]\nmodel = [\"koopman\", \"nndm\"]\n",
+            BASE.replace("steps = 20", off)
+        );
+        let e = Scenario::parse(&nndm).unwrap_err().to_string();
+        assert!(
+            e.contains("model kind 'nndm'") && e.contains("`offset_free`"),
+            "{e}"
+        );
+        let ff = "reference_file = \"r.npy\"\nfeedforward_file = \"u.npy\"";
+        let bil = format!(
+            "{}[train]\nmodel = [\"edmd\", \"bilinear\"]\n",
+            BASE.replace("reference = [0.0, 0.0]", ff)
+        );
+        let e = Scenario::parse(&bil).unwrap_err().to_string();
+        assert!(
+            e.contains("model kind 'bilinear'") && e.contains("lifted-linear"),
+            "{e}"
+        );
+    }
+}
