@@ -49,7 +49,15 @@ fn an_unsolvable_mpc_is_reported_and_warned_about() {
         serde_json::json!({ "fallback": 6 })
     );
     let warnings = r["warnings"].as_array().expect("warnings in the report");
-    assert_eq!(warnings.len(), 1, "{warnings:?}");
+    // The unsolved steps, then the missed goal with the diagnosis's next step.
+    assert_eq!(warnings.len(), 2, "{warnings:?}");
+    let missed = warnings[1].as_str().unwrap();
+    assert!(
+        missed.contains("did not reach its goal")
+            && missed.contains("next: the MPC did not solve most steps"),
+        "{missed}"
+    );
+    assert_eq!(r["diagnoses"][0]["model"], c["model"]);
     let w = warnings[0].as_str().unwrap();
     assert!(
         w.contains("did not solve 6 of 6 steps (fallback 6)") && w.contains("'pend'"),
@@ -81,7 +89,7 @@ fn an_unsolvable_mpc_is_reported_and_warned_about() {
     let stderr = String::from_utf8_lossy(&strict.stderr);
     assert_eq!(strict.status.code(), Some(1), "{stderr}");
     assert!(
-        stderr.contains("1 warning(s) and --fail-on-warning"),
+        stderr.contains("2 warning(s) and --fail-on-warning"),
         "{stderr}"
     );
     assert!(out.join("report.json").is_file());
