@@ -358,7 +358,9 @@ impl ControlReport {
                  the bounds, was applied: check [control].mpc (bounds, x_min/x_max, solver, \
                  max_iterations, time_limit) and the model"
             } else {
-                "; check [control].mpc (max_iterations, time_limit)"
+                "; check [control].mpc (max_iterations, time_limit) — or, with a bilinear model, \
+                 'suboptimal' is its sequential convex MPC reaching its cap of 3 linearisations \
+                 (the best plan found is applied; not a [control].mpc setting)"
             }
         ))
     }
