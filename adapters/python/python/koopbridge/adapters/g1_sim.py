@@ -45,7 +45,17 @@ from .._native import InvalidInput, KoopbridgeError, Unsupported
 from ..collect import PlannedPolicy, Policy, SimulatorPolicy, UniformPolicy, Windows, collect_windows
 from ..simulator import SimInfo, as_input, as_state
 from . import g1_model as g
-from .legged import body_from_world, clip_targets, legged_state, legged_state_names, legged_state_units, projected_gravity, quat_to_matrix, tilt
+from .legged import (
+    SimFailure,
+    body_from_world,
+    clip_targets,
+    finish_physics_step,
+    legged_state,
+    legged_state_names,
+    legged_state_units,
+    projected_gravity,
+    quat_to_matrix,
+)
 from .legged_collect import ExpertPolicy, collect_expert
 from .legged_policy import OnnxExpert
 
@@ -60,9 +70,6 @@ JOINT_SLACK = 0.2
 #: ``command_ranges``, ±1 m/s, ±1 m/s, ±1 rad/s), no slew limit (holosoma applies commands as given).
 EXPERT_DEFAULTS = {"command_low": [-1.0, -1.0, -1.0], "command_high": [1.0, 1.0, 1.0]}
 
-
-class SimFailure(KoopbridgeError):
-    """MuJoCo became unstable (a non-finite state or a MuJoCo warning); reset to go on."""
 
 
 class G1Simulator:
@@ -350,22 +357,7 @@ class G1Simulator:
         d.ctrl[self.layout.actuators] = self._full_targets(targets)
         for _ in range(self.substeps):
             mj.mj_step(m, d)
-        if int(d.warning.number.sum()) != warned or not math.isfinite(d.qpos.sum() + d.qvel.sum()):
-            self.ready = False
-            names = [mj.mjtWarning(i).name for i, n in enumerate(d.warning.number) if n]
-            raise SimFailure(
-                f"G1: MuJoCo unstable at step {self.k} (t = {self.k * self.dt:.4g} s; warnings {names or 'none'}, "
-                "non-finite or reset state); reset to go on"
-            )
-        self.k += 1
-        self.steps += 1
-        fallen = self.is_fallen()
-        if fallen and not self.fallen:
-            self.falls += 1
-            if self.on_fall is not None:
-                lay = self.layout
-                self.on_fall(f"G1: fell at step {self.k} (pelvis height {lay.height(d):.3f} m, tilt {tilt(lay.quat(d)):.2f} rad); {self.falls} falls so far")
-        self.fallen = fallen
+        finish_physics_step(self, mj, warned, "G1", "pelvis")
         return self.state()
 
     # ---- the expert ----

@@ -30,7 +30,18 @@ from .._native import InvalidInput, KoopbridgeError, Unsupported
 from ..collect import PlannedPolicy, Policy, SimulatorPolicy, UniformPolicy, Windows, collect_windows
 from ..simulator import SimInfo, as_input, as_state
 from . import go2_model as g
-from .legged import PdDrive, body_from_world, clip_targets, legged_state, legged_state_names, legged_state_units, projected_gravity, quat_to_matrix, tilt
+from .legged import (
+    PdDrive,
+    SimFailure,
+    body_from_world,
+    clip_targets,
+    finish_physics_step,
+    legged_state,
+    legged_state_names,
+    legged_state_units,
+    projected_gravity,
+    quat_to_matrix,
+)
 from .legged_collect import ExpertPolicy, collect_expert
 from .legged_policy import OnnxExpert
 
@@ -43,9 +54,6 @@ MAX_PENETRATION = 0.02
 #: How far (rad) a reset state's joint may be outside its range.
 JOINT_SLACK = 0.2
 
-
-class SimFailure(KoopbridgeError):
-    """MuJoCo became unstable (a non-finite state or a MuJoCo warning); reset to go on."""
 
 
 class Go2Simulator:
@@ -297,22 +305,7 @@ class Go2Simulator:
         m, d, mj = self.model, self.data, self._mj
         warned = int(d.warning.number.sum())
         self.drive.run(mj, m, d, targets, self.substeps)
-        if int(d.warning.number.sum()) != warned or not math.isfinite(d.qpos.sum() + d.qvel.sum()):
-            self.ready = False
-            names = [mj.mjtWarning(i).name for i, n in enumerate(d.warning.number) if n]
-            raise SimFailure(
-                f"Go2: MuJoCo unstable at step {self.k} (t = {self.k * self.dt:.4g} s; warnings {names or 'none'}, "
-                "non-finite or reset state); reset to go on"
-            )
-        self.k += 1
-        self.steps += 1
-        fallen = self.is_fallen()
-        if fallen and not self.fallen:
-            self.falls += 1
-            if self.on_fall is not None:
-                lay = self.layout
-                self.on_fall(f"Go2: fell at step {self.k} (base height {lay.height(d):.3f} m, tilt {tilt(lay.quat(d)):.2f} rad); {self.falls} falls so far")
-        self.fallen = fallen
+        finish_physics_step(self, mj, warned, "Go2", "base")
         return self.state()
 
     # ---- the expert ----

@@ -12,6 +12,8 @@ from typing import Any
 
 import numpy as np
 
+from .._native import KoopbridgeError
+
 __all__ = [
     "FallRule",
     "LeggedLayout",
@@ -225,3 +227,36 @@ def clip_targets(targets: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[n
     """``targets`` clipped into ``[lo, hi]`` and how many components needed it."""
     clipped = np.clip(targets, lo, hi)
     return clipped, int(np.count_nonzero(clipped != targets))
+
+
+class SimFailure(KoopbridgeError):
+    """MuJoCo became unstable (a non-finite state or a MuJoCo warning); reset to go on."""
+
+
+def finish_physics_step(sim: Any, mj: Any, warned: int, robot: str, base: str) -> None:
+    """The bookkeeping after one dt of a legged simulator's physics: raises ``SimFailure`` (and
+    marks ``sim`` not ready) when MuJoCo warned since ``warned`` (its warning count before the
+    step) or the state went non-finite; else advances ``sim.k`` and ``sim.steps``, updates
+    ``sim.fallen`` and counts (and reports through ``sim.on_fall``) a new fall. ``robot`` and
+    ``base`` name the robot and its base body in the messages."""
+    d = sim.data
+    if int(d.warning.number.sum()) != warned or not math.isfinite(d.qpos.sum() + d.qvel.sum()):
+        sim.ready = False
+        names = [mj.mjtWarning(i).name for i, n in enumerate(d.warning.number) if n]
+        raise SimFailure(
+            f"{robot}: MuJoCo unstable at step {sim.k} (t = {sim.k * sim.dt:.4g} s; warnings {names or 'none'}, "
+            "non-finite or reset state); reset to go on"
+        )
+    sim.k += 1
+    sim.steps += 1
+    fallen = sim.is_fallen()
+    if fallen and not sim.fallen:
+        sim.falls += 1
+        if sim.on_fall is not None:
+            lay = sim.layout
+            sim.on_fall(
+                f"{robot}: fell at step {sim.k} ({base} height {lay.height(d):.3f} m, tilt {tilt(lay.quat(d)):.2f} rad); "
+                f"{sim.falls} falls so far"
+            )
+    sim.fallen = fallen
+
