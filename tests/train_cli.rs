@@ -2,18 +2,13 @@
 //! reaches the fit (the model's latent size is the dictionary's feature count) and the EDMD
 //! options are refused for the other model kinds.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::Path;
 use std::process::Command;
 
 fn koopbridge() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_koopbridge"))
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("kb-train-cli-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    Command::new(common::exe())
 }
 
 fn latent_dim(model: &Path) -> u64 {
@@ -24,7 +19,7 @@ fn latent_dim(model: &Path) -> u64 {
 
 #[test]
 fn edmd_degree_sets_the_dictionary_and_is_refused_for_other_models() {
-    let dir = scratch("edmd");
+    let dir = common::scratch("train-cli-edmd");
     let data = dir.join("data");
     let ok = koopbridge()
         .args([

@@ -445,22 +445,28 @@ fn diagnose_controls(
     controls: &[ControlReport],
     on: &mut dyn FnMut(Event<'_>),
 ) -> Vec<ControlDiagnosis> {
+    // Each simulator's windows are read once, however many model kinds controlled it.
+    let mut windows: std::collections::HashMap<&str, Result<Dataset>> = Default::default();
     let mut all = Vec::new();
     for c in controls {
-        let data = out.join("data").join(&c.sim);
-        let split = ["test.npz", "val.npz"]
-            .iter()
-            .map(|f| data.join(f))
-            .find(|p| p.is_file());
-        let diagnosis = split
-            .ok_or_else(|| {
-                Error::Config(format!(
-                    "no test or validation windows in {}",
-                    data.display()
-                ))
-            })
-            .and_then(|p| Dataset::load_npz(&p).map_err(|e| Error::Config(e.to_string())))
-            .and_then(|test| diagnose::diagnose(c, &out.join("models").join(&c.model), &test));
+        let test = windows.entry(c.sim.as_str()).or_insert_with(|| {
+            let data = out.join("data").join(&c.sim);
+            ["test.npz", "val.npz"]
+                .iter()
+                .map(|f| data.join(f))
+                .find(|p| p.is_file())
+                .ok_or_else(|| {
+                    Error::Config(format!(
+                        "no test or validation windows in {}",
+                        data.display()
+                    ))
+                })
+                .and_then(|p| Dataset::load_npz(&p).map_err(|e| Error::Config(e.to_string())))
+        });
+        let diagnosis = match test {
+            Ok(test) => diagnose::diagnose(c, &out.join("models").join(&c.model), test),
+            Err(e) => Err(Error::Config(e.to_string())),
+        };
         match diagnosis {
             Ok(d) => all.push(d),
             Err(e) => on(Event::Phase(&format!(
