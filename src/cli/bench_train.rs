@@ -2,7 +2,7 @@
 //! with the PyTorch anchor (`scripts/bench-train-vs-anchor.sh` runs both side by side).
 
 use anyhow::Context;
-use koopman::data::{generate, Pairing};
+use koopman::data::{generate, Dataset, Pairing};
 use koopman::train::{train, Precision, TrainConfig};
 use serde::Serialize;
 use std::ops::ControlFlow;
@@ -14,8 +14,12 @@ use std::ops::ControlFlow;
 )]
 pub struct BenchTrainArgs {
     /// Reference system to generate the data from.
-    #[arg(long, default_value = "damped-pendulum")]
+    #[arg(long, default_value = "damped-pendulum", conflicts_with = "data")]
     pub system: String,
+    /// Time on a recorded dataset instead (a directory with `train.npz` and `val.npz`, e.g. the
+    /// Go2 expert data: N = 35 * 17 = 595, nu = 12); `--windows` then caps the training windows.
+    #[arg(long, value_name = "DIR")]
+    pub data: Option<std::path::PathBuf>,
     /// Timed training iterations.
     #[arg(long, default_value_t = 2000)]
     pub iters: usize,
@@ -72,16 +76,7 @@ pub fn run(args: BenchTrainArgs) -> anyhow::Result<()> {
     if args.iters == 0 {
         anyhow::bail!("--iters must be at least 1");
     }
-    let system = koopman::systems::by_name(&args.system)?;
-    let data = generate(
-        system.as_ref(),
-        args.windows.max(2),
-        15,
-        42,
-        Pairing::Aligned,
-    )
-    .context("generating benchmark data")?;
-    let val = data.head(256.min(data.n))?;
+    let (label, data, val) = bench_data(&args)?;
     let mut cfg = TrainConfig {
         n_mult: args.n_mult,
         batch: args.batch,
@@ -111,7 +106,7 @@ pub fn run(args: BenchTrainArgs) -> anyhow::Result<()> {
     };
     let report = Report {
         bench: "train",
-        system: args.system.clone(),
+        system: label,
         iterations: args.iters,
         iterations_per_second: ips,
         seconds: args.iters as f64 / ips,
@@ -147,6 +142,32 @@ pub fn run(args: BenchTrainArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// The benchmark's label, training windows and validation windows: generated from `--system`,
+/// or read from `--data DIR` (at most `--windows` training windows).
+fn bench_data(args: &BenchTrainArgs) -> anyhow::Result<(String, Dataset, Dataset)> {
+    if let Some(dir) = &args.data {
+        let train = Dataset::load_npz(&dir.join("train.npz"))
+            .with_context(|| format!("reading the benchmark data in {}", dir.display()))?;
+        let val = Dataset::load_npz(&dir.join("val.npz"))
+            .with_context(|| format!("reading the benchmark data in {}", dir.display()))?;
+        let train = train.head(args.windows.max(2).min(train.n))?;
+        let val = val.head(256.min(val.n))?;
+        let label = format!("{} (nx {}, nu {})", dir.display(), train.nx, train.nu);
+        return Ok((label, train, val));
+    }
+    let system = koopman::systems::by_name(&args.system)?;
+    let data = generate(
+        system.as_ref(),
+        args.windows.max(2),
+        15,
+        42,
+        Pairing::Aligned,
+    )
+    .context("generating benchmark data")?;
+    let val = data.head(256.min(data.n))?;
+    Ok((args.system.clone(), data, val))
 }
 
 fn rayon_threads() -> usize {
