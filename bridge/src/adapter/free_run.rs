@@ -159,7 +159,7 @@ impl FreeRun {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::adapter::lockstep::tests::Counter;
+    use crate::adapter::tests_lockstep::Counter;
 
     fn opts(steps: u64) -> FreeRunOptions {
         FreeRunOptions {

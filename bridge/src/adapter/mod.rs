@@ -19,6 +19,8 @@ pub mod free_run;
 pub mod lockstep;
 #[cfg(test)]
 mod tests_collect;
+#[cfg(test)]
+pub(crate) mod tests_lockstep;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
