@@ -33,46 +33,27 @@ rest, a cold solver.
 from __future__ import annotations
 
 import math
-import sys
-from collections import OrderedDict
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
-from .._native import InvalidInput, KoopbridgeError, Unsupported
-from ..collect import PlannedPolicy, Policy, SimulatorPolicy, UniformPolicy, Windows, collect_windows
-from ..simulator import SimInfo, as_input, as_state
+from .._native import KoopbridgeError
+from ..simulator import SimInfo
 from . import g1_model as g
-from .legged import (
-    SimFailure,
-    body_from_world,
-    clip_targets,
-    finish_physics_step,
-    legged_state,
-    legged_state_names,
-    legged_state_units,
-    projected_gravity,
-    quat_to_matrix,
-)
-from .legged_collect import ExpertPolicy, collect_expert
+from .legged import SimFailure, legged_state_names, legged_state_units, projected_gravity
+from .legged_collect import ExpertPolicy
 from .legged_policy import OnnxExpert
+from .legged_sim import LeggedSimulator
 
 __all__ = ["EXPERT_DEFAULTS", "G1Simulator", "SimFailure"]
 
-#: How far (m) a reset state may push a foot geom / any other robot geom into the floor.
-MAX_FOOT_PENETRATION = 0.03
-MAX_PENETRATION = 0.02
-#: How far (rad) a reset state's joint may be outside its range.
-JOINT_SLACK = 0.2
 #: The G1's expert collection defaults: commands over the policy's trained ranges (ONNX metadata
 #: ``command_ranges``, ±1 m/s, ±1 m/s, ±1 rad/s), no slew limit (holosoma applies commands as given).
-EXPERT_DEFAULTS = {"command_low": [-1.0, -1.0, -1.0], "command_high": [1.0, 1.0, 1.0]}
+EXPERT_DEFAULTS: dict[str, object] = {"command_low": [-1.0, -1.0, -1.0], "command_high": [1.0, 1.0, 1.0]}
 
 
-
-class G1Simulator:
+class G1Simulator(LeggedSimulator):
     """One G1 on flat ground in MuJoCo, stepped by 23 joint position targets.
 
     ``model``/``policy``: g1.xml and the ONNX expert (default: mjlab's model, holosoma's
@@ -89,6 +70,14 @@ class G1Simulator:
     reply's flags (``terminated`` while fallen, ``clipped``).
     """
 
+    ROBOT = "G1"
+    BASE_BODY = "pelvis"
+    FALL = g.FALL
+    START_HEIGHT = 1.0
+    MAX_FOOT_PENETRATION = 0.03
+    MODEL_ERROR = g.ModelError
+    EXPERT_DEFAULTS = EXPERT_DEFAULTS
+
     def __init__(
         self,
         model: str | None = None,
@@ -104,14 +93,12 @@ class G1Simulator:
     ) -> None:
         import mujoco
 
-        self._mj = mujoco
         policy_path = policy or g.policy_file(policy_name)
         meta = g.read_policy_meta(policy_path)
         self.g1 = g.build_g1(model, meta, held=held)
         self.held_mode = held
         self.model, self.layout = self.g1.model, self.g1.layout
         self.data = mujoco.MjData(self.model)
-        self._probe = mujoco.MjData(self.model)
         self.substeps = self.g1.substeps
         self.dt = self.substeps * float(self.model.opt.timestep)
         try:
@@ -124,25 +111,22 @@ class G1Simulator:
         self.present = np.array([g.JOINTS.index(j) for j in present])
         self.inputs = np.array([present.index(j) for j in g.INPUT_JOINTS])
         self.observed = np.array([present.index(j) for j in g.STATE_JOINTS])
+        self.reset_joints = self.inputs
+        self.state_joints = list(g.STATE_JOINTS)
         self.policy_default = g.default_pose()
         self.default_pose = self.policy_default[self.present]
-        q_min, q_max = self.layout.q_min[self.inputs], self.layout.q_max[self.inputs]
-        if not (math.isfinite(target_margin) and target_margin >= 0):
-            raise g.ModelError(f"target margin must be finite and >= 0, got {target_margin}")
-        self.target_margin = float(target_margin)
-        self.u_lo, self.u_hi = q_min - self.target_margin, q_max + self.target_margin
         self.command_slew = np.full(3, np.inf)
-        self.reset_range = float(reset_range)
-        self.env = env or ("unitree-g1" if held == "servo" else "unitree-g1-locked")
-        self.on_fall = on_fall
-        self.nx, self.nu = 11 + 2 * len(self.observed), len(self.inputs)
         self.feet = [self.model.geom(f"{side}_foot{i}_collision").id for side in ("left", "right") for i in range(1, 8)]
-        self._state_size = mujoco.mj_stateSize(self.model, mujoco.mjtState.mjSTATE_INTEGRATION)
-        self._memory: OrderedDict[bytes, np.ndarray] = OrderedDict()
-        self.memory = int(memory)
-        self.ready = False
-        self.fallen = self.last_clipped = False
-        self.k = self.steps = self.falls = self.clipped_targets = 0
+        self._init_legged(
+            mujoco,
+            q_lo=self.layout.q_min[self.inputs],
+            q_hi=self.layout.q_max[self.inputs],
+            target_margin=target_margin,
+            reset_range=reset_range,
+            memory=memory,
+            env=env or ("unitree-g1" if held == "servo" else "unitree-g1-locked"),
+            on_fall=on_fall,
+        )
 
     # ---- description ----
     def info(self) -> SimInfo:
@@ -207,40 +191,7 @@ class G1Simulator:
             ),
         )
 
-    # ---- state ----
-    def state(self) -> np.ndarray:
-        """The current 53-D state."""
-        return legged_state(self.layout, self.data, self.observed)
-
-    def is_fallen(self) -> bool:
-        """Whether the robot is fallen now (``g1_model.FALL``)."""
-        lay, d = self.layout, self.data
-        return g.FALL.fallen(lay.quat(d), lay.height(d))
-
-    def remember(self, x: np.ndarray) -> None:
-        """Keeps the full physics state under the current state ``x`` for an exact ``reset(x0=x)``."""
-        if self.memory <= 0:
-            return
-        buf = np.empty(self._state_size)
-        self._mj.mj_getState(self.model, self.data, buf, self._mj.mjtState.mjSTATE_INTEGRATION)
-        key = x.tobytes()
-        self._memory[key] = buf
-        self._memory.move_to_end(key)
-        while len(self._memory) > self.memory:
-            self._memory.popitem(last=False)
-
-    def _start(self) -> np.ndarray:
-        self.ready, self.fallen, self.k = True, self.is_fallen(), 0
-        x = self.state()
-        self.remember(x)
-        return x
-
-    def _full_targets(self, u: np.ndarray) -> np.ndarray:
-        targets = self.default_pose.copy()
-        targets[self.inputs] = u
-        return targets
-
-    # ---- reset ----
+    # ---- the robot's hooks (``LeggedSimulator``) ----
     def _lowest_foot(self, d: Any) -> float:
         """The lowest point (z) of the foot capsules."""
         m = self.model
@@ -251,120 +202,23 @@ class G1Simulator:
             low = min(low, z - abs(float(axis[2])) - float(m.geom_size[f][0]))
         return low
 
-    def reset(self, seed: int | None = None, x0: npt.ArrayLike | None = None) -> np.ndarray:
-        """Starts at ``x0`` (see the module docstring), else standing in the default pose with the
-        lowest foot on the floor, at rest: with ``seed``, the input joints + U(±reset_range)
-        (clipped to the limits) and a heading U(±π); without, exactly the default pose facing
-        +x. Returns x_0."""
-        mj, m, d, lay = self._mj, self.model, self.data, self.layout
-        if x0 is not None:
-            return self._reset_to(as_state(x0, self.nx, "x0"))
-        q = self.default_pose.copy()
-        yaw = 0.0
-        if seed is not None:
-            rng = np.random.default_rng(seed)
-            yaw = float(rng.uniform(-math.pi, math.pi))
-            i = self.inputs
-            q[i] = np.clip(q[i] + rng.uniform(-self.reset_range, self.reset_range, len(i)), lay.q_min[i], lay.q_max[i])
-        mj.mj_resetData(m, d)
-        b = lay.base_qpos
-        d.qpos[b : b + 3] = [0.0, 0.0, 1.0]
-        d.qpos[b + 3 : b + 7] = [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
-        d.qpos[lay.qpos] = q
-        d.ctrl[lay.actuators] = q
-        mj.mj_forward(m, d)
-        d.qpos[b + 2] -= self._lowest_foot(d)
-        mj.mj_forward(m, d)
-        return self._start()
+    def _full_targets(self, u: np.ndarray) -> np.ndarray:
+        targets = self.default_pose.copy()
+        targets[self.inputs] = u
+        return targets
 
-    def _reset_to(self, x: np.ndarray) -> np.ndarray:
-        mj, m, d, lay = self._mj, self.model, self.data, self.layout
-        n = len(self.observed)
-        saved = self._memory.get(x.tobytes())
-        if saved is not None:
-            mj.mj_resetData(m, d)
-            mj.mj_setState(m, d, saved, mj.mjtState.mjSTATE_INTEGRATION)
-            mj.mj_forward(m, d)
-            return self._start()
-        quat, v_body, w_body = x[0:4], x[4:7], x[7:10]
-        q, qd, height = x[10 : 10 + n], x[10 + n : 10 + 2 * n], float(x[10 + 2 * n])
-        norm = float(np.linalg.norm(quat))
-        if abs(norm - 1.0) > 0.01:
-            raise InvalidInput(f"x0: the base quaternion {quat.tolist()} has norm {norm:.6g}, expected 1")
-        quat = quat / norm
-        lo, hi = lay.q_min[self.observed], lay.q_max[self.observed]
-        out = [i for i in range(n) if not lo[i] - JOINT_SLACK <= q[i] <= hi[i] + JOINT_SLACK]
-        if out:
-            i = out[0]
-            raise InvalidInput(f"x0: {g.STATE_JOINTS[i]} = {q[i]:.6g} rad is outside its range [{lo[i]:.6g}, {hi[i]:.6g}] (+-{JOINT_SLACK})")
-        if height <= 0:
-            raise InvalidInput(f"x0: base height {height:.6g} m puts the base under the floor (z = 0)")
-        # Checked on a scratch MjData first: a refused state leaves the episode as it was.
-        probe = self._probe
-        mj.mj_resetData(m, probe)
-        b, v = lay.base_qpos, lay.base_dof
-        full = self.default_pose.copy()
-        full[self.observed] = q
-        probe.qpos[b : b + 3] = [0.0, 0.0, height]
-        probe.qpos[b + 3 : b + 7] = quat
-        probe.qpos[lay.qpos] = full
-        probe.qvel[v : v + 3] = quat_to_matrix(quat) @ v_body
-        probe.qvel[v + 3 : v + 6] = w_body
-        probe.qvel[lay.dofs[self.observed]] = qd
-        probe.ctrl[lay.actuators] = full
-        mj.mj_forward(m, probe)
-        too_deep = []
-        for c in range(probe.ncon):
-            geoms = [int(gid) for gid in probe.contact.geom[c]]
-            if 0 not in [int(m.geom_bodyid[gid]) for gid in geoms]:
-                continue  # self-contact: not the floor
-            allowed = MAX_FOOT_PENETRATION if any(gid in self.feet for gid in geoms) else MAX_PENETRATION
-            if -float(probe.contact.dist[c]) > allowed:
-                too_deep.append((-float(probe.contact.dist[c]), allowed, geoms))
-        if too_deep:
-            depth, allowed, geoms = max(too_deep, key=lambda t: t[0])
-            names = [m.geom(gid).name or "world" for gid in geoms]
-            raise InvalidInput(
-                f"x0 puts the robot {depth:.3g} m into the floor (contact {names[0]}/{names[1]}; base height {height:.4g} m, "
-                f"at most {allowed} m allowed)"
-            )
-        mj.mj_resetData(m, d)
-        d.qpos[:] = probe.qpos
-        d.qvel[:] = probe.qvel
-        d.ctrl[:] = probe.ctrl
-        mj.mj_forward(m, d)
-        return self._start()
+    def _hold(self, d: Any, q: np.ndarray) -> None:
+        """The position servos' targets at ``q``."""
+        d.ctrl[self.layout.actuators] = q
 
-    # ---- stepping ----
-    def step(self, u: npt.ArrayLike) -> np.ndarray:
-        """Holds the 23 joint targets ``u`` (rad, clipped to the joint limits; the 6 held joints
-        at the default pose) for one dt; returns the next state. Raises ``SimFailure`` if MuJoCo
-        went unstable (reset to go on)."""
-        if not self.ready:
-            raise InvalidInput("G1: not reset yet (or reset needed after a failure)")
-        targets, n = clip_targets(as_input(u, self.nu, "u"), self.u_lo, self.u_hi)
-        self.clipped_targets += n
-        self.last_clipped = n > 0
-        x = self.advance(targets)
-        self.remember(x)
-        return x
-
-    def advance(self, targets: np.ndarray) -> np.ndarray:
-        """Applies the 23 ``targets`` (already within bounds) for one dt, unchecked; updates the
-        fall status and counters; returns the state."""
+    def _actuate(self, targets: np.ndarray) -> None:
+        """The 23 targets (the 6 held joints at the default pose) to the position servos."""
         m, d, mj = self.model, self.data, self._mj
-        warned = int(d.warning.number.sum())
         d.ctrl[self.layout.actuators] = self._full_targets(targets)
         for _ in range(self.substeps):
             mj.mj_step(m, d)
-        finish_physics_step(self, mj, warned, "G1", "pelvis")
-        return self.state()
 
     # ---- the expert ----
-    def expert_reset(self) -> None:
-        """Forgets the expert's last action and restarts its gait phase."""
-        self.expert.reset()
-
     def expert_targets(self, command: np.ndarray) -> np.ndarray:
         """The expert's targets of the 23 input joints for the current state and ``command``
         (vx, vy, ωz); the expert observes all 29 joints (locked ones at the default pose, at rest)."""
@@ -374,58 +228,3 @@ class G1Simulator:
         q[self.present], qd[self.present] = d.qpos[lay.qpos], d.qvel[lay.dofs]
         full = self.expert.act(np.array(d.qvel[v + 3 : v + 6]), projected_gravity(lay.quat(d)), command, q, qd)
         return full[self.present[self.inputs]]
-
-    def push(self, dv_xy: np.ndarray) -> None:
-        """Adds ``dv_xy`` (m/s) to the base's horizontal velocity (world frame)."""
-        v = self.layout.base_dof
-        self.data.qvel[v : v + 2] += np.asarray(dv_xy, dtype=np.float64)
-
-    def body_velocity(self) -> np.ndarray:
-        """Base linear velocity in the body frame (m/s)."""
-        lay, d = self.layout, self.data
-        return body_from_world(lay.quat(d), d.qvel[lay.base_dof : lay.base_dof + 3])
-
-    # ---- collection ----
-    def expert_policy(self, d: dict[str, object]) -> ExpertPolicy:
-        """The expert policy of JSON ``d`` with the G1's defaults (``EXPERT_DEFAULTS``) for the
-        fields it leaves out."""
-        return ExpertPolicy.from_json({**EXPERT_DEFAULTS, **d})
-
-    def collect(self, policy: Policy, seed: int, n_windows: int, T: int, start: int = 0) -> Windows:
-        """Windows ``start .. start + n_windows − 1`` in-process: ``expert`` / ``expert+noise``
-        (``legged_collect``, the G1's command box unless given) or ``uniform`` targets within
-        the bounds; ``planned`` is ``Unsupported``. Deterministic by the arguments, bit for bit.
-        Afterwards the lockstep state is gone (reset first)."""
-        try:
-            if isinstance(policy, SimulatorPolicy):
-                return collect_expert(self, self.expert_policy(policy.to_json()), seed, n_windows, T, start)
-            if isinstance(policy, ExpertPolicy):
-                return collect_expert(self, policy, seed, n_windows, T, start)
-            if isinstance(policy, PlannedPolicy):
-                raise Unsupported("the G1 has no planner: use the 'expert', 'expert+noise' or 'uniform' collect policy")
-            if isinstance(policy, UniformPolicy):
-                lo, hi = policy.bounds(self.info())
-                if np.any(lo < self.u_lo) or np.any(hi > self.u_hi):
-                    raise InvalidInput("uniform policy: the G1's targets must lie within its input bounds (u_min, u_max: the joint limits)")
-            return collect_windows(self, policy, seed, n_windows, T, start=start, step=self.advance)
-        finally:
-            self.ready = False
-
-    def counters(self) -> dict[str, int]:
-        """``steps``, ``falls``, ``clipped_targets``."""
-        return {"steps": self.steps, "falls": self.falls, "clipped_targets": self.clipped_targets}
-
-    def status(self) -> dict[str, bool | int]:
-        """The last step's status (``fallen``) and the counters."""
-        return {"fallen": self.fallen, **self.counters()}
-
-    def step_status(self) -> dict[str, bool]:
-        """The last ``step``'s flags for the step reply: ``terminated`` while fallen (``FALL``),
-        ``clipped`` when its targets were clipped. Stepping goes on either way."""
-        return {"terminated": self.fallen, "clipped": self.last_clipped}
-
-    def close(self) -> None:
-        """Prints the counters to standard error when there was a fall or a clipped target."""
-        if self.falls or self.clipped_targets:
-            print(f"G1: {self.counters()}", file=sys.stderr, flush=True)
-        self.ready = False

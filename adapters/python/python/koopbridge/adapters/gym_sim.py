@@ -17,7 +17,6 @@ from __future__ import annotations
 import difflib
 import math
 import sys
-from collections import OrderedDict
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -26,6 +25,7 @@ import numpy.typing as npt
 
 from .._native import InvalidInput, KoopbridgeError, Unsupported
 from ..simulator import SimInfo, as_input, as_state
+from .state_memory import StateMemory
 
 __all__ = ["GymError", "GymSimulator", "SimFailure", "STATES", "close_env_ids", "mujoco_state_names"]
 
@@ -167,7 +167,11 @@ class GymSimulator:
         self.nx = self._nx()
         self.full_state = self.mujoco is not None and (self.layout == "qpos,qvel" or self.obs_is_state)
         self.memory = int(memory)
-        self._memory: OrderedDict[bytes, np.ndarray] = OrderedDict()
+        self._states: StateMemory | None = None
+        if self.mujoco is not None:
+            import mujoco
+
+            self._states = StateMemory(mujoco, self.mujoco, self.memory)
         self.ready = False
         self.terminated = self.truncated = self.last_clipped = False
         self.reward = 0.0
@@ -294,16 +298,8 @@ class GymSimulator:
         return x
 
     def _remember(self, x: np.ndarray) -> None:
-        import mujoco
-
-        m = self.mujoco
-        buf = np.empty(mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_INTEGRATION))
-        mujoco.mj_getState(m, self.raw.data, buf, mujoco.mjtState.mjSTATE_INTEGRATION)
-        key = x.tobytes()
-        self._memory[key] = buf
-        self._memory.move_to_end(key)
-        while len(self._memory) > self.memory:
-            self._memory.popitem(last=False)
+        if self._states is not None:
+            self._states.remember(x, self.raw.data)
 
     def _start(self, obs: Any) -> np.ndarray:
         self.ready, self.terminated, self.truncated, self.reward, self.k = True, False, False, 0.0, 0
@@ -336,10 +332,9 @@ class GymSimulator:
                 if abs(norm - 1.0) > 0.01:
                     raise InvalidInput(f"x0: the quaternion of joint {name} has norm {norm:.6g}, expected 1")
         self.env.reset()
-        saved = self._memory.get(x.tobytes())
-        if saved is not None:
-            mujoco.mj_setState(m, self.raw.data, saved, mujoco.mjtState.mjSTATE_INTEGRATION)
-            mujoco.mj_forward(m, self.raw.data)
+        saved = self._states.lookup(x) if self._states is not None else None
+        if saved is not None and self._states is not None:
+            self._states.apply(saved, self.raw.data)
         else:
             self.raw.set_state(qpos, qvel)
             if m.na and self.layout == "qpos,qvel":
