@@ -5,162 +5,30 @@ for ``koopbridge train --data DIR``.
 
     python -m koopbridge.experiments.go2_data --out DIR [--windows 180000] [--procs 2] [--noise 0.05] [--push 0.5]
 
-Windows are collected in blocks (``DIR/.blocks/block-NNNNNNN.npz``, each written atomically), so
-an interrupted run resumes where it stopped; window ``i`` depends only on ``(policy, seed, i)``.
-Episodes of ``--windows-per-episode`` windows never straddle a block or a split (the sizes must
-be multiples of it), so train, validation and test come from different episodes.
+Blocks, resumption and splits: ``legged_data``.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-import multiprocessing
-import os
 import sys
-import time
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
-from typing import Any
 
-import numpy as np
+from .legged_data import DataRobot, parser, run
 
-from .dataset_npz import DatasetMeta, load_block, save_dataset_npz
+__all__ = ["ROBOT", "main"]
 
-__all__ = ["collect_block", "main", "parser", "policy_json"]
-
-_WORKER_SIM: Any = None
-
-
-def _sim(target_margin: float = 0.0) -> Any:
-    from ..adapters.go2_sim import Go2Simulator
-
-    return Go2Simulator(target_margin=target_margin)
-
-
-def policy_json(a: argparse.Namespace) -> dict[str, Any]:
-    """The collect policy the command line asks for (``expert``, or ``expert+noise`` with ``--noise``)."""
-    p: dict[str, Any] = {"kind": "expert+noise", "noise": a.noise} if a.noise > 0 else {"kind": "expert"}
-    p.update(windows_per_episode=a.windows_per_episode, push=a.push)
-    return p
-
-
-def collect_block(policy: dict[str, Any], seed: int, start: int, n: int, T: int, path: str, target_margin: float = 0.0) -> tuple[str, float, int]:
-    """Collects windows ``start .. start + n - 1`` into the block file ``path`` (atomically);
-    returns the path, the seconds spent collecting and the falls (restarts) on the way."""
-    from ..collect import policy_from_json
-
-    global _WORKER_SIM
-    if _WORKER_SIM is None or _WORKER_SIM.target_margin != target_margin:
-        _WORKER_SIM = _sim(target_margin)
-    falls = _WORKER_SIM.falls
-    t0 = time.perf_counter()
-    w = _WORKER_SIM.collect(policy_from_json(policy), seed, n, T, start=start)
-    dt = time.perf_counter() - t0
-    w.save_npz(path)
-    return path, dt, _WORKER_SIM.falls - falls
-
-
-def parser() -> argparse.ArgumentParser:
-    """The command line of ``python -m koopbridge.experiments.go2_data``."""
-    p = argparse.ArgumentParser(prog="python -m koopbridge.experiments.go2_data", description=__doc__.split("\n\n")[0])
-    p.add_argument("--out", required=True, help="output folder (train.npz, val.npz, test.npz + sidecars, collect.json)")
-    p.add_argument("--windows", type=int, default=180_000, help="total windows (default: %(default)s)")
-    p.add_argument("--train", type=int, help="train windows (default: 7/9 of --windows)")
-    p.add_argument("--val", type=int, help="validation windows (default: 1/9 of --windows)")
-    p.add_argument("--seed", type=int, default=42, help="data seed (default: %(default)s)")
-    p.add_argument("--steps", type=int, default=15, help="transitions per window T (default: %(default)s)")
-    p.add_argument("--windows-per-episode", type=int, default=50, help="windows cut back to back from one episode (default: %(default)s)")
-    p.add_argument("--noise", type=float, default=0.0, help="sigma of Gaussian noise on the expert's targets, rad: 'expert+noise' (default: none)")
-    p.add_argument("--push", type=float, default=0.0, help="largest push, m/s, every 4 s at a window boundary (default: none)")
-    p.add_argument("--target-margin", type=float, default=0.0, metavar="RAD", help="input bounds = joint ranges widened by RAD "
-                   "(the adapter's --target-margin; default: %(default)s, the joint limits)")
-    p.add_argument("--block", type=int, default=2000, help="windows per block file, a multiple of --windows-per-episode (default: %(default)s)")
-    p.add_argument("--procs", type=int, default=1, help="collecting processes (default: %(default)s)")
-    p.add_argument("--keep-blocks", action="store_true", help="keep DIR/.blocks after writing the splits")
-    return p
+#: The Go2 as ``legged_data`` sees it.
+ROBOT = DataRobot(
+    name="go2_data",
+    prog="python -m koopbridge.experiments.go2_data",
+    simulator="koopbridge.adapters.go2_sim:Go2Simulator",
+    expert="the rl_sar expert under U([-0.5,-0.3,-0.8],[1,0.3,0.8]) velocity commands every 2 s",
+)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Collects (or resumes) the blocks, then writes the three splits; returns the exit code."""
-    a = parser().parse_args(argv)
-    n_train = a.train if a.train is not None else a.windows * 7 // 9
-    n_val = a.val if a.val is not None else a.windows // 9
-    n_test = a.windows - n_train - n_val
-    K = a.windows_per_episode
-    if min(n_train, n_val, n_test) <= 0 or a.steps < 1 or a.block < 1 or a.procs < 1 or K < 1:
-        print(f"go2_data: bad sizes train {n_train}, val {n_val}, test {n_test}, T {a.steps}", file=sys.stderr)
-        return 2
-    if any(v % K for v in (n_train, n_val, a.windows, a.block)):
-        print(f"go2_data: train, val, total and block sizes must be multiples of --windows-per-episode {K}", file=sys.stderr)
-        return 2
-    policy = policy_json(a)
-    blocks_dir = os.path.join(a.out, ".blocks")
-    os.makedirs(blocks_dir, exist_ok=True)
-    spec = [(s, min(a.block, a.windows - s), os.path.join(blocks_dir, f"block-{s:07d}.npz")) for s in range(0, a.windows, a.block)]
-    # Validation and test blocks first, so that a partial run can already be looked at.
-    todo = sorted((b for b in spec if load_block(b[2], a.seed, b[0], b[1], a.steps) is None), key=lambda b: (b[0] < n_train, b[0]))
-    print(f"go2_data: policy {json.dumps(policy)}; {len(spec) - len(todo)} of {len(spec)} blocks present, "
-          f"collecting {len(todo)} with {a.procs} process(es)", flush=True)
-    t0 = time.perf_counter()
-    done = falls = 0
-
-    def report(n: int, fell: int) -> None:
-        nonlocal done, falls
-        done += n
-        falls += fell
-        wall = time.perf_counter() - t0
-        print(f"go2_data: {done} windows in {wall:.1f} s ({done / wall:.1f} windows/s, {done * a.steps / wall:.0f} steps/s); "
-              f"{falls} falls", flush=True)
-
-    if a.procs == 1:
-        for s, n, path in todo:
-            report(n, collect_block(policy, a.seed, s, n, a.steps, path, a.target_margin)[2])
-    else:
-        # spawn: the workers share nothing with this process (no MuJoCo or onnxruntime state forked).
-        with ProcessPoolExecutor(a.procs, mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = [pool.submit(collect_block, policy, a.seed, s, n, a.steps, path, a.target_margin) for s, n, path in todo]
-            for f, (_, n, _) in zip(futures, todo, strict=True):
-                report(n, f.result()[2])
-    wall = time.perf_counter() - t0
-    blocks = [load_block(path, a.seed, s, n, a.steps) for s, n, path in spec]
-    if any(b is None for b in blocks):
-        print("go2_data: a block is missing after collection", file=sys.stderr)
-        return 1
-    x = np.concatenate([b.x for b in blocks if b is not None])
-    u = np.concatenate([b.u for b in blocks if b is not None])
-    _write_splits(a, policy, x, u, {"train": (0, n_train), "val": (n_train, n_train + n_val), "test": (n_train + n_val, a.windows)})
-    summary = dict(windows=a.windows, train=n_train, val=n_val, test=n_test, steps=a.steps, seed=a.seed, procs=a.procs, policy=policy,
-                   target_margin=a.target_margin,
-                   collected=sum(n for _, n, _ in todo), falls=falls, wall_s=round(wall, 1),
-                   windows_per_s=round(sum(n for _, n, _ in todo) / wall, 1) if todo else None)
-    with open(os.path.join(a.out, "collect.json"), "w") as f:
-        json.dump(summary, f, indent=2)
-    print(json.dumps(summary), flush=True)
-    if not a.keep_blocks:
-        for _, _, path in spec:
-            os.unlink(path)
-        os.rmdir(blocks_dir)
-    return 0
-
-
-def _write_splits(a: argparse.Namespace, policy: dict[str, Any], x: np.ndarray, u: np.ndarray, cuts: dict[str, tuple[int, int]]) -> None:
-    """Writes ``OUT/{name}.npz`` for each ``name: (lo, hi)`` window range of ``x``/``u``."""
-    info = _sim(a.target_margin).info()
-    mj = info.extra["mujoco"]
-    meta = dict(
-        env=info.env,
-        dt=info.dt,
-        state_names=list(info.state_names),
-        input_names=list(info.input_names),
-        seed=a.seed,
-        source=f"koopbridge.adapters.go2_sim collect (MuJoCo {mj['version']}, {mj['source']})",
-        policy=f"{json.dumps(policy)}: the rl_sar expert under U([-0.5,-0.3,-0.8],[1,0.3,0.8]) velocity commands every 2 s, "
-        f"{a.windows_per_episode} windows back to back per episode after 1 s of warm-up; inputs = the joint targets applied "
-        f"(clipped to the joint ranges widened by {a.target_margin} rad)",
-    )
-    for name, (lo, hi) in cuts.items():
-        save_dataset_npz(os.path.join(a.out, f"{name}.npz"), x[lo:hi], u[lo:hi], DatasetMeta(**meta))
+    """Collects (or resumes) the Go2's expert data; returns the exit code."""
+    return run(ROBOT, parser(ROBOT, (__doc__ or "").split("\n\n")[0]), argv)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """A legged robot's expert dataset through its simulator's in-process ``collect`` (the code a Zenoh
 ``collect`` request runs), robot-agnostic: the robot is named by a ``DataRobot`` (its simulator's
-factory and how to describe its expert); ``g1_data`` is the G1's command line (``go2_data`` the
-Go2's, written before this generalisation and kept as it is).
+factory and how to describe its expert); ``go2_data`` and ``g1_data`` are the robots' command
+lines.
 
 Windows are collected in blocks (``DIR/.blocks/block-NNNNNNN.npz``, each written atomically), so
 an interrupted run resumes where it stopped; window ``i`` depends only on ``(policy, seed, i)``.
@@ -131,7 +131,8 @@ def main(robot: DataRobot, a: argparse.Namespace, options: dict[str, Any] | None
         done += n
         falls += fell
         wall = time.perf_counter() - t0
-        print(f"{tag}: {done} windows in {wall:.1f} s ({done / wall:.1f} windows/s); {falls} falls", flush=True)
+        print(f"{tag}: {done} windows in {wall:.1f} s ({done / wall:.1f} windows/s, {done * a.steps / wall:.0f} steps/s); "
+              f"{falls} falls", flush=True)
 
     args = (robot.simulator, policy, a.seed)
     if a.procs == 1:
@@ -164,7 +165,8 @@ def main(robot: DataRobot, a: argparse.Namespace, options: dict[str, Any] | None
     for name, (lo, hi) in {"train": (0, n_train), "val": (n_train, n_train + n_val), "test": (n_train + n_val, a.windows)}.items():
         save_dataset_npz(os.path.join(a.out, f"{name}.npz"), x[lo:hi], u[lo:hi], meta)
     summary = dict(windows=a.windows, train=n_train, val=n_val, test=n_test, steps=a.steps, seed=a.seed, procs=a.procs, policy=policy,
-                   target_margin=a.target_margin, options=options, collected=sum(n for _, n, _ in todo), falls=falls, wall_s=round(wall, 1))
+                   target_margin=a.target_margin, options=options, collected=sum(n for _, n, _ in todo), falls=falls, wall_s=round(wall, 1),
+                   windows_per_s=round(sum(n for _, n, _ in todo) / wall, 1) if todo else None)
     with open(os.path.join(a.out, "collect.json"), "w") as f:
         json.dump(summary, f, indent=2)
     print(json.dumps(summary), flush=True)
