@@ -1,7 +1,7 @@
-"""Bad input to the Go2 adapter gets a typed error and the adapter keeps serving: NaN and
-wrong-length targets, a reset that puts the base under the floor, a simulator that goes
-unstable (sim_failure, then a fresh reset works), missing model and policy files named, bad
-expert collect settings."""
+"""The Go2's own bad-input messages: wrong-length and NaN targets, resets under the floor (its
+feet, its folded body), out of range (its joint names), missing model and policy files named.
+What both legged robots share (unstable simulation, typed errors over Zenoh, collect
+settings) is in ``test_legged_errors``."""
 
 from __future__ import annotations
 
@@ -14,11 +14,9 @@ import pytest
 pytest.importorskip("mujoco")
 pytest.importorskip("onnxruntime")
 
-import koopbridge  # noqa: E402
-from conftest import free_endpoint  # noqa: E402
-from koopbridge import InvalidInput, SimulatorAdapter, Unsupported  # noqa: E402
+from koopbridge import InvalidInput  # noqa: E402
 from koopbridge.adapters import go2_model as g  # noqa: E402
-from koopbridge.adapters.go2_sim import Go2Simulator, SimFailure  # noqa: E402
+from koopbridge.adapters.go2_sim import Go2Simulator  # noqa: E402
 
 try:
     g.package_files()
@@ -69,83 +67,6 @@ def test_bad_targets_and_resets_in_process(sim):
     clipped = sim.clipped_targets
     sim.step(np.r_[STAND[:2], 0.5, STAND[3:]])
     assert sim.clipped_targets == clipped + 1
-
-
-def test_not_reset_is_refused():
-    fresh = Go2Simulator()
-    with pytest.raises(InvalidInput, match="not reset yet"):
-        fresh.step(STAND)
-
-
-def test_unstable_simulation_is_a_failure_and_a_reset_recovers(sim, tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)  # MuJoCo logs its warnings to ./MUJOCO_LOG.TXT
-    x = sim.reset(seed=2)
-    wild = x.copy()
-    wild[22:34] = 1e9  # joint velocities no integrator survives
-    sim.reset(x0=wild)
-    with pytest.raises(SimFailure, match=r"unstable at step 0 .*reset to go on"):
-        sim.step(STAND)
-    with pytest.raises(InvalidInput, match="reset needed after a failure"):
-        sim.step(STAND)
-    np.testing.assert_array_equal(sim.reset(seed=2), x)
-    assert np.all(np.isfinite(sim.step(STAND)))
-
-
-def test_typed_errors_over_zenoh_and_serving_goes_on(session_id, serve_in_thread, tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    sim = Go2Simulator()
-    ep = free_endpoint()
-    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id="go2", listen=[ep]) as served:
-        with koopbridge.Client(session=session_id, connect=[ep]) as c:
-            c.connect_sim("go2", timeout=20)
-            x = c.reset("go2", seed=3)
-            wild = x.copy()
-            wild[22:34] = 1e9
-            cases = [
-                (lambda: c.step("go2", np.zeros(11)), "dimension", "u has 11 values"),
-                (lambda: c.step("go2", [np.nan] * 12), "bad_request", "u is not finite"),
-                (lambda: c.reset("go2", x0=_under_floor(x)), "bad_request", "into the floor"),
-            ]
-            for call, code, text in cases:
-                with pytest.raises(koopbridge.RemoteError) as e:
-                    call()
-                assert e.value.code == code and text in str(e.value), str(e.value)
-            # The refused reset left the episode as it was: stepping continues at k = 1.
-            k, _, _ = c.step("go2", STAND)
-            assert k == 1
-            c.reset("go2", x0=wild)
-            with pytest.raises(koopbridge.RemoteError) as e:
-                c.step("go2", STAND)
-            assert e.value.code == "sim_failure" and "SimFailure" in str(e.value) and "unstable" in str(e.value)
-            np.testing.assert_array_equal(c.reset("go2", seed=3), x)
-            assert c.step("go2", STAND)[0] == 1
-    assert served.error is None, served.error
-    assert served.stats["errors"] == 4 and served.stats["resets"] == 3
-
-
-def test_bad_collect_settings(sim):
-    from koopbridge.collect import PlannedPolicy, UniformPolicy, policy_from_json
-
-    bad = [
-        ({"kind": "expert", "noise": 0.1}, "'expert' has no noise"),
-        ({"kind": "expert+noise", "noise": 0}, "noise must be a finite number > 0"),
-        ({"kind": "expert", "speed": 1}, r"unknown fields \['speed'\]"),
-        ({"kind": "expert", "command_low": [0, 0]}, "command_low must be 3 finite numbers"),
-        ({"kind": "expert", "command_low": [1, 0, 0], "command_high": [0, 0, 0]}, "is above command_high"),
-        ({"kind": "expert", "windows_per_episode": 0}, "windows_per_episode must be an integer >= 1"),
-    ]
-    for policy, text in bad:
-        with pytest.raises(InvalidInput, match=text):
-            SimulatorAdapter(sim).collect(policy, 1, 1, 5)
-    with pytest.raises(Unsupported, match="no planner"):
-        sim.collect(PlannedPolicy(), 1, 1, 5)
-    with pytest.raises(InvalidInput, match="within its input bounds"):
-        sim.collect(UniformPolicy((-5.0,), (5.0,)), 1, 1, 5)
-    # Another simulator cannot run the expert.
-    from koopbridge.collect import collect_windows
-
-    with pytest.raises(Unsupported, match="needs a simulator that runs it itself"):
-        collect_windows(sim, policy_from_json({"kind": "expert"}), 1, 1, 5)
 
 
 def test_missing_model_and_policy_files(tmp_path, monkeypatch):
