@@ -6,6 +6,7 @@
 //! two overlapping row ranges of one matrix.
 
 use super::bilinear::{CtrlGrads, Dynamics};
+use super::parts::{cuts, for_blocks, SPLIT_MIN_MACS};
 use super::pinv::{pinv_backward, spd_inverse};
 use crate::model::arch::{Arch, Layout};
 use crate::model::encoder::{view, view_mut, EncoderWs};
@@ -72,6 +73,15 @@ pub struct LossWs<T: Real> {
     /// Bilinear scratch: T·b × N, and T·b × nu·N (empty for the linear model).
     tmp: Vec<T>,
     bw: Vec<T>,
+    /// Cut points of the batch's windows (rows of one time step) over the threads.
+    row_cuts: Vec<usize>,
+    /// Cut points of A's columns over the threads.
+    col_cuts: Vec<usize>,
+    /// A in f64 (row-major N × N), for the f64 gradient of pinv(B).
+    a64: Vec<f64>,
+    /// Q2 = Eᵀ Z_cur in f64 and G_P = dL/dP (nu × N each, row-major).
+    q2_64: Vec<f64>,
+    gp64: Vec<f64>,
 }
 
 impl<T: Real> LossWs<T> {
@@ -124,6 +134,11 @@ impl<T: Real> LossWs<T> {
             bil: bilinear,
             tmp: vec![T::default(); if bilinear { steps * b * nn } else { 0 }],
             bw: vec![T::default(); if bilinear { steps * b * nu * nn } else { 0 }],
+            row_cuts: cuts(b, parts),
+            col_cuts: cuts(nn, parts),
+            a64: vec![0.0; if nu > 0 { nn * nn } else { 0 }],
+            q2_64: vec![0.0; nu * nn],
+            gp64: vec![0.0; nu * nn],
         }
     }
 
@@ -212,6 +227,12 @@ impl<T: Real> LossWs<T> {
         let x = view(&self.x, n, nx);
         let mut parts = LossParts::default();
 
+        // The rollout's products split by windows over the threads when they are large enough.
+        let row_cuts: &[usize] = if b * nn * nn >= SPLIT_MIN_MACS {
+            &self.row_cuts
+        } else {
+            &[]
+        };
         // Prediction: ẑ_0 = Φ(x_0), ẑ_{k+1} = A ẑ_k + B u_k.
         {
             let mut zhat = view_mut(&mut self.zhat, n, nn);
@@ -220,24 +241,22 @@ impl<T: Real> LossWs<T> {
                 let (cur, mut next) = zhat.rb_mut().split_at_row_mut((k + 1) * b);
                 let cur = cur.rb().subrows(k * b, b);
                 let mut next = next.rb_mut().subrows_mut(0, b);
-                matmul(
-                    next.rb_mut(),
-                    Accum::Replace,
-                    cur,
-                    a.transpose(),
-                    one,
-                    Par::Seq,
-                );
-                if nu > 0 {
+                let uk = u.subrows(k * b, b);
+                for_blocks(next.rb_mut(), row_cuts, true, |r0, mut dst| {
+                    let rows = dst.nrows();
+                    let (cur, uk) = (cur.subrows(r0, rows), uk.subrows(r0, rows));
                     matmul(
-                        next.rb_mut(),
-                        Accum::Add,
-                        u.subrows(k * b, b),
-                        bm.transpose(),
+                        dst.rb_mut(),
+                        Accum::Replace,
+                        cur,
+                        a.transpose(),
                         one,
                         Par::Seq,
                     );
-                }
+                    if nu > 0 {
+                        matmul(dst, Accum::Add, uk, bm.transpose(), one, Par::Seq);
+                    }
+                });
                 if bil {
                     dynamics.add_forward(next, cur, u.subrows(k * b, b), &mut self.tmp);
                 }
@@ -268,21 +287,20 @@ impl<T: Real> LossWs<T> {
                 let (head, tail) = g.rb_mut().split_at_row_mut((k + 1) * b);
                 let nextg = tail.rb().subrows(0, b);
                 let mut dst = head.subrows_mut(k * b, b);
-                matmul(dst.rb_mut(), Accum::Add, nextg, a, one, Par::Seq);
+                for_blocks(dst.rb_mut(), row_cuts, true, |r0, d| {
+                    let nextg = nextg.subrows(r0, d.nrows());
+                    matmul(d, Accum::Add, nextg, a, one, Par::Seq);
+                });
                 if bil {
                     dynamics.add_adjoint(dst, nextg, u.subrows((k + 1) * b, b), &mut self.tmp);
                 }
             }
             let g = view(&self.g, tb, nn);
             let mut dz = view_mut(&mut self.dz, n, nn);
-            matmul(
-                dz.rb_mut().subrows_mut(0, b),
-                Accum::Add,
-                g.subrows(0, b),
-                a,
-                one,
-                Par::Seq,
-            );
+            for_blocks(dz.rb_mut().subrows_mut(0, b), row_cuts, true, |r0, d| {
+                let g0 = g.subrows(r0, d.nrows());
+                matmul(d, Accum::Add, g0, a, one, Par::Seq);
+            });
             if bil {
                 dynamics.add_adjoint(
                     dz.rb_mut().subrows_mut(0, b),
@@ -292,15 +310,18 @@ impl<T: Real> LossWs<T> {
                 );
                 dynamics.grad_n(&mut *gn, g, zhat.subrows(0, tb), u, &mut self.tmp);
             }
+            // dA += gᵀ Ẑ_cur, A's columns over the threads.
             let ga_m = MatMut::from_row_major_slice_mut(&mut *ga, nn, nn);
-            matmul(
-                ga_m,
-                Accum::Add,
-                g.transpose(),
-                zhat.subrows(0, tb),
-                one,
-                Par::Seq,
-            );
+            let col_cuts: &[usize] = if tb * nn * nn >= SPLIT_MIN_MACS {
+                &self.col_cuts
+            } else {
+                &[]
+            };
+            let zcur = zhat.subrows(0, tb);
+            for_blocks(ga_m, col_cuts, false, |c0, d| {
+                let zc = zcur.subcols(c0, d.ncols());
+                matmul(d, Accum::Add, g.transpose(), zc, one, Par::Seq);
+            });
             if nu > 0 {
                 let gb_m = MatMut::from_row_major_slice_mut(&mut *gb, nn, nu);
                 matmul(gb_m, Accum::Add, g.transpose(), u, one, Par::Seq);
@@ -434,17 +455,25 @@ impl<T: Real> LossWs<T> {
                 Par::Seq,
             );
             // G_P = dL/dP = Q1 − Q2 Aᵀ; dL/dB = (I − B P) G_Pᵀ M⁻¹ − Pᵀ G_P Pᵀ.
-            let mut gpv = vec![0.0; nu * nn];
-            for r in 0..nu {
-                for c in 0..nn {
-                    let mut s = q1[r * nn + c].to_f64();
-                    for k in 0..nn {
-                        s -= q2[r * nn + k].to_f64() * a[(c, k)].to_f64();
-                    }
-                    gpv[r * nn + c] = s;
-                }
+            // (in f64, as one GEMM: G_P = Q1 − Q2 Aᵀ).
+            for (d, s) in self.a64.iter_mut().zip(&params[lay.a..lay.a + nn * nn]) {
+                *d = s.to_f64();
             }
-            pinv_backward(&gpv, &self.p, bm, &minv, nu, nn, gb);
+            for (d, s) in self.q2_64.iter_mut().zip(&*q2) {
+                *d = s.to_f64();
+            }
+            for (d, s) in self.gp64.iter_mut().zip(&*q1) {
+                *d = s.to_f64();
+            }
+            matmul(
+                MatMut::from_row_major_slice_mut(&mut self.gp64, nu, nn),
+                Accum::Add,
+                MatRef::from_row_major_slice(&self.q2_64, nu, nn),
+                MatRef::from_row_major_slice(&self.a64, nn, nn).transpose(),
+                -1.0,
+                Par::Seq,
+            );
+            pinv_backward(&self.gp64, &self.p, bm, &minv, nu, nn, gb);
         }
 
         // Covariance of ψ(x_0) over the batch.

@@ -7,6 +7,7 @@ pub mod checkpoint;
 pub mod eval;
 pub mod loss;
 pub mod nndm;
+mod parts;
 pub mod pinv;
 mod run;
 pub mod stand_in;
