@@ -1,8 +1,12 @@
-//! The grid of a scaling sweep: every (m, n_mult, seed, regulariser) point of one dataset, each
-//! with a stable name (its model name in the trainers' stores) and its training settings.
+//! The grid of a scaling sweep: every (m, n_mult, seed, regulariser) point of one dataset — m from
+//! a fixed list and/or from budget curves m = c·N·ln N — each with a stable name (its model name in
+//! the trainers' stores) and its training settings.
+
+use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
+use super::budget::{check_budgets, BudgetCell, DataShape};
 use crate::error::{Error, Result};
 use crate::keyexpr::validate_chunk;
 
@@ -106,7 +110,7 @@ pub struct SweepGrid {
     /// Short name of the dataset (`[a-z0-9-]`, e.g. `damped-pendulum-reference`): the prefix of
     /// every point's name.
     pub data: String,
-    /// Training windows m (the first m of the train pool).
+    /// Training windows m (the first m of the train pool); may be empty when `budgets` is not.
     pub samples: Vec<usize>,
     /// Encoder width multipliers n_mult (n_enc = n_mult · nx).
     pub n_mult: Vec<usize>,
@@ -121,6 +125,13 @@ pub struct SweepGrid {
     /// ones the grid sets.
     #[serde(default)]
     pub settings: serde_json::Map<String, serde_json::Value>,
+    /// Budget factors c: every n_mult also trains on m = ⌈c·N·ln N⌉ windows (N = nx·(1 + n_mult)),
+    /// capped at the train pool. Absent in sweeps made before budgets existed.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub budgets: Vec<f64>,
+    /// The dataset's nx and pool size, which budget points need.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shape: Option<DataShape>,
 }
 
 /// `TrainConfig` fields that a sweep's grid sets itself (and `settings` may not).
@@ -134,7 +145,7 @@ pub const GRID_FIELDS: [&str; 6] = [
 ];
 
 /// One training of a sweep.
-#[derive(Clone, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SweepPoint {
     /// Training windows m.
     pub m: usize,
@@ -148,6 +159,11 @@ pub struct SweepPoint {
     pub iterations: Option<usize>,
     /// Further `TrainConfig` fields (the grid's `settings`).
     pub settings: serde_json::Map<String, serde_json::Value>,
+    /// The budget factors c whose curve m = c·N·ln N this point lies on (ascending; empty for a
+    /// point of the fixed m list only). Not part of the name or the training: a budget point with
+    /// the m of a fixed-m point is that point.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub budgets: Vec<f64>,
     /// Its name: the model name in the trainer's store and the run folder's name.
     pub name: String,
 }
@@ -170,29 +186,43 @@ impl SweepPoint {
 }
 
 impl SweepGrid {
-    /// Every point, m-major (small m first, so the cheap points finish first), each list in the
-    /// order given; duplicates in a list are dropped. Errors on an empty list, a zero m or
-    /// n_mult, or a dataset name that makes an invalid key chunk.
-    pub fn points(&self) -> Result<Vec<SweepPoint>> {
-        fn uniq<T: PartialEq + Copy>(v: &[T]) -> Vec<T> {
-            let mut out: Vec<T> = Vec::new();
-            for x in v {
-                if !out.contains(x) {
-                    out.push(*x);
-                }
-            }
-            out
+    /// The (c, n_mult) cells of the budget curves, c-major in the order given (duplicates
+    /// dropped). Errors on a bad factor, or on budgets without the data's shape.
+    pub fn budget_cells(&self) -> Result<Vec<BudgetCell>> {
+        if self.budgets.is_empty() {
+            return Ok(Vec::new());
         }
+        check_budgets(&self.budgets)?;
+        let shape = self.shape.ok_or_else(|| {
+            Error::Config("budget points need the dataset's nx and pool size (shape)".into())
+        })?;
+        let mut out = Vec::new();
+        for &c in &uniq(&self.budgets) {
+            for &n_mult in &uniq(&self.n_mult) {
+                out.push(BudgetCell::new(c, n_mult, shape));
+            }
+        }
+        Ok(out)
+    }
+
+    /// Every point, m-major (small m first, so the cheap points finish first), n_mult, seeds and
+    /// regularisers each in the order given; duplicates in a list are dropped. The (m, n_mult)
+    /// pairs are the fixed m list × n_mult plus one per budget cell; a budget cell with the m of
+    /// another pair is that pair (one point, which lists every c it lies on). Errors on empty
+    /// lists, a zero m or n_mult, a bad budget factor, or a dataset name that makes an invalid
+    /// key chunk.
+    pub fn points(&self) -> Result<Vec<SweepPoint>> {
         for (what, empty) in [
-            ("--samples", self.samples.is_empty()),
-            ("--n-mult", self.n_mult.is_empty()),
-            ("--seeds", self.seeds.is_empty()),
-            ("--regularisers", self.regularisers.is_empty()),
+            (
+                "--samples and --budget list",
+                self.samples.is_empty() && self.budgets.is_empty(),
+            ),
+            ("--n-mult lists", self.n_mult.is_empty()),
+            ("--seeds lists", self.seeds.is_empty()),
+            ("--regularisers lists", self.regularisers.is_empty()),
         ] {
             if empty {
-                return Err(Error::Config(format!(
-                    "{what} lists nothing: the sweep is empty"
-                )));
+                return Err(Error::Config(format!("{what} nothing: the sweep is empty")));
             }
         }
         if self.samples.contains(&0) || self.n_mult.contains(&0) {
@@ -210,32 +240,46 @@ impl SweepGrid {
                 "setting '{k}' is set by the sweep's grid; use its own option instead"
             )));
         }
-        let mut samples = uniq(&self.samples);
-        samples.sort_unstable();
+        let n_mults = uniq(&self.n_mult);
+        let rank = |n: usize| n_mults.iter().position(|&x| x == n).unwrap_or(0);
+        // (m, rank of n_mult) -> the budget factors of that pair.
+        let mut pairs: BTreeMap<(usize, usize), Vec<f64>> = BTreeMap::new();
+        for &m in &self.samples {
+            for &n_mult in &n_mults {
+                pairs.entry((m, rank(n_mult))).or_default();
+            }
+        }
+        for cell in self.budget_cells()? {
+            let budgets = pairs.entry((cell.m, rank(cell.n_mult))).or_default();
+            if !budgets.contains(&cell.c) {
+                budgets.push(cell.c);
+                budgets.sort_by(f64::total_cmp);
+            }
+        }
         let mut out = Vec::new();
-        for &m in &samples {
-            for &n_mult in &uniq(&self.n_mult) {
-                for &seed in &uniq(&self.seeds) {
-                    for &regularisers in &uniq(&self.regularisers) {
-                        let mut name = format!(
-                            "{}-m{m}-n{n_mult}-s{seed}-{}",
-                            self.data,
-                            regularisers.as_str()
-                        );
-                        if let Some(it) = self.iterations {
-                            name.push_str(&format!("-i{it}"));
-                        }
-                        validate_chunk("sweep point name", &name)?;
-                        out.push(SweepPoint {
-                            m,
-                            n_mult,
-                            seed,
-                            regularisers,
-                            iterations: self.iterations,
-                            settings: self.settings.clone(),
-                            name,
-                        });
+        for ((m, k), budgets) in pairs {
+            let n_mult = n_mults[k];
+            for &seed in &uniq(&self.seeds) {
+                for &regularisers in &uniq(&self.regularisers) {
+                    let mut name = format!(
+                        "{}-m{m}-n{n_mult}-s{seed}-{}",
+                        self.data,
+                        regularisers.as_str()
+                    );
+                    if let Some(it) = self.iterations {
+                        name.push_str(&format!("-i{it}"));
                     }
+                    validate_chunk("sweep point name", &name)?;
+                    out.push(SweepPoint {
+                        m,
+                        n_mult,
+                        seed,
+                        regularisers,
+                        iterations: self.iterations,
+                        settings: self.settings.clone(),
+                        budgets: budgets.clone(),
+                        name,
+                    });
                 }
             }
         }
@@ -243,15 +287,15 @@ impl SweepGrid {
     }
 }
 
-/// The paper's data-budget heuristic for a rank-n embedding: m ≳ 40 · n · ln n training windows
-/// (n ≥ 2; 40 for n ≤ 1, where ln n vanishes).
-pub fn data_budget(latent_dim: usize) -> f64 {
-    let n = latent_dim.max(1) as f64;
-    if n <= 1.0 {
-        40.0
-    } else {
-        40.0 * n * n.ln()
+/// The list without its repeats, in the order of first appearance.
+fn uniq<T: PartialEq + Copy>(v: &[T]) -> Vec<T> {
+    let mut out: Vec<T> = Vec::new();
+    for x in v {
+        if !out.contains(x) {
+            out.push(*x);
+        }
     }
+    out
 }
 
 #[cfg(test)]
@@ -267,6 +311,8 @@ mod tests {
             regularisers: vec![Regularisers::Both, Regularisers::None],
             iterations: Some(500),
             settings: serde_json::Map::new(),
+            budgets: Vec::new(),
+            shape: None,
         }
     }
 
@@ -306,6 +352,15 @@ mod tests {
         let mut g = grid();
         g.seeds.clear();
         assert!(g.points().unwrap_err().to_string().contains("--seeds"));
+        let mut g = grid();
+        g.samples.clear();
+        assert!(g
+            .points()
+            .unwrap_err()
+            .to_string()
+            .contains("--samples and --budget"));
+        g.budgets = vec![10.0];
+        assert!(g.points().unwrap_err().to_string().contains("shape"));
         let mut g = grid();
         g.samples.push(0);
         assert!(g.points().is_err());
@@ -354,11 +409,105 @@ mod tests {
         }
     }
 
+    /// A budget sweep on the damped pendulum's shape (nx = 2) with a pool of 4000 windows.
+    fn budget_grid() -> SweepGrid {
+        SweepGrid {
+            samples: Vec::new(),
+            n_mult: vec![1, 4, 16],
+            seeds: vec![1],
+            regularisers: vec![Regularisers::Both],
+            budgets: vec![1.0, 10.0, 40.0],
+            shape: Some(DataShape { nx: 2, pool: 4000 }),
+            ..grid()
+        }
+    }
+
     #[test]
-    fn data_budget_is_40_n_ln_n() {
-        assert!((data_budget(34) - 40.0 * 34.0 * 34f64.ln()).abs() < 1e-9);
-        assert_eq!(data_budget(1), 40.0);
-        // N = 34 (damped pendulum, n_mult 16) needs ~4.8k windows; m = 1000 is below it.
-        assert!(data_budget(34) > 4000.0 && data_budget(34) < 5000.0);
+    fn budget_points_train_on_c_n_ln_n_windows_capped_at_the_pool() {
+        let p = budget_grid().points().unwrap();
+        // N = 4, 10, 34; m = ⌈c·N·ln N⌉ (closed form), c = 40 at N = 34 wants 4796 > 4000.
+        let want: [(f64, usize, usize); 9] = [
+            (1.0, 1, 6),
+            (1.0, 4, 24),
+            (1.0, 16, 120),
+            (10.0, 1, 56),
+            (10.0, 4, 231),
+            (10.0, 16, 1199),
+            (40.0, 1, 222),
+            (40.0, 4, 922),
+            (40.0, 16, 4000),
+        ];
+        assert_eq!(p.len(), want.len());
+        for (c, n_mult, m) in want {
+            let n = 2.0 * (1.0 + n_mult as f64);
+            let closed = ((c * n * n.ln()).ceil() as usize).min(4000);
+            assert_eq!(closed, m);
+            let q = p
+                .iter()
+                .find(|q| q.n_mult == n_mult && q.budgets.contains(&c))
+                .unwrap_or_else(|| panic!("no point for c = {c}, n_mult {n_mult}"));
+            assert_eq!(q.m, m, "c = {c}, n_mult {n_mult}");
+            assert_eq!(q.budgets, [c]);
+            assert_eq!(q.config()["train_samples"], m);
+            assert!(q.name.contains(&format!("-m{m}-n{n_mult}-")), "{}", q.name);
+        }
+        assert!(p.windows(2).all(|w| w[0].m <= w[1].m), "small m first");
+        let names: std::collections::HashSet<_> = p.iter().map(|q| q.name.clone()).collect();
+        assert_eq!(names.len(), p.len(), "names are unique");
+        let cells = budget_grid().budget_cells().unwrap();
+        let capped: Vec<_> = cells.iter().filter(|c| c.capped()).collect();
+        assert_eq!(capped.len(), 1);
+        assert_eq!((capped[0].c, capped[0].wanted), (40.0, 4796));
+    }
+
+    #[test]
+    fn a_budget_point_with_the_m_of_another_point_is_that_point() {
+        // The pool of 1000 caps both c = 10 and c = 40 at n_mult 16 (N = 34), and m = 1000 is
+        // also on the fixed list: one point, on both curves, named and trained as the fixed-m
+        // point of a sweep without budgets (so a rerun finds its run folder and skips it).
+        let g = SweepGrid {
+            samples: vec![1000],
+            n_mult: vec![16],
+            budgets: vec![40.0, 1.0, 10.0, 40.0],
+            shape: Some(DataShape { nx: 2, pool: 1000 }),
+            ..budget_grid()
+        };
+        let p = g.points().unwrap();
+        let plain = SweepGrid {
+            budgets: Vec::new(),
+            shape: None,
+            ..g.clone()
+        }
+        .points()
+        .unwrap();
+        assert_eq!(plain.len(), 1);
+        assert_eq!(p.len(), 2, "c = 1 (m = 120) and the shared m = 1000 point");
+        assert_eq!((p[0].m, p[0].budgets.clone()), (120, vec![1.0]));
+        assert_eq!((p[1].m, p[1].budgets.clone()), (1000, vec![10.0, 40.0]));
+        assert_eq!(p[1].name, plain[0].name);
+        assert_eq!(p[1].config(), plain[0].config(), "the same training");
+    }
+
+    #[test]
+    fn sweep_json_round_trips_and_old_files_still_load() {
+        let g = budget_grid();
+        let text = serde_json::to_string(&g).unwrap();
+        assert!(text.contains("\"budgets\":[1.0,10.0,40.0]"), "{text}");
+        assert_eq!(serde_json::from_str::<SweepGrid>(&text).unwrap(), g);
+        // A sweep.json written before budgets existed.
+        let old = r#"{"data": "damped-pendulum-reference", "samples": [1000, 4000],
+            "n_mult": [16], "seeds": [17382], "regularisers": ["both"], "iterations": null,
+            "settings": {}}"#;
+        let g: SweepGrid = serde_json::from_str(old).unwrap();
+        assert!(g.budgets.is_empty() && g.shape.is_none());
+        let p = g.points().unwrap();
+        assert_eq!(p[0].name, "damped-pendulum-reference-m1000-n16-s17382-both");
+        assert!(p.iter().all(|q| q.budgets.is_empty()));
+        // A fixed-m sweep still writes the file it wrote before.
+        let text = serde_json::to_string(&g).unwrap();
+        assert!(
+            !text.contains("budgets") && !text.contains("shape"),
+            "{text}"
+        );
     }
 }

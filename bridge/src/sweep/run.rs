@@ -11,6 +11,7 @@ use koopman::data::Dataset;
 use koopman::train::TrainMetrics;
 use serde::{Deserialize, Serialize};
 
+use super::budget::record_budgets;
 use super::grid::{Regularisers, SweepPoint};
 use super::ledger::{Ledger, PointState};
 use crate::client::{Client, Liveliness};
@@ -94,18 +95,24 @@ pub struct PointResult {
     pub wall_seconds: f64,
     /// The trainer that trained it.
     pub trainer: String,
+    /// The budget factors c whose curve m = c·N·ln N it lies on (empty for a fixed-m point and
+    /// in results written before budgets existed).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub budgets: Vec<f64>,
 }
 
 /// The columns of `results.csv`, in order.
 pub const CSV_HEADER: &str = "name,env,pairing,m,n_mult,latent_dim,seed,regularisers,iterations,\
-test_error,gram_condition,bbt_condition,wall_seconds,trainer";
+test_error,gram_condition,bbt_condition,wall_seconds,trainer,budgets";
 
 impl PointResult {
-    /// Its CSV row (no quoting is needed: every text field is a key chunk or a known name).
+    /// Its CSV row (no quoting is needed: every text field is a key chunk or a known name; the
+    /// budget factors are separated by `;`).
     pub fn csv_row(&self) -> String {
         let opt = |v: Option<f64>| v.map_or(String::new(), |x| format!("{x:e}"));
+        let budgets: Vec<String> = self.budgets.iter().map(f64::to_string).collect();
         format!(
-            "{},{},{},{},{},{},{},{},{},{:e},{},{},{:.3},{}",
+            "{},{},{},{},{},{},{},{},{},{:e},{},{},{:.3},{},{}",
             self.name,
             self.env,
             self.pairing,
@@ -119,7 +126,8 @@ impl PointResult {
             opt(self.gram_condition),
             opt(self.bbt_condition),
             self.wall_seconds,
-            self.trainer
+            self.trainer,
+            budgets.join(";")
         )
     }
 }
@@ -254,7 +262,11 @@ pub fn run_sweep(
     let specs: Vec<JobSpec> = points.iter().map(|p| spec_of(p, data)).collect();
     let mut resumed = 0;
     for (i, p) in points.iter().enumerate() {
-        if run_dir(&opts.out, &p.name).join("result.json").is_file() {
+        let dir = run_dir(&opts.out, &p.name);
+        if dir.join("result.json").is_file() {
+            // A point trained earlier (at a fixed m, or on another budget curve) joins the
+            // budget curves it lies on in this sweep.
+            record_budgets(&dir, &p.budgets)?;
             ledger.done(i);
             resumed += 1;
         }
@@ -510,6 +522,9 @@ fn finish(
     if let Some(o) = metrics_json.as_object_mut() {
         o.insert("model".into(), "koopman".into());
         o.insert("trainer".into(), trainer.into());
+        if !p.budgets.is_empty() {
+            o.insert("budgets".into(), serde_json::json!(p.budgets));
+        }
     }
     let bytes = client.query_first_ok(
         &client.keys.model(&p.name)?,
@@ -552,6 +567,7 @@ fn finish(
         bbt_condition,
         wall_seconds: metrics.wall_seconds,
         trainer: trainer.to_string(),
+        budgets: p.budgets.clone(),
     };
     koopman::fsutil::write_atomic(
         &dir.join("result.json"),
