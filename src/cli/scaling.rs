@@ -1,6 +1,7 @@
 //! `koopbridge scaling`: fits SPEC's scaling law `E = A·D^(−α) + C` to the test prediction errors
-//! of trained runs (one curve per n_mult against m, or per m against N), prints α, A, C and R², and
-//! writes the fits as JSON and a log–log plot.
+//! of trained runs (one curve per n_mult against m, per m against N, or per budget factor c
+//! against N along m = c·N·ln N), prints α, A, C and R², and writes the fits as JSON and a log–log
+//! plot.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -24,6 +25,9 @@ pub enum Axis {
     M,
     /// Latent dimension N = nx + n_enc; one curve per (env, pairing, m, regularisers).
     N,
+    /// Latent dimension N along a data budget m = c·N·ln N ('koopbridge sweep --budget'); one
+    /// curve per (env, pairing, c, regularisers). Runs without a budget factor are left out.
+    Budget,
 }
 
 /// Arguments of `koopbridge scaling`.
@@ -33,17 +37,23 @@ pub enum Axis {
     long_about = "Fit SPEC's scaling law E = A·D^(−α) + C (in log space, A ≥ 0, C ≥ 0) to the test prediction \
         errors of Koopman runs written by 'koopbridge train'. With --over m (default) D is the number of \
         training windows and there is one curve per environment, pairing, n_mult and regulariser setting; \
-        with --over n D is the latent dimension N = nx + n_enc and there is one curve per m. Every seed is its \
-        own point. A curve needs 3 points and 2 distinct D values to be fitted; smaller ones are listed \
+        with --over n D is the latent dimension N = nx + n_enc and there is one curve per m. With --over budget \
+        D is N too, but the data grow with it: the runs of 'koopbridge sweep --budget C' (m = c·N·ln N, each \
+        run's metrics.json lists its factors c as \"budgets\") form one curve per c, labelled \
+        'm = c·N ln N, c = …' (a run capped at the full train pool, or shared by several c, is on each of \
+        their curves; runs without budgets are left out). Every seed is its own point. A curve needs 3 points and 2 distinct D values to be fitted; smaller ones are listed \
         unfitted.\n\n\
-        Example: koopbridge scaling models/scaling --out results/scaling"
+        Examples:\n  \
+        koopbridge scaling models/scaling --out results/scaling\n  \
+        koopbridge scaling results/sweep-damped-pendulum-reference/runs --over budget --out results/budget"
 )]
 pub struct ScalingArgs {
     /// Run folders (each with the metrics.json and config.json of 'koopbridge train'), or folders
     /// whose sub-folders are runs.
     #[arg(required = true, value_name = "RUN")]
     pub runs: Vec<PathBuf>,
-    /// What D is: the training windows m, or the latent dimension N.
+    /// What D is: the training windows m, the latent dimension N at fixed m, or N along the
+    /// budget curves m = c·N·ln N (one curve per c).
     #[arg(long, value_enum, default_value_t = Axis::M)]
     pub over: Axis,
     /// Folder for scaling.json and scaling.png (nothing is written without it).
@@ -67,12 +77,18 @@ struct RunPoint {
     cov: bool,
     seed: u64,
     error: f64,
+    /// Budget factors c of the run (`koopbridge sweep --budget`; empty otherwise).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    budgets: Vec<f64>,
 }
 
 /// One curve: its runs and, with enough points, the fit.
 #[derive(Debug, Serialize)]
 struct Curve {
     label: String,
+    /// The budget factor c of an `--over budget` curve.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    budget: Option<f64>,
     /// `(D, E)` per run, D ascending.
     points: Vec<(f64, f64)>,
     fit: Option<ScalingFit>,
@@ -152,6 +168,13 @@ fn collect_runs(paths: &[PathBuf]) -> anyhow::Result<Vec<RunPoint>> {
 fn read_run(dir: &Path) -> anyhow::Result<Option<RunPoint>> {
     let file = dir.join("metrics.json");
     let metrics = read_json(&file)?;
+    let budgets: Vec<f64> = match metrics.get("budgets") {
+        None => Vec::new(),
+        Some(b) => b
+            .as_array()
+            .and_then(|a| a.iter().map(Value::as_f64).collect::<Option<Vec<f64>>>())
+            .with_context(|| format!("{}: \"budgets\" is not a list of numbers", file.display()))?,
+    };
     let model = metrics.get("model").and_then(Value::as_str).unwrap_or("");
     if model != "koopman" {
         eprintln!(
@@ -204,6 +227,7 @@ fn read_run(dir: &Path) -> anyhow::Result<Option<RunPoint>> {
         cov: run.config.cov,
         seed: run.config.seed,
         error,
+        budgets,
     }))
 }
 
@@ -212,9 +236,10 @@ fn read_json(path: &Path) -> anyhow::Result<Value> {
     serde_json::from_slice(&bytes).with_context(|| format!("{} is not valid JSON", path.display()))
 }
 
-/// Groups the runs into curves along `over` and fits each one that can be fitted.
+/// Groups the runs into curves along `over` and fits each one that can be fitted (with
+/// `Axis::Budget` a run is on the curve of each of its budget factors).
 fn fit_curves(runs: &[RunPoint], over: Axis) -> Vec<Curve> {
-    let mut groups: BTreeMap<String, Vec<(f64, f64)>> = BTreeMap::new();
+    let mut groups: BTreeMap<String, (Option<f64>, Vec<(f64, f64)>)> = BTreeMap::new();
     for r in runs {
         let regularisers = match (r.ctrl, r.cov) {
             (true, true) => "both regularisers",
@@ -222,17 +247,25 @@ fn fit_curves(runs: &[RunPoint], over: Axis) -> Vec<Curve> {
             (true, false) => "no covariance loss",
             (false, false) => "no regulariser",
         };
-        let (fixed, d) = match over {
-            Axis::M => (format!("n_mult {}", r.n_mult), r.m as f64),
-            Axis::N => (format!("m {}", r.m), r.latent_dim as f64),
-        };
         let pairing = format!("{:?}", r.pairing).to_lowercase();
-        let label = format!("{} {pairing} {fixed} {regularisers}", r.env);
-        groups.entry(label).or_default().push((d, r.error));
+        let curves: Vec<(String, Option<f64>, f64)> = match over {
+            Axis::M => vec![(format!("n_mult {}", r.n_mult), None, r.m as f64)],
+            Axis::N => vec![(format!("m {}", r.m), None, r.latent_dim as f64)],
+            Axis::Budget => r
+                .budgets
+                .iter()
+                .map(|&c| (budget_label(c), Some(c), r.latent_dim as f64))
+                .collect(),
+        };
+        for (fixed, budget, d) in curves {
+            let label = format!("{} {pairing} {fixed} {regularisers}", r.env);
+            let entry = groups.entry(label).or_insert((budget, Vec::new()));
+            entry.1.push((d, r.error));
+        }
     }
     groups
         .into_iter()
-        .map(|(label, mut points)| {
+        .map(|(label, (budget, mut points))| {
             points.sort_by(|a, b| a.0.total_cmp(&b.0));
             let d: Vec<f64> = points.iter().map(|p| p.0).collect();
             let e: Vec<f64> = points.iter().map(|p| p.1).collect();
@@ -242,6 +275,7 @@ fn fit_curves(runs: &[RunPoint], over: Axis) -> Vec<Curve> {
             };
             Curve {
                 label,
+                budget,
                 points,
                 fit,
                 note,
@@ -250,12 +284,20 @@ fn fit_curves(runs: &[RunPoint], over: Axis) -> Vec<Curve> {
         .collect()
 }
 
+/// The curve name of budget factor c.
+fn budget_label(c: f64) -> String {
+    format!("m = c·N ln N, c = {c}")
+}
+
 fn print_table(curves: &[Curve], over: Axis) {
     let d = match over {
         Axis::M => "m",
-        Axis::N => "N",
+        Axis::N | Axis::Budget => "N",
     };
     println!("E = A·{d}^(−α) + C, fitted in log space");
+    if over == Axis::Budget && curves.is_empty() {
+        println!("no run has a budget factor (runs of 'koopbridge sweep --budget C' do)");
+    }
     println!(
         "{:<60} {:>6} {:>8} {:>10} {:>10} {:>7}",
         "curve", "points", "α", "A", "C", "R²"
@@ -308,6 +350,7 @@ fn plot(path: &Path, curves: &[Curve], over: Axis) -> anyhow::Result<bool> {
     let x_label = match over {
         Axis::M => "log10 m (training windows)",
         Axis::N => "log10 N (latent dimension)",
+        Axis::Budget => "log10 N (latent dimension), trained on m = c·N ln N windows",
     };
     let panel = Panel {
         title: "test prediction error".into(),
@@ -326,6 +369,10 @@ fn plot(path: &Path, curves: &[Curve], over: Axis) -> anyhow::Result<bool> {
     )?;
     Ok(true)
 }
+
+#[cfg(test)]
+#[path = "scaling_tests_budget.rs"]
+mod tests_budget;
 
 #[cfg(test)]
 mod tests {

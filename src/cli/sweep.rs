@@ -1,4 +1,5 @@
-//! `koopbridge sweep`: expands a scaling-law grid (m × n_mult × seeds × regularisers), spreads it
+//! `koopbridge sweep`: expands a scaling-law grid (m × n_mult × seeds × regularisers, m fixed or on
+//! budget curves m = c·N·ln N), spreads it
 //! over every trainer service that answers (or over trainers it starts itself), shows one progress
 //! bar, and leaves a folder that `koopbridge scaling` reads, plus `results.csv` for pandas.
 
@@ -11,8 +12,8 @@ use bridge::keyexpr::{fresh_session_id, Keys};
 use bridge::services::trainer::DatasetRef;
 use bridge::session::{free_loopback_endpoint, open_session};
 use bridge::sweep::{
-    data_budget, read_results, run_sweep, write_csv, Regularisers, SweepData, SweepEvent,
-    SweepGrid, SweepOptions,
+    data_budget, read_results, run_sweep, write_csv, DataShape, Regularisers, SweepData,
+    SweepEvent, SweepGrid, SweepOptions, PAPER_BUDGET,
 };
 use koopman::data::Dataset;
 
@@ -22,7 +23,7 @@ use crate::plot::{time_series_png, Panel, Series};
 /// Arguments of `koopbridge sweep`.
 #[derive(clap::Args, Debug)]
 #[command(
-    about = "Train a scaling-law grid (m × n_mult × seeds × regularisers) on every trainer service that answers",
+    about = "Train a scaling-law grid (m or m = c·N·ln N × n_mult × seeds × regularisers) on every trainer service that answers",
     long_about = "Expands the grid --samples × --n-mult × --seeds × --regularisers over one dataset (a \
         'koopbridge data gen' folder with train/val/test.npz), submits each training to the trainer services \
         of the session ('…/trainer/*/jobs'; the least loaded first, --per-trainer jobs each), follows them with \
@@ -33,21 +34,36 @@ use crate::plot::{time_series_png, Panel, Series};
         cancelled when it returns, so no point is trained twice. A rerun into the same OUT skips finished \
         points. At the end, `koopbridge scaling OUT/runs` fits are printed and drawn into OUT/scaling-m/ (and \
         OUT/scaling-n/ with several n_mult), with OUT/conditioning.png (κ(G) against test error, with and without \
-        the covariance loss).",
+        the covariance loss).\n\n\
+        Budget curves (--budget C[,C...]): besides the fixed m of --samples, every n_mult trains on \
+        m = ⌈c·N·ln N⌉ windows for each factor c (N = nx·(1 + n_mult); the paper's heuristic is c = 40, see \
+        'koopbridge plan'), so that data grow with the latent size. An m above the train pool is capped at \
+        the pool, with a note (that point is the full-data point). Without --samples a budget sweep trains \
+        only the budget points. Points keep their names (…-m<m>-n<n_mult>-…): a budget point with the m of a \
+        fixed-m point, or of a finished point of an earlier sweep into OUT, is that point and is not trained \
+        again. Each run's result.json and metrics.json list the factors c it lies on (\"budgets\", also a \
+        results.csv column), and the end of the sweep fits E(N) = A·N^(−α) + C per c into \
+        OUT/scaling-budget/ ('koopbridge scaling OUT/runs --over budget').",
     after_help = "Examples:\n  \
         koopbridge sweep --data data/damped-pendulum-reference --samples 1000,4000,16000 --seeds 17382,76849 \\\n    \
             --local-trainers 2                         # one machine: starts two trainers itself\n  \
         koopbridge serve trainer models --id gpu1 --connect tcp/ROUTER:7447   # on each compute host\n  \
         koopbridge sweep --data data/double-pendulum-reference --n-mult 1,2,4,8,16 --samples 16000 \\\n    \
-            --connect tcp/ROUTER:7447 --serve-data     # trainers elsewhere fetch the data from here"
+            --connect tcp/ROUTER:7447 --serve-data     # trainers elsewhere fetch the data from here\n  \
+        koopbridge sweep --data data/damped-pendulum-reference --n-mult 1,2,4,8,16 --budget 1,10,40 \\\n    \
+            --local-trainers 2                         # E(N) along m = c·N ln N for c = 1, 10, 40"
 )]
 pub struct SweepArgs {
     /// Dataset folder with train.npz, val.npz and test.npz ('koopbridge data gen --out DIR').
     #[arg(long)]
     pub data: PathBuf,
-    /// Training windows m (comma-separated).
-    #[arg(long, value_delimiter = ',', default_values_t = [1000usize, 4000, 16000])]
+    /// Training windows m (comma-separated). Default: 1000,4000,16000, or none with --budget.
+    #[arg(long, value_delimiter = ',')]
     pub samples: Vec<usize>,
+    /// Budget factors c (comma-separated, e.g. 1,10,40): every n_mult also trains on
+    /// m = ⌈c·N·ln N⌉ windows (N = nx·(1 + n_mult)), capped at the train pool.
+    #[arg(long, value_delimiter = ',', value_name = "C")]
+    pub budget: Vec<f64>,
     /// Encoder width multipliers n_mult (comma-separated; N = nx · (1 + n_mult)).
     #[arg(long = "n-mult", value_delimiter = ',', default_values_t = [16usize])]
     pub n_mult: Vec<usize>,
@@ -135,23 +151,47 @@ pub fn run(args: SweepArgs) -> anyhow::Result<()> {
         settings.insert(k.trim().to_string(), v);
     }
     bridge::services::koopman_trainer::train_config(&settings)?;
+    let samples = if args.samples.is_empty() && args.budget.is_empty() {
+        vec![1000, 4000, 16000]
+    } else {
+        args.samples.clone()
+    };
     let grid = SweepGrid {
         data: data_name.clone(),
-        samples: args.samples.clone(),
+        samples: samples.clone(),
         n_mult: args.n_mult.clone(),
         seeds: args.seeds.clone(),
         regularisers,
         iterations: args.iterations,
         settings,
+        budgets: args.budget.clone(),
+        shape: Some(DataShape {
+            nx: pool.nx,
+            pool: pool.n,
+        }),
     };
     let points = grid.points()?;
+    for cell in grid.budget_cells()? {
+        if cell.capped() {
+            println!(
+                "note: c = {}, n_mult {} (N = {}): c·N·ln N = {} windows exceeds the train pool of {}; \
+                 the point trains on all {} (the full-data point)",
+                cell.c, cell.n_mult, cell.latent_dim, cell.wanted, pool.n, cell.m
+            );
+        }
+    }
+    if args.budget.iter().any(|&c| c < PAPER_BUDGET) {
+        println!(
+            "note: budget points with c < {PAPER_BUDGET} are below the paper's heuristic m ≳ 40·N·ln N by design"
+        );
+    }
     let test_path = data_dir.join("test.npz");
     let test_set = Dataset::load_npz(&test_path)
         .with_context(|| format!("reading the test set {}", test_path.display()))?;
-    if let Some(m) = args.samples.iter().find(|&&m| m > pool.n) {
+    if let Some(m) = samples.iter().find(|&&m| m > pool.n) {
         bail!("--samples {m} exceeds the train pool of {} windows", pool.n);
     }
-    for p in &points {
+    for p in points.iter().filter(|p| p.budgets.is_empty()) {
         let n = pool.nx * (1 + p.n_mult);
         if (p.m as f64) < data_budget(n) {
             eprintln!(
@@ -394,8 +434,17 @@ pub fn run(args: SweepArgs) -> anyhow::Result<()> {
     let runs = out.join("runs");
     if results.len() >= 3 {
         for (over, dir, wanted) in [
-            (super::scaling::Axis::M, "scaling-m", args.samples.len() > 1),
-            (super::scaling::Axis::N, "scaling-n", args.n_mult.len() > 1),
+            (super::scaling::Axis::M, "scaling-m", samples.len() > 1),
+            (
+                super::scaling::Axis::N,
+                "scaling-n",
+                !samples.is_empty() && args.n_mult.len() > 1,
+            ),
+            (
+                super::scaling::Axis::Budget,
+                "scaling-budget",
+                !args.budget.is_empty() && args.n_mult.len() > 1,
+            ),
         ] {
             if wanted {
                 super::scaling::run(super::scaling::ScalingArgs {
