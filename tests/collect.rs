@@ -165,6 +165,8 @@ fn bad_requests_get_typed_errors_and_the_adapter_keeps_serving() {
         policy: CollectPolicy::Uniform {
             low: Some(low),
             high: Some(high),
+            x0_low: None,
+            x0_high: None,
         },
         ..base.clone()
     };

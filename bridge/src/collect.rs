@@ -9,7 +9,7 @@ use koopman::rng::Rng;
 
 use crate::client::{step_all, Liveliness, SimClient};
 use crate::error::{Error, ErrorCode, Result};
-use crate::messages::{InputBound, ResetRequest, SimInfo};
+use crate::messages::{CollectPolicy, InputBound, ResetRequest, SimInfo};
 use crate::scenario::Policy;
 
 /// Which split a set of windows is for (keeps the seeds of the three splits independent).
@@ -57,7 +57,8 @@ pub struct CollectJob<'a> {
     pub split: Split,
     /// The box `(low, high)` (`nx` values each) every window's initial state is drawn from,
     /// uniformly and deterministically from the window's seed, and sent as `reset(x0)`;
-    /// `None` = the simulator's own seeded reset. Lockstep policies only.
+    /// `None` = the simulator's own seeded reset. With `Policy::Adapter` (uniform inputs) it
+    /// travels in the `collect` request and the simulator draws it.
     pub x0_box: Option<&'a (Vec<f64>, Vec<f64>)>,
 }
 
@@ -120,12 +121,32 @@ fn x0_unsupported(sim: &str, e: Error) -> Error {
         Error::Remote { reply, .. } if reply.code == ErrorCode::Unsupported => {
             Error::Config(format!(
                 "simulator '{sim}' cannot reset to a given state (reset(x0) answered unsupported: \
-                 {}); drop the x0 box from [collect] (x0_low/x0_high or x0_center/x0_radius) so \
-                 that its own seeded reset draws the initial states",
+                 {}); drop the x0 box (x0_low/x0_high or x0_center/x0_radius) from [collect] and \
+                 its [[sims]] entry so that its own seeded reset draws the initial states",
                 reply.message
             ))
         }
         e => e,
+    }
+}
+
+/// One simulator's own data region, over the job's ([`collect_regions`]): a scenario's
+/// `[[sims]]` `x0_low`/`x0_high` (or `x0_center`/`x0_radius`) and `u_low`/`u_high`. `None`
+/// fields fall back to the job's box and the policy's bounds.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SimRegion {
+    /// The initial-state box `(low, high)`, `nx` values each.
+    pub x0_box: Option<(Vec<f64>, Vec<f64>)>,
+    /// Lower input bounds of the uniform policy.
+    pub low: Option<InputBound>,
+    /// Upper input bounds of the uniform policy.
+    pub high: Option<InputBound>,
+}
+
+impl SimRegion {
+    /// Whether it sets anything.
+    pub fn is_empty(&self) -> bool {
+        self.x0_box.is_none() && self.low.is_none() && self.high.is_none()
     }
 }
 
@@ -139,6 +160,21 @@ pub fn collect(
     live: Option<&Liveliness>,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<Vec<Dataset>> {
+    collect_regions(sims, job, &[], live, progress)
+}
+
+/// [`collect`] with a data region per simulator: `regions[j]` (absent or empty = the job's)
+/// overrides the job's initial-state box and the uniform policy's input bounds for `sims[j]`.
+/// With `Policy::Adapter` the box and bounds travel in the `collect` request's uniform policy
+/// (PROTOCOL.md, "Collect"); a planned or expert policy takes neither (`Error::Config`). Every
+/// dataset with a box or bounds records them in its metadata (`region`).
+pub fn collect_regions(
+    sims: &mut [SimClient],
+    job: &CollectJob<'_>,
+    regions: &[SimRegion],
+    live: Option<&Liveliness>,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<Vec<Dataset>> {
     let CollectJob {
         policy,
         windows,
@@ -147,27 +183,92 @@ pub fn collect(
         split,
         x0_box,
     } = *job;
+    let none = SimRegion::default();
+    let region = |j: usize| regions.get(j).unwrap_or(&none);
+    let box_of = |j: usize| region(j).x0_box.as_ref().or(x0_box);
     if let Policy::Adapter { inputs, block } = policy {
-        if x0_box.is_some() {
-            return Err(Error::Config(
-                "an initial-state box needs a lockstep policy: the simulators draw the initial \
-                 states of the windows they run themselves"
-                    .into(),
-            ));
+        let mut policies = Vec::with_capacity(sims.len());
+        let mut boxes = Vec::with_capacity(sims.len());
+        for (j, s) in sims.iter().enumerate() {
+            let (r, xb) = (region(j), box_of(j));
+            let p = match inputs {
+                CollectPolicy::Uniform {
+                    low,
+                    high,
+                    x0_low,
+                    x0_high,
+                } => {
+                    let (low, high) = (
+                        r.low.clone().or(low.clone()),
+                        r.high.clone().or(high.clone()),
+                    );
+                    let xb = xb.cloned().or(match (x0_low, x0_high) {
+                        (Some(l), Some(h)) => Some((l.clone(), h.clone())),
+                        _ => None,
+                    });
+                    let info = &s.info.sim;
+                    let b = uniform_bounds(&low, &high, info)
+                        .map_err(|m| Error::Config(format!("simulator '{}': {m}", s.id)))?;
+                    if let Some(xb) = &xb {
+                        check_x0_box(xb, ["x0_low", "x0_high"], &s.id, info)
+                            .map_err(Error::Config)?;
+                    }
+                    let explicit = xb.is_some() || low.is_some() || high.is_some();
+                    boxes.push(explicit.then(|| DataRegion {
+                        x0_low: xb.as_ref().map(|b| b.0.clone()),
+                        x0_high: xb.as_ref().map(|b| b.1.clone()),
+                        u_low: Some(b.0.clone()),
+                        u_high: Some(b.1.clone()),
+                    }));
+                    CollectPolicy::Uniform {
+                        low,
+                        high,
+                        x0_low: xb.as_ref().map(|b| b.0.clone()),
+                        x0_high: xb.as_ref().map(|b| b.1.clone()),
+                    }
+                }
+                p => {
+                    if xb.is_some() || !r.is_empty() {
+                        return Err(Error::Config(format!(
+                            "simulator '{}': an initial-state box or input bounds need uniform \
+                             inputs; the {} policy draws its own windows",
+                            s.id,
+                            p.describe()
+                        )));
+                    }
+                    boxes.push(None);
+                    p.clone()
+                }
+            };
+            policies.push(p);
         }
         let seeds: Vec<u64> = (0..sims.len())
             .map(|j| adapter_seed(seed, split, j))
             .collect();
-        return blocks::collect_datasets(
-            sims, inputs, &seeds, windows, steps, *block, live, progress,
-        );
+        let mut out = blocks::collect_datasets(
+            sims, &policies, &seeds, windows, steps, *block, live, progress,
+        )?;
+        for (ds, b) in out.iter_mut().zip(boxes) {
+            if b.is_some() {
+                ds.meta.region = b;
+            }
+        }
+        return Ok(out);
     }
     let mut out: Vec<Dataset> = Vec::with_capacity(sims.len());
     // Per simulator, the uniform policy's bounds (`nu` values each).
     let mut bounds: Vec<(Vec<f64>, Vec<f64>)> = Vec::with_capacity(sims.len());
-    for s in sims.iter() {
+    for (j, s) in sims.iter().enumerate() {
         let info = &s.info.sim;
+        let r = region(j);
         if let Policy::Scripted { inputs } = policy {
+            if r.low.is_some() || r.high.is_some() {
+                return Err(Error::Config(format!(
+                    "simulator '{}': input bounds (u_low/u_high) need a uniform policy, not a \
+                     scripted one",
+                    s.id
+                )));
+            }
             if let Some(bad) = inputs.iter().find(|u| u.len() != info.nu()) {
                 return Err(Error::Config(format!(
                     "scripted input {bad:?} has {} values, simulator '{}' has {} inputs",
@@ -178,8 +279,12 @@ pub fn collect(
             }
         }
         let b = match policy {
-            Policy::Uniform { low, high } => uniform_bounds(low, high, info)
-                .map_err(|m| Error::Config(format!("simulator '{}': {m}", s.id)))?,
+            Policy::Uniform { low, high } => uniform_bounds(
+                &r.low.clone().or(low.clone()),
+                &r.high.clone().or(high.clone()),
+                info,
+            )
+            .map_err(|m| Error::Config(format!("simulator '{}': {m}", s.id)))?,
             _ => (Vec::new(), Vec::new()),
         };
         let kind = match policy {
@@ -189,12 +294,14 @@ pub fn collect(
         };
         let source = format!("zenoh:sim/{}", s.id);
         let mut ds = empty_dataset(info, windows, steps, seed, source, &kind);
-        if let Some(xb) = x0_box {
+        let uniform = matches!(policy, Policy::Uniform { .. });
+        if let Some(xb) = box_of(j) {
             check_x0_box(xb, ["x0_low", "x0_high"], &s.id, info).map_err(Error::Config)?;
-            let uniform = matches!(policy, Policy::Uniform { .. });
+        }
+        if box_of(j).is_some() || (uniform && !r.is_empty()) {
             ds.meta.region = Some(DataRegion {
-                x0_low: Some(xb.0.clone()),
-                x0_high: Some(xb.1.clone()),
+                x0_low: box_of(j).map(|b| b.0.clone()),
+                x0_high: box_of(j).map(|b| b.1.clone()),
                 u_low: uniform.then(|| b.0.clone()),
                 u_high: uniform.then(|| b.1.clone()),
             });
@@ -206,7 +313,7 @@ pub fn collect(
         let mut rngs = Vec::with_capacity(sims.len());
         for (j, s) in sims.iter_mut().enumerate() {
             let ws = window_seed(seed, split, j, i);
-            let first = match x0_box {
+            let first = match box_of(j) {
                 Some(xb) => s
                     .reset(&ResetRequest {
                         seed: None,

@@ -205,6 +205,14 @@ pub enum CollectPolicy {
         /// Upper bounds (default `info.u_max`).
         #[serde(default, skip_serializing_if = "Option::is_none")]
         high: Option<InputBound>,
+        /// Lower corner of the box each window's initial state is drawn from (`nx` values),
+        /// with `x0_high`: the window resets to `x0 ~ U(x0_low, x0_high)` drawn from its own
+        /// stream instead of a seeded reset; absent = the simulator's own seeded reset.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        x0_low: Option<Vec<f64>>,
+        /// Upper corner of the initial-state box (`nx` values), with `x0_low`.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        x0_high: Option<Vec<f64>>,
     },
     /// Windows cut from trajectories the simulator plans itself (SPEC's "constrained,
     /// expert-guided" Kinova data, issue 11): window `i` belongs to plan
@@ -302,6 +310,8 @@ impl Default for CollectPolicy {
         CollectPolicy::Uniform {
             low: None,
             high: None,
+            x0_low: None,
+            x0_high: None,
         }
     }
 }
@@ -420,6 +430,8 @@ mod tests {
         let uniform = CollectPolicy::Uniform {
             low: Some(InputBound::All(-0.12)),
             high: Some(InputBound::Each(vec![0.1, 0.2])),
+            x0_low: None,
+            x0_high: None,
         };
         assert_eq!(
             serde_json::to_string(&uniform).unwrap(),

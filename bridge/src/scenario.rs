@@ -20,6 +20,7 @@ use crate::keyexpr::validate_chunk;
 
 pub mod collect;
 pub mod extras;
+mod region;
 pub mod train;
 mod train_names;
 
@@ -62,6 +63,10 @@ pub struct Scenario {
     /// ([`repository_of`]); `None` (parsed text) = the current folder. Not a TOML field.
     #[serde(skip)]
     pub base_dir: Option<PathBuf>,
+    /// Whether [`Scenario::apply_full`] merged `[full]` in (the settings in force are then the
+    /// merge). Not a TOML field.
+    #[serde(skip)]
+    pub full_applied: bool,
 }
 
 /// `[control]` (one table) or `[[control]]` (an array of tables).
@@ -106,6 +111,25 @@ pub struct SimSpec {
     /// `--id ID --session S --stdin-lifeline --connect ENDPOINT`.
     #[serde(default)]
     pub command: Option<Vec<String>>,
+    /// This simulator's own data region, over `[collect]`'s (`Scenario::sim_region`): the
+    /// lower corner of its initial-state box (`nx` values), with `x0_high`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub x0_low: Option<Vec<f64>>,
+    /// The upper corner of its initial-state box (`nx` values), with `x0_low`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub x0_high: Option<Vec<f64>>,
+    /// The centre of its initial-state box (`nx` values), with `x0_radius`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub x0_center: Option<Vec<f64>>,
+    /// The half-widths of its initial-state box around `x0_center` (one value or `nx`, ≥ 0).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub x0_radius: Option<crate::messages::InputBound>,
+    /// Lower bounds of its uniform random inputs (one value or `nu`), over the policy's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub u_low: Option<crate::messages::InputBound>,
+    /// Upper bounds of its uniform random inputs (one value or `nu`), over the policy's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub u_high: Option<crate::messages::InputBound>,
 }
 
 impl SimSpec {
@@ -115,6 +139,12 @@ impl SimSpec {
             id: id.into(),
             env: env.into(),
             command: None,
+            x0_low: None,
+            x0_high: None,
+            x0_center: None,
+            x0_radius: None,
+            u_low: None,
+            u_high: None,
         }
     }
 }
@@ -252,6 +282,9 @@ impl Scenario {
             ));
         }
         c.x0_box()?;
+        for j in 0..self.sims.len() {
+            self.sim_region(j)?;
+        }
         if !self.control.is_empty() && self.train.is_none() {
             return Err(Error::Config(
                 "[control] needs [train] (the model comes from training)".into(),
@@ -390,6 +423,7 @@ impl Scenario {
 
     /// Applies the `[full]` overrides.
     pub fn apply_full(&mut self) {
+        self.full_applied = true;
         if let Some(f) = self.full.clone() {
             if let Some(n) = f.train_windows {
                 self.collect.train_windows = n;

@@ -70,15 +70,16 @@ pub fn window_rng(seed: u64, i: u64) -> Rng {
 }
 
 /// Runs the plan's windows on `backend`, one after the other: window `i` resets with the first
-/// draw of [`window_rng`]`(seed, i)` and steps with `u ~ U(low, high)` drawn from it. The
+/// draw of [`window_rng`]`(seed, i)` (or, with an initial-state box, to `x0 ~ U(x0_low,
+/// x0_high)` drawn next from it) and steps with `u ~ U(low, high)` drawn from it. The
 /// default `collect` of every [`SimBackend`]; a planned policy is `unsupported` here (the
 /// backend has no planner).
 pub fn run_windows<B: SimBackend + ?Sized>(
     backend: &mut B,
     plan: &CollectPlan,
 ) -> Result<Windows, SimError> {
-    let (low, high) = match &plan.inputs {
-        PlanInputs::Uniform { low, high } => (low, high),
+    let (low, high, x0_box) = match &plan.inputs {
+        PlanInputs::Uniform { low, high, x0 } => (low, high, x0),
         PlanInputs::Planned { .. } => {
             return Err(SimError::Unsupported(
                 "the planned collect policy needs a simulator that plans its own trajectories \
@@ -102,9 +103,23 @@ pub fn run_windows<B: SimBackend + ?Sized>(
     let mut u = vec![0.0; plan.nu];
     for i in 0..n as u64 {
         let mut rng = window_rng(plan.seed, plan.first + i);
-        let reset = ResetRequest {
-            seed: Some(rng.next_u64()),
-            x0: None,
+        let seed = rng.next_u64();
+        // With a box: x0 drawn from the window's stream after its reset seed, component by
+        // component, then the inputs.
+        let reset = match x0_box {
+            Some((lo, hi)) => ResetRequest {
+                seed: None,
+                x0: Some(
+                    lo.iter()
+                        .zip(hi)
+                        .map(|(l, h)| rng.uniform(*l, *h))
+                        .collect(),
+                ),
+            },
+            None => ResetRequest {
+                seed: Some(seed),
+                x0: None,
+            },
         };
         w.x.extend_from_slice(&backend.reset(&reset)?);
         for _ in 0..t {

@@ -36,6 +36,9 @@ pub enum PlanInputs {
         low: Vec<f64>,
         /// Upper input bounds.
         high: Vec<f64>,
+        /// The box `(low, high)` (`nx` values each) every window's initial state is drawn
+        /// from (`reset(x0)`); `None` = a seeded reset.
+        x0: Option<(Vec<f64>, Vec<f64>)>,
     },
     /// Windows of trajectories the simulator plans itself ([`CollectPolicy::Planned`]): only a
     /// backend with a planner runs them; [`run_windows`](super::run_windows) answers
@@ -74,6 +77,32 @@ pub struct CollectPlan {
 
 fn refuse(code: ErrorCode, msg: impl Into<String>) -> ErrorReply {
     ErrorReply::new(code, format!("collect request: {}", msg.into()))
+}
+
+/// The initial-state box of a uniform policy checked: `nx` values each side (`dimension`),
+/// finite, `low ≤ high` (`bad_request`).
+fn x0_box(lo: &[f64], hi: &[f64], nx: usize) -> Result<(Vec<f64>, Vec<f64>), ErrorReply> {
+    if lo.len() != nx || hi.len() != nx {
+        return Err(refuse(
+            ErrorCode::Dimension,
+            format!(
+                "uniform policy: x0_low and x0_high must have {nx} values (one per state), got {} and {}",
+                lo.len(),
+                hi.len()
+            ),
+        ));
+    }
+    if let Some(i) = (0..nx).find(|&i| !(lo[i].is_finite() && hi[i].is_finite() && lo[i] <= hi[i]))
+    {
+        return Err(refuse(
+            ErrorCode::BadRequest,
+            format!(
+                "uniform policy: the initial-state box at state {i} is [{}, {}] (must be finite with x0_low <= x0_high)",
+                lo[i], hi[i]
+            ),
+        ));
+    }
+    Ok((lo.to_vec(), hi.to_vec()))
 }
 
 impl CollectPlan {
@@ -121,8 +150,13 @@ impl CollectPlan {
                 ),
             ));
         }
-        let (low, high) = match &req.policy {
-            CollectPolicy::Uniform { low, high } => (low, high),
+        let (low, high, x0_low, x0_high) = match &req.policy {
+            CollectPolicy::Uniform {
+                low,
+                high,
+                x0_low,
+                x0_high,
+            } => (low, high, x0_low, x0_high),
             p @ (CollectPolicy::Expert(_) | CollectPolicy::ExpertNoise(_)) => {
                 return Ok(CollectPlan {
                     seed: req.seed,
@@ -198,13 +232,23 @@ impl CollectPlan {
                 ),
             ));
         }
+        let x0 = match (x0_low, x0_high) {
+            (None, None) => None,
+            (Some(lo), Some(hi)) => Some(x0_box(lo, hi, nx)?),
+            _ => {
+                return Err(refuse(
+                    ErrorCode::BadRequest,
+                    "uniform policy: x0_low and x0_high go together (the initial-state box's two corners)",
+                ))
+            }
+        };
         Ok(CollectPlan {
             seed: req.seed,
             block: req.block,
             first,
             windows: n,
             steps: t,
-            inputs: PlanInputs::Uniform { low, high },
+            inputs: PlanInputs::Uniform { low, high, x0 },
             nx,
             nu,
         })
@@ -214,9 +258,11 @@ impl CollectPlan {
     pub fn policy(&self) -> CollectPolicy {
         use crate::messages::InputBound::Each;
         match &self.inputs {
-            PlanInputs::Uniform { low, high } => CollectPolicy::Uniform {
+            PlanInputs::Uniform { low, high, x0 } => CollectPolicy::Uniform {
                 low: Some(Each(low.clone())),
                 high: Some(Each(high.clone())),
+                x0_low: x0.as_ref().map(|b| b.0.clone()),
+                x0_high: x0.as_ref().map(|b| b.1.clone()),
             },
             PlanInputs::Planned {
                 windows_per_plan,

@@ -105,6 +105,8 @@ fn bad_requests_are_typed() {
         policy: CollectPolicy::Uniform {
             low: Some(low),
             high: Some(high),
+            x0_low: None,
+            x0_high: None,
         },
         ..r()
     };
@@ -124,7 +126,8 @@ fn bad_requests_are_typed() {
         ok.inputs,
         PlanInputs::Uniform {
             low: vec![-0.5],
-            high: vec![0.5]
+            high: vec![0.5],
+            x0: None
         }
     );
     // A simulator without finite bounds needs explicit ones.
@@ -192,4 +195,57 @@ fn a_planned_policy_is_checked_and_unsupported_without_a_planner() {
         ..info
     };
     assert!(CollectPlan::new(&open, &planned(None)).is_ok());
+}
+
+#[test]
+fn an_initial_state_box_resets_every_window_inside_it() {
+    let mut b = pendulum();
+    let info = b.info();
+    let boxed = |lo: Vec<f64>, hi: Vec<f64>| CollectRequest {
+        policy: CollectPolicy::Uniform {
+            low: Some(InputBound::All(-0.5)),
+            high: Some(InputBound::All(0.5)),
+            x0_low: Some(lo),
+            x0_high: Some(hi),
+        },
+        ..request(0, None)
+    };
+    let plan = CollectPlan::new(&info, &boxed(vec![0.1, -0.2], vec![0.3, 0.0])).unwrap();
+    // The box travels on to a backend of another language.
+    assert!(matches!(
+        plan.policy(),
+        CollectPolicy::Uniform { x0_low: Some(ref l), .. } if l == &[0.1, -0.2]
+    ));
+    let w = b.collect(&plan).unwrap();
+    plan.check(&w).unwrap();
+    let sys = koopman::systems::by_name("damped-pendulum").unwrap();
+    for i in 0..5 {
+        // Independent computation: the window's stream — reset seed, x0, then the inputs.
+        let mut r = Rng::derive(7, i as u64);
+        r.next_u64();
+        let x0 = [r.uniform(0.1, 0.3), r.uniform(-0.2, 0.0)];
+        let x = &w.x[i * 10..(i + 1) * 10];
+        assert_eq!(&x[..2], &x0[..], "window {i}");
+        let u0 = r.uniform(-0.5, 0.5);
+        assert_eq!(w.u[i * 4], u0);
+        let mut next = vec![0.0; 2];
+        sys.step(&x0, &[u0], &mut next);
+        assert_eq!(&x[2..4], &next[..]);
+    }
+    let code = |r: CollectRequest| CollectPlan::new(&info, &r).unwrap_err().code;
+    assert_eq!(code(boxed(vec![0.0], vec![1.0])), ErrorCode::Dimension);
+    assert_eq!(
+        code(boxed(vec![0.0, 1.0], vec![1.0, 0.5])),
+        ErrorCode::BadRequest
+    );
+    let half = CollectRequest {
+        policy: CollectPolicy::Uniform {
+            low: None,
+            high: None,
+            x0_low: Some(vec![0.0, 0.0]),
+            x0_high: None,
+        },
+        ..request(0, None)
+    };
+    assert_eq!(code(half), ErrorCode::BadRequest);
 }

@@ -234,13 +234,13 @@ pub fn collect_blocks(
 }
 
 /// Collects `windows` windows of `steps` transitions from every simulator in `sims` at once
-/// (one thread each), each running them itself in blocks of `block` windows with `policy`;
-/// simulator `j` uses seed `seeds[j]`. Returns one dataset per simulator (aligned pairing);
+/// (one thread each), each running them itself in blocks of `block` windows; simulator `j`
+/// uses policy `policies[j]` and seed `seeds[j]`. Returns one dataset per simulator (aligned pairing);
 /// `progress(done, total)` gets the windows of the slowest simulator so far.
 #[allow(clippy::too_many_arguments)]
 pub fn collect_datasets(
     sims: &[SimClient],
-    policy: &CollectPolicy,
+    policies: &[CollectPolicy],
     seeds: &[u64],
     windows: usize,
     steps: usize,
@@ -248,11 +248,12 @@ pub fn collect_datasets(
     live: Option<&Liveliness>,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<Vec<Dataset>> {
-    if seeds.len() != sims.len() {
+    if seeds.len() != sims.len() || policies.len() != sims.len() {
         return Err(Error::Config(format!(
-            "{} simulators but {} seeds",
+            "{} simulators but {} seeds and {} policies",
             sims.len(),
-            seeds.len()
+            seeds.len(),
+            policies.len()
         )));
     }
     let steps32 =
@@ -262,8 +263,9 @@ pub fn collect_datasets(
         let handles: Vec<_> = sims
             .iter()
             .zip(seeds)
+            .zip(policies)
             .enumerate()
-            .map(|(j, (s, &seed))| {
+            .map(|(j, ((s, &seed), policy))| {
                 let tx = tx.clone();
                 let job = Collection {
                     policy: policy.clone(),

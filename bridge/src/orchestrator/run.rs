@@ -19,7 +19,7 @@ use super::train::{job_config, train_model_as, TrainReport};
 use super::validate::validate_scenario;
 use super::{Cluster, ControlReport, Event, RunOptions};
 use crate::client::SimClient;
-use crate::collect::{collect, CollectJob, Split};
+use crate::collect::{collect_regions, CollectJob, Split};
 use crate::error::{Error, Result};
 use crate::keyexpr::fresh_session_id;
 use crate::messages::SimInfo;
@@ -347,6 +347,9 @@ fn collect_phase(
         _ => "collecting data (lockstep)",
     }));
     let x0_box = c.x0_box()?;
+    let regions = (0..sc.sims.len())
+        .map(|j| sc.sim_region(j))
+        .collect::<Result<Vec<_>>>()?;
     let tc = Instant::now();
     let mut per_split: Vec<Vec<Dataset>> = Vec::new();
     for (split, name, n) in [
@@ -362,7 +365,7 @@ fn collect_phase(
             split,
             x0_box: x0_box.as_ref(),
         };
-        let ds = collect(clients, &job, Some(&cluster.live), &mut |d, t| {
+        let ds = collect_regions(clients, &job, &regions, Some(&cluster.live), &mut |d, t| {
             on(Event::Collect(name, d, t))
         })?;
         per_split.push(ds);

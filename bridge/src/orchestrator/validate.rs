@@ -1,6 +1,6 @@
 //! The whole scenario checked against its simulators' `info` right after the readiness barrier,
-//! before the expensive phases: the uniform policy's bounds, the initial-state box of
-//! `[collect]`, `[train].config` and its model kinds, `[control].mpc` (for an NNDM, what random
+//! before the expensive phases: the uniform policy's bounds and the initial-state box of
+//! `[collect]` or of each simulator's `[[sims]]` entry (its data region), `[train].config` and its model kinds, `[control].mpc` (for an NNDM, what random
 //! shooting honours),
 //! and the lengths of `control.x0`/`control.reference` (and a `reference_file` or
 //! `feedforward_file` that exists already), so that a typo fails in seconds, not after
@@ -23,15 +23,60 @@ use crate::services::model_kind::ModelKind;
 /// linear model of the controlled simulator's dimensions) and the lengths of `x0` and
 /// `reference`. `infos[j]` is the `info` of `sc.sims[j]`.
 pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
-    if let crate::scenario::Policy::Uniform { low, high } = &sc.collect.policy {
-        for (s, info) in sc.sims.iter().zip(infos) {
-            crate::collect::uniform_bounds(low, high, info)
-                .map_err(|m| Error::Config(format!("simulator '{}': {m}", s.id)))?;
+    // The training settings in force (after `--full`, the merge with `[full]`).
+    sc.check_train()?;
+    use crate::messages::CollectPolicy;
+    use crate::scenario::Policy;
+    let shared_box = sc.collect.x0_box()?;
+    for (j, (s, info)) in sc.sims.iter().zip(infos).enumerate() {
+        let region = sc.sim_region(j)?;
+        let (low, high) = match &sc.collect.policy {
+            Policy::Uniform { low, high }
+            | Policy::Adapter {
+                inputs: CollectPolicy::Uniform { low, high, .. },
+                ..
+            } => (low, high),
+            _ => (&None, &None),
+        };
+        let uniform = !matches!(
+            sc.collect.policy,
+            Policy::Scripted { .. }
+                | Policy::Adapter {
+                    inputs: CollectPolicy::Planned { .. }
+                        | CollectPolicy::Expert(_)
+                        | CollectPolicy::ExpertNoise(_),
+                    ..
+                }
+        );
+        // The adapter policy's bounds default to the simulator's (then checked by it).
+        let explicit =
+            low.is_some() || high.is_some() || region.low.is_some() || region.high.is_some();
+        if uniform && (explicit || matches!(sc.collect.policy, Policy::Uniform { .. })) {
+            let (low, high) = (
+                region.low.clone().or(low.clone()),
+                region.high.clone().or(high.clone()),
+            );
+            crate::collect::uniform_bounds(&low, &high, info).map_err(|m| {
+                let m = if region.low.is_some() || region.high.is_some() {
+                    m.replace("collect.policy: `low`", "u_low")
+                        .replace("collect.policy: `high`", "u_high")
+                        .replace("collect.policy: ", "")
+                } else {
+                    m
+                };
+                Error::Config(format!("simulator '{}': {m}", s.id))
+            })?;
         }
-    }
-    if let Some(xb) = sc.collect.x0_box()? {
-        for (s, info) in sc.sims.iter().zip(infos) {
-            crate::collect::check_x0_box(&xb, sc.collect.x0_keys(), &s.id, info)
+        if let Some(xb) = &region.x0_box {
+            let keys = if s.x0_center.is_some() {
+                ["x0_center", "x0_center"]
+            } else {
+                ["x0_low", "x0_high"]
+            };
+            crate::collect::check_x0_box(xb, keys, &s.id, info)
+                .map_err(|m| Error::Config(format!("[[sims]] '{}': {m}", s.id)))?;
+        } else if let Some(xb) = &shared_box {
+            crate::collect::check_x0_box(xb, sc.collect.x0_keys(), &s.id, info)
                 .map_err(|m| Error::Config(format!("[collect]: {m}")))?;
         }
     }

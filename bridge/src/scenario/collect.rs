@@ -108,76 +108,117 @@ impl CollectSpec {
     }
 
     fn x0_box_checked(&self) -> Result<Option<(Vec<f64>, Vec<f64>)>> {
-        fn bad<T>(m: String) -> Result<T> {
-            Err(Error::Config(format!("[collect]: {m}")))
+        let xb = x0_box_of(
+            "[collect]",
+            [&self.x0_low, &self.x0_high, &self.x0_center],
+            &self.x0_radius,
+        )?;
+        if xb.is_some() {
+            self.check_takes_region("[collect]")?;
         }
-        let finite = |what: &str, v: &[f64]| match v.iter().position(|x| !x.is_finite()) {
-            Some(i) => bad(format!("{what}[{i}] is {} (must be finite)", v[i])),
-            None => Ok(()),
-        };
-        let boxed = self.x0_low.is_some() || self.x0_high.is_some();
-        let around = self.x0_center.is_some() || self.x0_radius.is_some();
-        let (lo, hi) = match (boxed, around) {
-            (false, false) => return Ok(None),
-            (true, true) => {
-                return bad(
-                    "give the initial-state box either as x0_low and x0_high or as x0_center and \
-                     x0_radius, not both"
-                        .into(),
+        Ok(xb)
+    }
+
+    /// Refuses a data region (an initial-state box, input bounds) that the policy cannot take:
+    /// `Policy::Adapter` with planned or expert inputs (the simulator draws those windows itself).
+    pub(crate) fn check_takes_region(&self, table: &str) -> Result<()> {
+        match &self.policy {
+            Policy::Adapter { inputs, .. }
+                if !matches!(inputs, crate::messages::CollectPolicy::Uniform { .. }) =>
+            {
+                Err(Error::Config(format!(
+                    "{table}: an initial-state box or input bounds need uniform inputs; with \
+                     [collect] policy inputs = {} the simulator draws its windows itself",
+                    inputs.describe()
+                )))
+            }
+            _ => Ok(()),
+        }
+    }
+}
+
+/// An initial-state box given in scenario table `table` as `[x0_low, x0_high, x0_center]` and
+/// `x0_radius`: `x0_low`/`x0_high` as given, or `x0_center ± x0_radius`; `None` without
+/// either. Checked without the simulator: the keys of one form together and not both forms,
+/// equal lengths, finite values, `low ≤ high` (a radius ≥ 0); the length against the
+/// simulator's `nx` is checked with its `info` ([`crate::collect::check_x0_box`]).
+pub(crate) fn x0_box_of(
+    table: &str,
+    [x0_low, x0_high, x0_center]: [&Option<Vec<f64>>; 3],
+    x0_radius: &Option<crate::messages::InputBound>,
+) -> Result<Option<(Vec<f64>, Vec<f64>)>> {
+    fn fail<T>(table: &str, m: String) -> Result<T> {
+        Err(Error::Config(format!("{table}: {m}")))
+    }
+    let finite = |what: &str, v: &[f64]| match v.iter().position(|x| !x.is_finite()) {
+        Some(i) => fail(table, format!("{what}[{i}] is {} (must be finite)", v[i])),
+        None => Ok(()),
+    };
+    let boxed = x0_low.is_some() || x0_high.is_some();
+    let around = x0_center.is_some() || x0_radius.is_some();
+    let (lo, hi) = match (boxed, around) {
+        (false, false) => return Ok(None),
+        (true, true) => {
+            return fail(
+                table,
+                "give the initial-state box either as x0_low and x0_high or as x0_center and \
+                 x0_radius, not both"
+                    .into(),
+            )
+        }
+        (true, false) => match (x0_low, x0_high) {
+            (Some(lo), Some(hi)) => {
+                finite("x0_low", lo)?;
+                finite("x0_high", hi)?;
+                (lo.clone(), hi.clone())
+            }
+            _ => {
+                return fail(
+                    table,
+                    "x0_low and x0_high go together (the box's two corners)".into(),
                 )
             }
-            (true, false) => match (&self.x0_low, &self.x0_high) {
-                (Some(lo), Some(hi)) => {
-                    finite("x0_low", lo)?;
-                    finite("x0_high", hi)?;
-                    (lo.clone(), hi.clone())
-                }
-                _ => return bad("x0_low and x0_high go together (the box's two corners)".into()),
-            },
-            (false, true) => {
-                let (Some(c), Some(r)) = (&self.x0_center, &self.x0_radius) else {
-                    return bad("x0_center and x0_radius go together".into());
-                };
-                finite("x0_center", c)?;
-                let Some(r) = r.resolve(c.len()) else {
-                    return bad(format!(
+        },
+        (false, true) => {
+            let (Some(c), Some(r)) = (x0_center, x0_radius) else {
+                return fail(table, "x0_center and x0_radius go together".into());
+            };
+            finite("x0_center", c)?;
+            let Some(r) = r.resolve(c.len()) else {
+                return fail(
+                    table,
+                    format!(
                         "x0_radius must have 1 value or one per state ({}, as x0_center)",
                         c.len()
-                    ));
-                };
-                finite("x0_radius", &r)?;
-                if let Some(i) = r.iter().position(|&v| v < 0.0) {
-                    return bad(format!("x0_radius[{i}] is {} (must be ≥ 0)", r[i]));
-                }
-                (
-                    c.iter().zip(&r).map(|(c, r)| c - r).collect(),
-                    c.iter().zip(&r).map(|(c, r)| c + r).collect(),
-                )
+                    ),
+                );
+            };
+            finite("x0_radius", &r)?;
+            if let Some(i) = r.iter().position(|&v| v < 0.0) {
+                return fail(table, format!("x0_radius[{i}] is {} (must be ≥ 0)", r[i]));
             }
-        };
-        if lo.len() != hi.len() {
-            return bad(format!(
-                "x0_low has {} values and x0_high {}",
-                lo.len(),
-                hi.len()
-            ));
+            (
+                c.iter().zip(&r).map(|(c, r)| c - r).collect(),
+                c.iter().zip(&r).map(|(c, r)| c + r).collect(),
+            )
         }
-        if let Some(i) = (0..lo.len()).find(|&i| lo[i] > hi[i]) {
-            return bad(format!(
+    };
+    if lo.len() != hi.len() {
+        return fail(
+            table,
+            format!("x0_low has {} values and x0_high {}", lo.len(), hi.len()),
+        );
+    }
+    if let Some(i) = (0..lo.len()).find(|&i| lo[i] > hi[i]) {
+        return fail(
+            table,
+            format!(
                 "x0_low[{i}] = {} > x0_high[{i}] = {} (the box is empty)",
                 lo[i], hi[i]
-            ));
-        }
-        if matches!(self.policy, Policy::Adapter { .. }) {
-            return bad(
-                "an initial-state box needs a lockstep policy (`uniform` or `scripted`): with \
-                 kind = \"adapter\" the simulators draw their windows' initial states themselves \
-                 (the `collect` request carries no x0 box); drop the box or use kind = \"uniform\""
-                    .into(),
-            );
-        }
-        Ok(Some((lo, hi)))
+            ),
+        );
     }
+    Ok(Some((lo, hi)))
 }
 
 fn default_steps() -> usize {

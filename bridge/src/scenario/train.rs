@@ -69,10 +69,13 @@ impl TrainSpec {
         }
     }
 
-    /// Checks the kinds against each other and against the settings `config` and
-    /// `full_config` (`[full].train_config`): at least one kind, no kind twice, no `bilinear`
-    /// setting beside `model`, and no setting that a listed kind cannot honour
-    /// ([`check_settings_for`]).
+    /// Checks the kinds against each other and against the settings in force: at least one
+    /// kind, no kind twice, no `bilinear` setting beside `model` (in `config` or `full_config`,
+    /// `[full].train_config`: the older spelling contradicts `model` either way), and no
+    /// setting of `config` that a listed kind cannot honour ([`check_settings_for`]). `config`
+    /// is what training uses: `[train].config`, or with `--full` the merge
+    /// ([`crate::scenario::Scenario::apply_full`]); `[full].train_config` alone is not in force
+    /// without `--full`, so a setting there that a kind cannot honour is refused only then.
     pub fn check(&self, full_config: &serde_json::Map<String, serde_json::Value>) -> Result<()> {
         let bad = |m: String| Err(Error::Config(format!("[train]: {m}")));
         if let Some(k) = &self.model {
@@ -97,14 +100,8 @@ impl TrainSpec {
                 }
             }
         }
-        let kinds = self.kinds();
-        for (table, c) in [
-            ("config", &self.config),
-            ("[full].train_config", full_config),
-        ] {
-            check_settings_for(&kinds, c)
-                .map_err(|m| Error::Config(format!("[train] {table}: {m}")))?;
-        }
+        check_settings_for(&self.kinds(), &self.config)
+            .map_err(|m| Error::Config(format!("[train] config: {m}")))?;
         Ok(())
     }
 }

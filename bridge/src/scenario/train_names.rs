@@ -25,7 +25,13 @@ impl Scenario {
             return Ok(());
         };
         let empty = serde_json::Map::new();
-        t.check(self.full.as_ref().map_or(&empty, |f| &f.train_config))?;
+        t.check(self.full.as_ref().map_or(&empty, |f| &f.train_config))
+            .map_err(|e| match e {
+                Error::Config(m) if self.full_applied => Error::Config(format!(
+                    "{m} (with --full: [train].config merged with [full].train_config)"
+                )),
+                e => e,
+            })?;
         let kinds = t.kinds();
         let mut names: Vec<(String, &str, ModelKind)> = Vec::new();
         for s in &self.sims {
@@ -141,8 +147,15 @@ steps = 20
         );
         let e = err("model = \"koopman\"\nconfig = { bilinear = true }");
         assert!(e.contains("older spelling of model = \"bilinear\""), "{e}");
-        let e = err("model = \"edmd\"\n[full]\ntrain_config = { iterations = 9 }");
-        assert!(e.contains("[full].train_config"), "{e}");
+        // A [full] setting is in force with --full only: refused then, not before.
+        let full = with_train("model = \"edmd\"\n[full]\ntrain_config = { iterations = 9 }");
+        let mut s = full.unwrap();
+        s.apply_full();
+        let e = s.check_train().unwrap_err().to_string();
+        assert!(
+            e.contains("iterations does not apply to an edmd model") && e.contains("--full"),
+            "{e}"
+        );
         let e = err("config = { kind = \"edmd\" }");
         assert!(e.contains("[train].model"), "{e}");
     }

@@ -52,10 +52,27 @@ class Policy(Protocol):
 class UniformPolicy:
     """A fresh ``u ~ U(low, high)`` every step (SPEC's data); ``low``/``high`` default to the
     simulator's bounds (``info().u_min``/``u_max``), which must then be finite; one value
-    applies to every input."""
+    applies to every input. ``x0_low``/``x0_high`` (``nx`` values each, together): every
+    window resets to ``x0 ~ U(x0_low, x0_high)`` drawn from its generator after the reset seed
+    (``reset(x0=...)``), instead of the seeded reset."""
 
     low: tuple[float, ...] | None = None
     high: tuple[float, ...] | None = None
+    x0_low: tuple[float, ...] | None = None
+    x0_high: tuple[float, ...] | None = None
+
+    def x0_box(self, info: SimInfo) -> tuple[np.ndarray, np.ndarray] | None:
+        """The initial-state box checked against ``info`` (``None`` without one)."""
+        if self.x0_low is None and self.x0_high is None:
+            return None
+        if self.x0_low is None or self.x0_high is None:
+            raise InvalidInput("uniform policy: x0_low and x0_high go together (the initial-state box's two corners)")
+        lo, hi = np.array(self.x0_low, dtype=float), np.array(self.x0_high, dtype=float)
+        if lo.shape != (info.nx,) or hi.shape != (info.nx,):
+            raise InvalidInput(f"uniform policy: x0_low and x0_high must have {info.nx} values (one per state), got {lo.size} and {hi.size}")
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo <= hi)):
+            raise InvalidInput(f"uniform policy: the initial-state box must be finite with x0_low <= x0_high, got {lo.tolist()}, {hi.tolist()}")
+        return lo, hi
 
     def bounds(self, info: SimInfo) -> tuple[np.ndarray, np.ndarray]:
         """The box inputs are drawn from, checked against ``info``."""
@@ -78,6 +95,10 @@ class UniformPolicy:
             d["low"] = list(self.low)
         if self.high is not None:
             d["high"] = list(self.high)
+        if self.x0_low is not None:
+            d["x0_low"] = list(self.x0_low)
+        if self.x0_high is not None:
+            d["x0_high"] = list(self.x0_high)
         return d
 
 
@@ -151,7 +172,7 @@ def policy_from_json(d: Mapping[str, Any]) -> Policy:
     if kind != "uniform":
         kinds = ", ".join(repr(k) for k in SIMULATOR_POLICY_KINDS)
         raise InvalidInput(f"policy kind {kind!r}: only 'uniform' and 'planned' are known (and {kinds} for a simulator that runs them)")
-    unknown = set(d) - {"kind", "low", "high"}
+    unknown = set(d) - {"kind", "low", "high", "x0_low", "x0_high"}
     if unknown:
         raise InvalidInput(f"uniform policy: unknown fields {sorted(unknown)}")
 
@@ -160,7 +181,7 @@ def policy_from_json(d: Mapping[str, Any]) -> Policy:
             return None
         return tuple(float(a) for a in (v if isinstance(v, Sequence) else [v]))
 
-    return UniformPolicy(vec(d.get("low")), vec(d.get("high")))
+    return UniformPolicy(vec(d.get("low")), vec(d.get("high")), vec(d.get("x0_low")), vec(d.get("x0_high")))
 
 
 def window_rng(seed: int, index: int) -> np.random.Generator:
@@ -216,8 +237,9 @@ def collect_windows(
     start: int = 0,
     step: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> Windows:
-    """Runs windows ``start .. start + n_windows - 1``: window ``i`` draws a reset seed and its
-    ``T`` inputs from ``window_rng(seed, i)``, resets ``sim`` with that seed and steps it.
+    """Runs windows ``start .. start + n_windows - 1``: window ``i`` draws a reset seed, (with
+    a ``UniformPolicy`` initial-state box) its initial state, and its ``T`` inputs from
+    ``window_rng(seed, i)``, resets ``sim`` with that seed (or to that state) and steps it.
     ``step`` replaces ``sim.step`` (a simulator's own unchecked fast path; the inputs are checked
     here once). Any simulator error propagates (the block is then incomplete)."""
     if n_windows < 0 or T < 1:
@@ -225,6 +247,7 @@ def collect_windows(
     if isinstance(policy, (PlannedPolicy, SimulatorPolicy)):
         policy.inputs(np.random.default_rng(0), T, sim.info())  # raises Unsupported
     info = sim.info()
+    box = policy.x0_box(info) if isinstance(policy, UniformPolicy) else None
     step = step or sim.step
     xs = np.empty((n_windows, T + 1, info.nx))
     us = np.empty((n_windows, T, info.nu))
@@ -232,12 +255,13 @@ def collect_windows(
     for i in range(n_windows):
         rng = window_rng(seed, start + i)
         reset_seed = int(rng.integers(0, 2**63))
+        x0 = None if box is None else rng.uniform(box[0], box[1])
         u = np.asarray(policy.inputs(rng, T, info), dtype=np.float64)
         if u.shape != (T, info.nu) or not np.all(np.isfinite(u)):
             raise InvalidInput(f"collect: the policy gave inputs of shape {u.shape} (or non-finite), expected ({T}, {info.nu})")
         seeds[i] = reset_seed
         us[i] = u
-        xs[i, 0] = sim.reset(seed=reset_seed)
+        xs[i, 0] = sim.reset(seed=reset_seed) if x0 is None else sim.reset(x0=x0)
         for t in range(T):
             xs[i, t + 1] = step(u[t])
     return Windows(x=xs, u=us, seed=seed, start=start, reset_seeds=seeds)
