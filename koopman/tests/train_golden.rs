@@ -58,6 +58,55 @@ fn fixed_seed_loss_curves_match_the_recorded_ones() {
     }
 }
 
+/// At a size where the rollout's products are split over threads (b·N² = 1024·68² ≥ 4M
+/// multiply-adds; the curves above are below it), the loss and gradient match the one-thread
+/// evaluation.
+#[test]
+fn split_products_match_one_thread() {
+    use common::grad::{fill, random_windows};
+    use faer::Par;
+    use koopman::model::arch::Arch;
+    use koopman::train::loss::{LossOptions, LossWs};
+    let (nx, nu, b, steps) = (4, 2, 1024, 3);
+    let arch = Arch::new(nx, nu, &[16], 16).unwrap();
+    let mut rng = koopman::rng::Rng::new(5);
+    let mut params = koopman::model::init::init_params(&arch, &mut rng).unwrap();
+    for p in params.iter_mut() {
+        *p += 0.01 * rng.normal();
+    }
+    let w = random_windows(b, steps, nx, nu, &mut rng);
+    let opts = LossOptions {
+        gamma: 0.8,
+        ctrl: true,
+        cov: true,
+    };
+    let run = |par: Par| {
+        let mut ws = LossWs::<f64>::new(&arch, b, steps, par);
+        fill(&mut ws, &w, nx, nu);
+        let mut grad = vec![0.0; params.len()];
+        let parts = ws.loss_and_grad(&params, &mut grad, &opts).unwrap();
+        (parts, grad)
+    };
+    let (p1, g1) = run(Par::Seq);
+    let (p2, g2) = run(Par::rayon(2));
+    assert!(p1.pred > 0.0 && p1.ctrl > 0.0 && p1.cov > 0.0, "{p1:?}");
+    assert!(
+        (p1.total - p2.total).abs() <= 1e-12 * p1.total,
+        "{p1:?} vs {p2:?}"
+    );
+    let norm = g1.iter().map(|g| g * g).sum::<f64>().sqrt();
+    let diff = g1
+        .iter()
+        .zip(&g2)
+        .map(|(a, b)| (a - b).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    assert!(
+        norm > 0.0 && diff <= 1e-12 * norm,
+        "gradient differs: {diff:e} of {norm:e}"
+    );
+}
+
 #[test]
 #[ignore = "prints the curves to record as golden values"]
 fn print_curves() {
