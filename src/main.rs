@@ -21,9 +21,9 @@ enum Command {
     Train(cli::train::TrainArgs),
     /// Evaluate a trained model on a dataset (prediction error, diagnostics).
     Eval(cli::eval::EvalArgs),
-    /// Fit the scaling law E = A·D^(−α) + C to trained runs' test prediction errors.
+    // No doc comments here: one on the variant would replace the command's own about and
+    // long_about (its --help page) with a single line.
     Scaling(cli::scaling::ScalingArgs),
-    /// Train a scaling-law grid on every trainer service that answers.
     Sweep(cli::sweep::SweepArgs),
     /// Print the paper's data budget m ≳ 40·N·ln N for a latent dimension.
     Plan(cli::plan::PlanArgs),

@@ -239,7 +239,9 @@ fn read_json(path: &Path) -> anyhow::Result<Value> {
 /// Groups the runs into curves along `over` and fits each one that can be fitted (with
 /// `Axis::Budget` a run is on the curve of each of its budget factors).
 fn fit_curves(runs: &[RunPoint], over: Axis) -> Vec<Curve> {
-    let mut groups: BTreeMap<String, (Option<f64>, Vec<(f64, f64)>)> = BTreeMap::new();
+    // label -> (budget factor c, (D, E) per run)
+    type Group = (Option<f64>, Vec<(f64, f64)>);
+    let mut groups: BTreeMap<String, Group> = BTreeMap::new();
     for r in runs {
         let regularisers = match (r.ctrl, r.cov) {
             (true, true) => "both regularisers",
@@ -298,18 +300,25 @@ fn print_table(curves: &[Curve], over: Axis) {
     if over == Axis::Budget && curves.is_empty() {
         println!("no run has a budget factor (runs of 'koopbridge sweep --budget C' do)");
     }
+    // The label column is as wide as the longest label (counted in characters, not bytes).
+    let w = curves
+        .iter()
+        .map(|c| c.label.chars().count())
+        .max()
+        .unwrap_or(0)
+        .max(60);
     println!(
-        "{:<60} {:>6} {:>8} {:>10} {:>10} {:>7}",
+        "{:<w$} {:>6} {:>8} {:>10} {:>10} {:>7}",
         "curve", "points", "α", "A", "C", "R²"
     );
     for c in curves {
         match &c.fit {
             Some(f) => println!(
-                "{:<60} {:>6} {:>8.4} {:>10.4e} {:>10.4e} {:>7.4}",
+                "{:<w$} {:>6} {:>8.4} {:>10.4e} {:>10.4e} {:>7.4}",
                 c.label, f.points, f.alpha, f.a, f.c, f.r2
             ),
             None => println!(
-                "{:<60} {:>6} not fitted: {}",
+                "{:<w$} {:>6} not fitted: {}",
                 c.label,
                 c.points.len(),
                 c.note.as_deref().unwrap_or("")
