@@ -29,11 +29,11 @@ fn python_ready() -> Result<(), String> {
 /// steps for every simulator).
 const SMOKE: [(&str, &str); 4] = [
     (
-        "train_windows = 1000\nval_windows = 100\ntest_windows = 100\n",
+        "train_windows = 600\nval_windows = 60\ntest_windows = 60\n",
         "train_windows = 60\nval_windows = 12\ntest_windows = 12\n",
     ),
     (
-        "config = { iterations = 5000, hidden = [128, 128], n_mult = 8, ctrl = false, cov = false, validate_every = 500 }",
+        "config = { iterations = 3000, hidden = [128, 128], n_mult = 8, ctrl = false, cov = false, validate_every = 500 }",
         "config = { iterations = 200, hidden = [32, 32], n_mult = 2, batch = 32, ctrl = false, cov = false, validate_every = 100 }",
     ),
     ("\nsteps = 300\n", "\nsteps = 100\n"),
@@ -102,6 +102,23 @@ fn the_multi_sim_scenario_collects_trains_and_controls_every_simulator_in_one_lo
         let d =
             koopman::data::Dataset::load_npz(&out.join(format!("data/{id}/train.npz"))).unwrap();
         assert_eq!((d.n, d.steps, d.nx), (60, 15, nx[j]));
+        // rust-pend and kinova have their own data region ([[sims]] x0_center/x0_radius): it
+        // reached the simulator (every window starts in it) and the metadata record it.
+        if matches!(*id, "rust-pend" | "kinova") {
+            let reg = d.meta.region.as_ref().expect("the region in the metadata");
+            let (lo, hi) = (reg.x0_low.clone().unwrap(), reg.x0_high.clone().unwrap());
+            for w in 0..d.n {
+                let x0 = &d.x[w * 16 * nx[j]..w * 16 * nx[j] + nx[j]];
+                assert!(
+                    x0.iter()
+                        .zip(lo.iter().zip(&hi))
+                        .all(|(v, (l, h))| l <= v && v <= h),
+                    "{id} window {w} starts at {x0:?}, outside {lo:?}..{hi:?}"
+                );
+            }
+        } else {
+            assert!(d.meta.region.is_none(), "{id}");
+        }
     }
     assert_eq!(r["control"], r["controls"][0]);
     let l = &r["control_loop"];
