@@ -9,9 +9,7 @@ use koopman::model::LiftedModel;
 use koopman::systems::System;
 use serde::Serialize;
 
-/// Below this projection of the model's gain on the true one, the model has too little control
-/// authority for an MPC on it to be expected to regulate.
-const WEAK_AUTHORITY: f64 = 0.25;
+use koopman::analysis::gain::WEAK_AUTHORITY;
 
 /// The pre-flight checks of one control task (written as `diagnostics.json`).
 #[derive(Debug, Serialize)]

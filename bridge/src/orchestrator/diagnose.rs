@@ -1,14 +1,17 @@
 //! What a control run that missed its goal can say about why: how well the model predicts the
 //! closed loop against how well it predicts the test set (did the loop leave the data?), how
-//! often the commands sat at a bound, and one concrete next step.
+//! often the commands sat at a bound, the input authority at the goal (the model's input gain
+//! against the simulator's: [`super::authority`]), and one concrete next step.
 
 use std::path::Path;
 
 use koopman::data::Dataset;
 use serde::{Deserialize, Serialize};
 
+use super::authority::InputAuthority;
 use super::closed_loop::ControlReport;
 use crate::error::{Error, Result};
+use koopman::analysis::gain::WEAK_AUTHORITY;
 
 /// Closed-loop prediction error this many times the test set's means the loop left the data.
 pub const OFF_DATA_RATIO: f64 = 3.0;
@@ -37,12 +40,22 @@ pub struct ControlDiagnosis {
     pub window_closed_loop: Option<f64>,
     /// The same on the test set.
     pub window_test: Option<f64>,
+    /// The model's one-step input gain at the goal against the simulator's (`None`: a model
+    /// without a lifted form, a trajectory reference, or not measured).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub input_authority: Option<InputAuthority>,
     /// One concrete next step.
     pub next_step: String,
 }
 
-/// Diagnoses `c` with the model saved in `model_dir` and the run's test windows `test`.
-pub fn diagnose(c: &ControlReport, model_dir: &Path, test: &Dataset) -> Result<ControlDiagnosis> {
+/// Diagnoses `c` with the model saved in `model_dir`, the run's test windows `test` and the
+/// input authority measured at the goal ([`super::authority::input_authority`]).
+pub fn diagnose(
+    c: &ControlReport,
+    model_dir: &Path,
+    test: &Dataset,
+    input_authority: Option<InputAuthority>,
+) -> Result<ControlDiagnosis> {
     let saturated_fraction = saturated_fraction(c);
     let errors = koopman::model::load_lifted(model_dir)
         .ok()
@@ -53,7 +66,7 @@ pub fn diagnose(c: &ControlReport, model_dir: &Path, test: &Dataset) -> Result<C
         (Some(cl), Some(t)) if t > 0.0 => Some(cl / t),
         _ => None,
     };
-    let next_step = next_step(c, ratio, saturated_fraction);
+    let next_step = next_step(c, ratio, saturated_fraction, input_authority.as_ref());
     Ok(ControlDiagnosis {
         sim: c.sim.clone(),
         model: c.model.clone(),
@@ -63,6 +76,7 @@ pub fn diagnose(c: &ControlReport, model_dir: &Path, test: &Dataset) -> Result<C
         one_step_test: one_test,
         window_closed_loop: win_cl,
         window_test: win_test,
+        input_authority,
         next_step,
     })
 }
@@ -163,7 +177,12 @@ fn first_step_windows(d: &Dataset) -> Dataset {
 }
 
 /// The one next step the numbers point to.
-fn next_step(c: &ControlReport, off_data: Option<f64>, saturated: f64) -> String {
+fn next_step(
+    c: &ControlReport,
+    off_data: Option<f64>,
+    saturated: f64,
+    authority: Option<&InputAuthority>,
+) -> String {
     if c.time_to_goal_steps.is_some() {
         return "none: the goal was reached".into();
     }
@@ -171,6 +190,21 @@ fn next_step(c: &ControlReport, off_data: Option<f64>, saturated: f64) -> String
         return "the MPC did not solve most steps: raise [control].mpc max_iterations or \
                 time_limit, or loosen x_min/x_max"
             .into();
+    }
+    if let Some(a) = authority.filter(|a| a.projection < WEAK_AUTHORITY) {
+        let what = if a.cosine < 0.0 {
+            "has the wrong sign"
+        } else {
+            "is far smaller than the simulator's"
+        };
+        return format!(
+            "the model's input gain at the goal {what} (projection on the simulator's {:.3}, \
+             cosine {:.2}): a linear-input model learns one gain for all its data, and where the \
+             true gain changes sign or size across the data it learns a useless one — collect \
+             around the goal where the input's effect keeps its sign ([[sims]] or [collect] \
+             x0_center/x0_radius), or train a bilinear model ([train] model = \"bilinear\")",
+            a.projection, a.cosine
+        );
     }
     if let Some(r) = off_data.filter(|r| *r > OFF_DATA_RATIO) {
         return format!(
@@ -232,14 +266,31 @@ mod tests {
     #[test]
     fn the_next_step_follows_the_numbers() {
         let reached = report(vec![vec![0.0]], Some(0));
-        assert!(next_step(&reached, Some(10.0), 1.0).starts_with("none"));
+        assert!(next_step(&reached, Some(10.0), 1.0, None).starts_with("none"));
         let missed = report(vec![vec![0.0]], None);
-        assert!(next_step(&missed, Some(10.0), 0.0).contains("left the data"));
-        assert!(next_step(&missed, Some(1.2), 0.9).contains("90% of the commands"));
-        assert!(next_step(&missed, Some(1.2), 0.1).contains("tune the MPC"));
+        assert!(next_step(&missed, Some(10.0), 0.0, None).contains("left the data"));
+        assert!(next_step(&missed, Some(1.2), 0.9, None).contains("90% of the commands"));
+        assert!(next_step(&missed, Some(1.2), 0.1, None).contains("tune the MPC"));
         let mut unsolved = report(vec![vec![0.0]; 4], None);
         unsolved.not_solved = 3;
-        assert!(next_step(&unsolved, None, 0.0).contains("did not solve"));
+        assert!(next_step(&unsolved, None, 0.0, None).contains("did not solve"));
+        let gain = |projection: f64, cosine: f64| InputAuthority {
+            at: vec![0.0],
+            nominal: vec![0.0],
+            delta: vec![1e-3],
+            model_gain: vec![vec![projection]],
+            sim_gain: vec![vec![1.0]],
+            projection,
+            cosine,
+            norm_ratio: projection.abs(),
+        };
+        let wrong = gain(-0.007, -1.0);
+        let s = next_step(&missed, Some(10.0), 0.9, Some(&wrong));
+        assert!(s.contains("wrong sign") && s.contains("-0.007"), "{s}");
+        let weak = gain(0.1, 1.0);
+        assert!(next_step(&missed, None, 0.0, Some(&weak)).contains("far smaller"));
+        let good = gain(0.9, 1.0);
+        assert!(next_step(&missed, Some(1.2), 0.1, Some(&good)).contains("tune the MPC"));
     }
 
     #[test]

@@ -20,6 +20,7 @@
 //! - [`run`]: the whole scenario ([`run_scenario`]) and its report.
 
 pub mod aggregate;
+pub mod authority;
 pub mod closed_loop;
 pub mod cluster;
 pub mod commands;

@@ -284,7 +284,7 @@ pub fn run_scenario_with(
         controls.extend(c);
     }
     warnings.extend(aggregation.iter().flat_map(aggregate::round_warnings));
-    let diagnoses = diagnose_controls(&opts.out_dir, &controls, on);
+    let diagnoses = diagnose_controls(sc, &opts.out_dir, &controls, &mut clients, on);
     for d in &diagnoses {
         let c = controls
             .iter()
@@ -444,8 +444,10 @@ fn train_one(
 /// validation windows when the scenario keeps no test split); a run that cannot be diagnosed
 /// (a missing file) is reported as a phase note and skipped.
 fn diagnose_controls(
+    sc: &Scenario,
     out: &std::path::Path,
     controls: &[ControlReport],
+    clients: &mut [SimClient],
     on: &mut dyn FnMut(Event<'_>),
 ) -> Vec<ControlDiagnosis> {
     // Each simulator's windows are read once, however many model kinds controlled it.
@@ -466,8 +468,22 @@ fn diagnose_controls(
                 })
                 .and_then(|p| Dataset::load_npz(&p).map_err(|e| Error::Config(e.to_string())))
         });
+        let model_dir = out.join("models").join(&c.model);
+        // The input authority at the goal, measured on the simulator (it does not stop the rest
+        // of the diagnosis when it cannot be).
+        let authority = match sc.sims.iter().position(|s| s.id == c.sim) {
+            Some(j) => super::authority::input_authority(c, &model_dir, &mut clients[j])
+                .unwrap_or_else(|e| {
+                    on(Event::Phase(&format!(
+                        "no input authority of '{}' with '{}': {e}",
+                        c.sim, c.model
+                    )));
+                    None
+                }),
+            _ => None,
+        };
         let diagnosis = match test {
-            Ok(test) => diagnose::diagnose(c, &out.join("models").join(&c.model), test),
+            Ok(test) => diagnose::diagnose(c, &model_dir, test, authority),
             Err(e) => Err(Error::Config(e.to_string())),
         };
         match diagnosis {

@@ -13,6 +13,11 @@ use crate::error::{ensure_finite, Error, Result};
 use crate::model::LiftedModel;
 use crate::systems::System;
 
+/// Below this projection of a model's gain on the true one ([`GainAgreement::projection`]),
+/// the model has too little control authority for an MPC on it to be expected to regulate
+/// (`koopbridge control`'s pre-flight check and `koopbridge run`'s control diagnosis).
+pub const WEAK_AUTHORITY: f64 = 0.25;
+
 /// The input-to-state gains `G_k = ∂x_{k+1}/∂u_0` for `k = 0..steps` (each nx × nu), with every
 /// later input held at zero.
 #[derive(Clone, Debug)]
