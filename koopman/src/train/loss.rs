@@ -7,7 +7,7 @@
 
 use super::bilinear::{CtrlGrads, Dynamics};
 use super::parts::{cuts, for_blocks, SPLIT_MIN_MACS};
-use super::pinv::{pinv_backward, spd_inverse};
+use super::regular::{cov_grad, cov_loss, ctrl_loss, CovWs, CtrlInputs, CtrlWs};
 use crate::model::arch::{Arch, Layout};
 use crate::model::encoder::{view, view_mut, EncoderWs};
 use crate::model::scalar::Real;
@@ -62,12 +62,9 @@ pub struct LossWs<T: Real> {
     dz: Vec<T>,
     zhat: Vec<T>,
     g: Vec<T>,
-    uhat: Vec<T>,
-    p: Vec<T>,
-    pa: Vec<T>,
-    q: Vec<T>,
-    cen: Vec<T>,
-    cmat: Vec<T>,
+    /// Buffers of the inverse-control and covariance losses.
+    ctrl: CtrlWs<T>,
+    cov: CovWs<T>,
     /// Bilinear dynamics `z⁺ = A z + B u + Σ u_i N_i z` (parameters end with the N_i).
     bil: bool,
     /// Bilinear scratch: T·b × N, and T·b × nu·N (empty for the linear model).
@@ -77,11 +74,6 @@ pub struct LossWs<T: Real> {
     row_cuts: Vec<usize>,
     /// Cut points of A's columns over the threads.
     col_cuts: Vec<usize>,
-    /// A in f64 (row-major N × N), for the f64 gradient of pinv(B).
-    a64: Vec<f64>,
-    /// Q2 = Eᵀ Z_cur in f64 and G_P = dL/dP (nu × N each, row-major).
-    q2_64: Vec<f64>,
-    gp64: Vec<f64>,
 }
 
 impl<T: Real> LossWs<T> {
@@ -125,20 +117,13 @@ impl<T: Real> LossWs<T> {
             dz: vec![T::default(); n * nn],
             zhat: vec![T::default(); n * nn],
             g: vec![T::default(); steps * b * nn],
-            uhat: vec![T::default(); steps * b * nu],
-            p: vec![T::default(); nu * nn],
-            pa: vec![T::default(); nu * nn],
-            q: vec![T::default(); 2 * nu * nn],
-            cen: vec![T::default(); b * d],
-            cmat: vec![T::default(); d * d],
+            ctrl: CtrlWs::new(nu, nn, steps * b),
+            cov: CovWs::new(b, d),
             bil: bilinear,
             tmp: vec![T::default(); if bilinear { steps * b * nn } else { 0 }],
             bw: vec![T::default(); if bilinear { steps * b * nu * nn } else { 0 }],
             row_cuts: cuts(b, parts),
             col_cuts: cuts(nn, parts),
-            a64: vec![0.0; if nu > 0 { nn * nn } else { 0 }],
-            q2_64: vec![0.0; nu * nn],
-            gp64: vec![0.0; nu * nn],
         }
     }
 
@@ -345,193 +330,66 @@ impl<T: Real> LossWs<T> {
                 },
             )?;
         }
-        // Inverse control: û = pinv(B) (Φ(x_{t+1}) − A Φ(x_t)).
-        if opts.ctrl && nu > 0 && !bil {
-            // M = BᵀB and its inverse (f64, nu × nu, Cholesky).
-            let mut mmat = vec![0.0; nu * nu];
-            for r in 0..nu {
-                for c in 0..nu {
-                    let mut s = 0.0;
-                    for k in 0..nn {
-                        s += bm[(k, r)].to_f64() * bm[(k, c)].to_f64();
-                    }
-                    mmat[r * nu + c] = s;
-                }
-            }
-            let minv = spd_inverse(&mmat, nu).ok_or_else(|| {
-                Error::Numerical(
-                    "BᵀB is not positive definite: B lost full column rank, pinv(B) is undefined"
-                        .into(),
-                )
-            })?;
-            // P = M⁻¹ Bᵀ (nu × N, row-major), PA = P A.
-            for r in 0..nu {
-                for c in 0..nn {
-                    let mut s = 0.0;
-                    for k in 0..nu {
-                        s += minv[r * nu + k] * bm[(c, k)].to_f64();
-                    }
-                    self.p[r * nn + c] = T::from_f64(s);
-                }
-            }
-            let p = MatRef::from_row_major_slice(&self.p, nu, nn);
-            matmul(
-                MatMut::from_row_major_slice_mut(&mut self.pa, nu, nn),
-                Accum::Replace,
-                p,
-                a,
-                one,
-                Par::Seq,
+        // The regularisers, at the same time on two threads when the products are split.
+        let want_ctrl = opts.ctrl && nu > 0 && !bil;
+        let want_cov = opts.cov && d > 1;
+        if want_cov && b < 2 {
+            return Err(Error::InvalidArgument(
+                "the covariance loss needs a batch of at least 2".into(),
+            ));
+        }
+        let inp = CtrlInputs {
+            a_flat: &params[lay.a..lay.a + nn * nn],
+            a,
+            bm,
+            z,
+            u_data: &self.u,
+            b,
+            weights: &weights,
+        };
+        let dz_all = view_mut(&mut self.dz, n, nn);
+        let (ctrl_ws, cov_ws) = (&mut self.ctrl, &mut self.cov);
+        let (ctrl, cov) = if want_ctrl && want_cov && !row_cuts.is_empty() {
+            rayon::join(
+                || ctrl_loss(ctrl_ws, &inp, dz_all, &mut *ga, &mut *gb),
+                || cov_loss(cov_ws, z, nx, b),
+            )
+        } else {
+            let ctrl = if want_ctrl {
+                ctrl_loss(ctrl_ws, &inp, dz_all, &mut *ga, &mut *gb)
+            } else {
+                Ok(0.0)
+            };
+            (
+                ctrl,
+                if want_cov {
+                    cov_loss(cov_ws, z, nx, b)
+                } else {
+                    0.0
+                },
+            )
+        };
+        if want_ctrl {
+            parts.ctrl = ctrl?;
+        }
+        if want_cov {
+            parts.cov = cov;
+            // After the inverse-control terms, as one product (ψ's columns over the threads).
+            let dz = view_mut(&mut self.dz, n, nn);
+            let col_cuts = if row_cuts.is_empty() {
+                Vec::new()
+            } else {
+                cuts(d, row_cuts.len() - 1)
+            };
+            let cov_ws = &self.cov;
+            for_blocks(
+                dz.submatrix_mut(0, nx, b, d),
+                &col_cuts,
+                false,
+                |c0, blk| cov_grad(cov_ws, blk, c0),
             );
-            let pa = MatRef::from_row_major_slice(&self.pa, nu, nn);
-            let z_next = z.subrows(b, tb);
-            let z_cur = z.subrows(0, tb);
-            {
-                let mut uhat = view_mut(&mut self.uhat, tb, nu);
-                matmul(
-                    uhat.rb_mut(),
-                    Accum::Replace,
-                    z_next,
-                    p.transpose(),
-                    one,
-                    Par::Seq,
-                );
-                matmul(uhat, Accum::Add, z_cur, pa.transpose(), -one, Par::Seq);
-            }
-            // E = dL/dû in place of û.
-            let mut loss = 0.0;
-            for (k, &wk) in weights.iter().enumerate() {
-                let coef = wk / (wsum * (b * nu) as f64);
-                let c2 = T::from_f64(2.0 * coef);
-                for j in 0..nu {
-                    let mut s = 0.0;
-                    for i in 0..b {
-                        let r = k * b + i;
-                        let diff = self.uhat[j * tb + r] - self.u[j * tb + r];
-                        s += diff.to_f64() * diff.to_f64();
-                        self.uhat[j * tb + r] = c2 * diff;
-                    }
-                    loss += coef * s;
-                }
-            }
-            parts.ctrl = loss;
-            let e = view(&self.uhat, tb, nu);
-            // Q1 = Eᵀ Z_next, Q2 = Eᵀ Z_cur (nu × N each, row-major).
-            let (q1, q2) = self.q.split_at_mut(nu * nn);
-            matmul(
-                MatMut::from_row_major_slice_mut(&mut *q1, nu, nn),
-                Accum::Replace,
-                e.transpose(),
-                z_next,
-                one,
-                Par::Seq,
-            );
-            matmul(
-                MatMut::from_row_major_slice_mut(&mut *q2, nu, nn),
-                Accum::Replace,
-                e.transpose(),
-                z_cur,
-                one,
-                Par::Seq,
-            );
-            let q2m = MatRef::from_row_major_slice(&*q2, nu, nn);
-            // dZ_next += E P, dZ_cur −= E PA, dA −= Pᵀ Q2.
-            let mut dz = view_mut(&mut self.dz, n, nn);
-            matmul(
-                dz.rb_mut().subrows_mut(b, tb),
-                Accum::Add,
-                e,
-                p,
-                one,
-                Par::Seq,
-            );
-            matmul(dz.subrows_mut(0, tb), Accum::Add, e, pa, -one, Par::Seq);
-            matmul(
-                MatMut::from_row_major_slice_mut(&mut *ga, nn, nn),
-                Accum::Add,
-                p.transpose(),
-                q2m,
-                -one,
-                Par::Seq,
-            );
-            // G_P = dL/dP = Q1 − Q2 Aᵀ; dL/dB = (I − B P) G_Pᵀ M⁻¹ − Pᵀ G_P Pᵀ.
-            // (in f64, as one GEMM: G_P = Q1 − Q2 Aᵀ).
-            for (d, s) in self.a64.iter_mut().zip(&params[lay.a..lay.a + nn * nn]) {
-                *d = s.to_f64();
-            }
-            for (d, s) in self.q2_64.iter_mut().zip(&*q2) {
-                *d = s.to_f64();
-            }
-            for (d, s) in self.gp64.iter_mut().zip(&*q1) {
-                *d = s.to_f64();
-            }
-            matmul(
-                MatMut::from_row_major_slice_mut(&mut self.gp64, nu, nn),
-                Accum::Add,
-                MatRef::from_row_major_slice(&self.q2_64, nu, nn),
-                MatRef::from_row_major_slice(&self.a64, nn, nn).transpose(),
-                -1.0,
-                Par::Seq,
-            );
-            pinv_backward(&self.gp64, &self.p, bm, &minv, nu, nn, gb);
         }
 
-        // Covariance of ψ(x_0) over the batch.
-        if opts.cov && d > 1 {
-            if b < 2 {
-                return Err(Error::InvalidArgument(
-                    "the covariance loss needs a batch of at least 2".into(),
-                ));
-            }
-            let mut cen = view_mut(&mut self.cen, b, d);
-            for j in 0..d {
-                let mut mean = 0.0;
-                for i in 0..b {
-                    mean += z[(i, nx + j)].to_f64();
-                }
-                let mean = T::from_f64(mean / b as f64);
-                for i in 0..b {
-                    cen[(i, j)] = z[(i, nx + j)] - mean;
-                }
-            }
-            let cen = view(&self.cen, b, d);
-            let mut cm = view_mut(&mut self.cmat, d, d);
-            let inv_b1 = T::from_f64(1.0 / (b - 1) as f64);
-            matmul(
-                cm.rb_mut(),
-                Accum::Replace,
-                cen.transpose(),
-                cen,
-                inv_b1,
-                Par::Seq,
-            );
-            let norm = (d * (d - 1)) as f64;
-            let mut loss = 0.0;
-            let s_scale = T::from_f64(2.0 / norm);
-            for j in 0..d {
-                for i in 0..d {
-                    if i == j {
-                        cm[(i, j)] = zero;
-                    } else {
-                        let c = cm[(i, j)];
-                        loss += c.to_f64() * c.to_f64();
-                        cm[(i, j)] = s_scale * c;
-                    }
-                }
-            }
-            parts.cov = loss / norm;
-            let s = view(&self.cmat, d, d);
-            let dz = view_mut(&mut self.dz, n, nn);
-            let alpha = T::from_f64(2.0 / (b - 1) as f64);
-            matmul(
-                dz.submatrix_mut(0, nx, b, d),
-                Accum::Add,
-                cen,
-                s,
-                alpha,
-                Par::Seq,
-            );
-        }
         parts.total = parts.pred + parts.ctrl + parts.cov;
 
         // Back through the encoder with the gradient w.r.t. ψ of every state.

@@ -9,6 +9,7 @@ pub mod loss;
 pub mod nndm;
 mod parts;
 pub mod pinv;
+mod regular;
 mod run;
 pub mod stand_in;
 mod tracker;
