@@ -1,7 +1,8 @@
 //! `koopbridge sweep --budget` end to end on a small damped-pendulum dataset and one trainer the
 //! sweep starts itself: the budget points train on ⌈c·N·ln N⌉ windows (capped at the pool, with a
 //! note), a point an earlier fixed-m sweep trained is reused rather than trained again and joins
-//! its budget curve, and the sweep leaves the per-c fits in scaling-budget/.
+//! its budget curve, and the sweep leaves the per-c fits in scaling-budget/; results written before
+//! budgets existed still load.
 
 mod common;
 
@@ -113,4 +114,28 @@ fn a_budget_sweep_trains_c_n_ln_n_windows_and_reuses_a_fixed_m_point() {
     }
     assert!(out.join("scaling-budget/scaling.png").is_file());
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn results_written_before_budgets_existed_still_load() {
+    let old = r#"{"name": "d-m1000-n16-s1-both", "env": "damped-pendulum",
+        "pairing": "reference", "m": 1000, "n_mult": 16, "latent_dim": 34, "seed": 1,
+        "regularisers": "both", "iterations": 500, "test_error": 0.01,
+        "gram_condition": null, "bbt_condition": null, "wall_seconds": 3.0,
+        "trainer": "t0"}"#;
+    let r: bridge::sweep::PointResult = serde_json::from_str(old).unwrap();
+    assert!(r.budgets.is_empty());
+    assert!(r.csv_row().ends_with(",t0,"), "{}", r.csv_row());
+    let tagged = bridge::sweep::PointResult {
+        budgets: vec![10.0, 40.0],
+        ..r
+    };
+    assert!(
+        tagged.csv_row().ends_with(",t0,10;40"),
+        "{}",
+        tagged.csv_row()
+    );
+    let back: bridge::sweep::PointResult =
+        serde_json::from_str(&serde_json::to_string(&tagged).unwrap()).unwrap();
+    assert_eq!(back, tagged);
 }

@@ -205,28 +205,4 @@ mod tests {
         assert!(record_budgets(&dir, &[1.0]).is_err());
         std::fs::remove_dir_all(&dir).unwrap();
     }
-
-    #[test]
-    fn results_written_before_budgets_existed_still_load() {
-        let old = r#"{"name": "d-m1000-n16-s1-both", "env": "damped-pendulum",
-            "pairing": "reference", "m": 1000, "n_mult": 16, "latent_dim": 34, "seed": 1,
-            "regularisers": "both", "iterations": 500, "test_error": 0.01,
-            "gram_condition": null, "bbt_condition": null, "wall_seconds": 3.0,
-            "trainer": "t0"}"#;
-        let r: crate::sweep::PointResult = serde_json::from_str(old).unwrap();
-        assert!(r.budgets.is_empty());
-        assert!(r.csv_row().ends_with(",t0,"), "{}", r.csv_row());
-        let tagged = crate::sweep::PointResult {
-            budgets: vec![10.0, 40.0],
-            ..r
-        };
-        assert!(
-            tagged.csv_row().ends_with(",t0,10;40"),
-            "{}",
-            tagged.csv_row()
-        );
-        let back: crate::sweep::PointResult =
-            serde_json::from_str(&serde_json::to_string(&tagged).unwrap()).unwrap();
-        assert_eq!(back, tagged);
-    }
 }
