@@ -390,6 +390,19 @@ mod tests {
 
     /// Writes a run folder as `koopbridge train` would (its TrainMetrics, tagged "model").
     fn write_run(dir: &Path, m: usize, n_mult: usize, seed: u64, error: f64) {
+        write_budget_run(dir, m, n_mult, seed, error, &[]);
+    }
+
+    /// Writes a run folder as `koopbridge sweep` does (TrainMetrics tagged "model", and
+    /// "budgets" when the point lies on budget curves); the damped pendulum's nx = 2.
+    pub(super) fn write_budget_run(
+        dir: &Path,
+        m: usize,
+        n_mult: usize,
+        seed: u64,
+        error: f64,
+        budgets: &[f64],
+    ) {
         std::fs::create_dir_all(dir).unwrap();
         let metrics = TrainMetrics {
             test_prediction_error: Some(error),
@@ -411,6 +424,9 @@ mod tests {
         };
         let mut json = serde_json::to_value(&metrics).unwrap();
         json["model"] = "koopman".into();
+        if !budgets.is_empty() {
+            json["budgets"] = serde_json::json!(budgets);
+        }
         std::fs::write(dir.join("metrics.json"), json.to_string()).unwrap();
         let config = serde_json::json!({ "kind": "koopman", "latent_dim": 2 + 2 * n_mult });
         std::fs::write(dir.join("config.json"), config.to_string()).unwrap();

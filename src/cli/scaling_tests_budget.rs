@@ -1,41 +1,9 @@
 //! Tests of `koopbridge scaling --over budget`: runs of a budget sweep (m = c·N·ln N, their factors
 //! c in metrics.json) are grouped into one curve per c, and each fit recovers the law they follow.
 
+use super::tests::write_budget_run as write_run;
 use super::*;
 use bridge::sweep::budget_windows;
-use koopman::train::TrainConfig;
-
-/// Writes a run folder as `koopbridge sweep` does (TrainMetrics tagged "model", and "budgets"
-/// when the point lies on budget curves); the damped pendulum's nx = 2.
-fn write_run(dir: &Path, m: usize, n_mult: usize, seed: u64, error: f64, budgets: &[f64]) {
-    std::fs::create_dir_all(dir).unwrap();
-    let metrics = TrainMetrics {
-        test_prediction_error: Some(error),
-        best_validation_prediction_error: 0.01,
-        best_iteration: 1,
-        iterations: 1,
-        iterations_per_second: 1.0,
-        wall_seconds: 1.0,
-        train_samples: m,
-        num_params: 1,
-        final_loss: Default::default(),
-        pairing: Pairing::Reference,
-        env: "damped-pendulum".into(),
-        config: TrainConfig {
-            n_mult,
-            seed,
-            ..TrainConfig::default()
-        },
-    };
-    let mut json = serde_json::to_value(&metrics).unwrap();
-    json["model"] = "koopman".into();
-    if !budgets.is_empty() {
-        json["budgets"] = serde_json::json!(budgets);
-    }
-    std::fs::write(dir.join("metrics.json"), json.to_string()).unwrap();
-    let config = serde_json::json!({ "kind": "koopman", "latent_dim": 2 + 2 * n_mult });
-    std::fs::write(dir.join("config.json"), config.to_string()).unwrap();
-}
 
 fn temp(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!(
