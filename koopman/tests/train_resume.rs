@@ -240,3 +240,43 @@ fn mismatched_or_damaged_checkpoints_are_refused() {
         Err(Error::Io { .. })
     ));
 }
+
+/// A z-scored run's checkpoint carries the fingerprint of the data as given (what a trainer
+/// service checks before it resumes: it loads the raw files), and resuming it ends bit for bit
+/// as the uninterrupted run. Before, the checkpoint held the z-scored data's fingerprint, so a
+/// service refused every normalised checkpoint as "taken on other data".
+#[test]
+fn a_normalised_run_resumes_from_the_fingerprint_of_its_raw_data() {
+    let (tr, va, te) = (data(96, 1), data(24, 2), data(24, 3));
+    let dir = scratch("normalised");
+    let cfg = TrainConfig {
+        normalise: true,
+        ..cfg(Precision::F32)
+    };
+    let whole = train(
+        &cfg,
+        &tr,
+        &va,
+        Some(&te),
+        &mut |_| ControlFlow::Continue(()),
+    )
+    .unwrap();
+    let file = dir.join("normalised.ckpt");
+    let ck = interrupted(&cfg, &tr, &va, 120, &file);
+    assert_eq!(
+        ck.data_fingerprint,
+        koopman::train::run_fingerprint(&cfg, &tr, &va)
+    );
+    let resumed = train_resumable(
+        &cfg,
+        &tr,
+        &va,
+        Some(&te),
+        Some(&ck),
+        &mut |_| ControlFlow::Continue(()),
+        &mut |_| {},
+    )
+    .unwrap();
+    same_outcome(&whole, &resumed);
+    let _ = std::fs::remove_dir_all(dir);
+}

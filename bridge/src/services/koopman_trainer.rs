@@ -12,7 +12,7 @@ use std::time::Duration;
 
 use koopman::data::Dataset;
 use koopman::model::arch::Arch;
-use koopman::train::checkpoint::data_fingerprint;
+use koopman::train::run_fingerprint;
 use koopman::train::{train_bilinear_resumable, train_resumable, Checkpoint, TrainConfig};
 use zenoh::Session;
 
@@ -92,13 +92,12 @@ fn usable_checkpoint(
     let check = || -> koopman::Result<Checkpoint> {
         let ck = Checkpoint::load(path)?;
         let arch = Arch::new(tr.nx, tr.nu, &cfg.hidden, cfg.n_mult)?;
-        let m = cfg.train_samples.unwrap_or(tr.n).min(tr.n);
         let extra = if cfg.bilinear {
             koopman::train::bilinear::bilinear_len(&arch)
         } else {
             0
         };
-        ck.check_compatible(cfg, arch.num_params() + extra, data_fingerprint(tr, m, va))?;
+        ck.check_compatible(cfg, arch.num_params() + extra, run_fingerprint(cfg, tr, va))?;
         Ok(ck)
     };
     match check() {

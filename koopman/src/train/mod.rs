@@ -15,7 +15,7 @@ pub mod stand_in;
 mod tracker;
 
 pub use checkpoint::Checkpoint;
-pub use run::{train, train_bilinear, train_bilinear_resumable, train_resumable};
+pub use run::{run_fingerprint, train, train_bilinear, train_bilinear_resumable, train_resumable};
 
 use crate::data::Dataset;
 use crate::model::koopman::KoopmanModel;

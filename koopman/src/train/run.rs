@@ -50,10 +50,19 @@ pub fn train_resumable(
             "the configuration asks for a bilinear model: use train_bilinear".into(),
         ));
     }
+    // The fingerprint is of the data as given, before any z-scoring: what a trainer checks a
+    // checkpoint against before it resumes (`data_fingerprint` on the files it loaded).
+    let fingerprint = run_fingerprint(cfg, train, val);
     let normalised = NormalisedSplits::new(cfg, train, val, test)?;
     let (train, val, test) = normalised.views(train, val, test);
-    let (arch, best, mut metrics) =
-        train_params(cfg, train, val, test, resume, observer, on_checkpoint)?;
+    let (arch, best, mut metrics) = train_params(
+        cfg,
+        (train, val, test),
+        fingerprint,
+        resume,
+        observer,
+        on_checkpoint,
+    )?;
     let mut model = KoopmanModel::from_params(arch, best)?;
     if let Some(norm) = normalised.norm.clone() {
         model = model.with_normalisation(norm)?;
@@ -138,8 +147,15 @@ pub fn train_bilinear_resumable(
             "train_bilinear needs a configuration with bilinear = true".into(),
         ));
     }
-    let (arch, best, mut metrics) =
-        train_params(cfg, train, val, test, resume, observer, on_checkpoint)?;
+    let fingerprint = run_fingerprint(cfg, train, val);
+    let (arch, best, mut metrics) = train_params(
+        cfg,
+        (train, val, test),
+        fingerprint,
+        resume,
+        observer,
+        on_checkpoint,
+    )?;
     let mut model = BilinearModel::from_params(arch, best)?;
     if let Some(t) = test {
         metrics.test_prediction_error =
@@ -157,13 +173,20 @@ fn run_metadata(metrics: &TrainMetrics, train: &Dataset) -> serde_json::Value {
     })
 }
 
+/// [`data_fingerprint`] of a run of `cfg` on the data as given (its first
+/// `train_samples` training windows and the validation set).
+pub fn run_fingerprint(cfg: &TrainConfig, train: &Dataset, val: &Dataset) -> u64 {
+    let m = cfg.train_samples.unwrap_or(train.n).min(train.n);
+    data_fingerprint(train, m, val)
+}
+
 /// The shared run: checks, the loop, and the metrics without the test error. Returns the
-/// architecture and the best parameters (the bilinear ones end with the N_i).
+/// architecture and the best parameters (the bilinear ones end with the N_i). `fingerprint`:
+/// [`run_fingerprint`] of the data as the caller was given them (before any z-scoring).
 fn train_params(
     cfg: &TrainConfig,
-    train: &Dataset,
-    val: &Dataset,
-    test: Option<&Dataset>,
+    (train, val, test): (&Dataset, &Dataset, Option<&Dataset>),
+    fingerprint: u64,
     resume: Option<&Checkpoint>,
     observer: &mut dyn FnMut(&Progress) -> ControlFlow<()>,
     on_checkpoint: &mut dyn FnMut(&Checkpoint),
@@ -206,7 +229,6 @@ fn train_params(
         ));
     }
     let num_params = arch.num_params() + n_bilinear(cfg, &arch);
-    let fingerprint = data_fingerprint(train, m, val);
     if let Some(ck) = resume {
         ck.check_compatible(cfg, num_params, fingerprint)?;
     }
