@@ -432,6 +432,24 @@ mod tests {
         std::fs::write(dir.join("config.json"), config.to_string()).unwrap();
     }
 
+    /// Runs `koopbridge scaling ROOT --over AXIS --out ROOT/report`, checks that it wrote a PNG
+    /// and returns its scaling.json.
+    pub(super) fn write_report(root: &Path, over: Axis) -> Value {
+        let out = root.join("report");
+        run(ScalingArgs {
+            runs: vec![root.to_path_buf()],
+            over,
+            out: Some(out.clone()),
+            json: false,
+        })
+        .unwrap();
+        assert_eq!(
+            &std::fs::read(out.join("scaling.png")).unwrap()[1..4],
+            b"PNG"
+        );
+        serde_json::from_slice(&std::fs::read(out.join("scaling.json")).unwrap()).unwrap()
+    }
+
     fn temp(name: &str) -> PathBuf {
         let dir =
             std::env::temp_dir().join(format!("koopbridge-scaling-{name}-{}", std::process::id()));
@@ -482,20 +500,7 @@ mod tests {
             [10.0, 34.0, 34.0]
         );
 
-        let out = root.join("report");
-        run(ScalingArgs {
-            runs: vec![root.clone()],
-            over: Axis::M,
-            out: Some(out.clone()),
-            json: false,
-        })
-        .unwrap();
-        assert_eq!(
-            &std::fs::read(out.join("scaling.png")).unwrap()[1..4],
-            b"PNG"
-        );
-        let saved: Value =
-            serde_json::from_slice(&std::fs::read(out.join("scaling.json")).unwrap()).unwrap();
+        let saved = write_report(&root, Axis::M);
         assert_eq!(saved["curves"].as_array().unwrap().len(), 2);
         std::fs::remove_dir_all(&root).unwrap();
     }

@@ -1,7 +1,7 @@
 //! Tests of `koopbridge scaling --over budget`: runs of a budget sweep (m = c·N·ln N, their factors
 //! c in metrics.json) are grouped into one curve per c, and each fit recovers the law they follow.
 
-use super::tests::write_budget_run as write_run;
+use super::tests::{write_budget_run as write_run, write_report};
 use super::*;
 use bridge::sweep::budget_windows;
 
@@ -70,20 +70,7 @@ fn budget_curves_are_fitted_per_c_and_recover_their_exponents() {
     // Over N at fixed m, the budget points (each n_mult at its own m) make no fittable curve.
     assert!(fit_curves(&runs, Axis::N).iter().all(|k| k.fit.is_none()));
 
-    let out = root.join("report");
-    run(ScalingArgs {
-        runs: vec![root.clone()],
-        over: Axis::Budget,
-        out: Some(out.clone()),
-        json: false,
-    })
-    .unwrap();
-    assert_eq!(
-        &std::fs::read(out.join("scaling.png")).unwrap()[1..4],
-        b"PNG"
-    );
-    let saved: Value =
-        serde_json::from_slice(&std::fs::read(out.join("scaling.json")).unwrap()).unwrap();
+    let saved = write_report(&root, Axis::Budget);
     assert_eq!(saved["over"], "budget");
     let saved_curves = saved["curves"].as_array().unwrap();
     assert_eq!(saved_curves.len(), 2);
