@@ -8,8 +8,8 @@ echo "== cargo fmt --check"
 cargo fmt --all -- --check
 echo "== cargo clippy"
 cargo clippy --release --workspace --all-targets -- -D warnings
-echo "== module import circles (bridge/, the CLI; koopman/ is reported by a bare run)"
-python3 scripts/check-module-cycles.py bridge/src src
+echo "== module import circles (koopman/, bridge/, the CLI)"
+python3 scripts/check-module-cycles.py koopman/src bridge/src src
 if [ -x scripts/setup-python.sh ]; then
   echo "== python environment"
   scripts/setup-python.sh

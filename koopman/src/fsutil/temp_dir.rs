@@ -1,5 +1,6 @@
 //! A temporary folder beside its destination that removes itself unless it was committed, so
-//! that no error path or panic of whatever fills it leaves it behind.
+//! that no error path or panic of whatever fills it leaves it behind, and the atomic folder
+//! write built on it.
 
 use std::path::{Path, PathBuf};
 
@@ -45,4 +46,14 @@ impl Drop for TempDir {
         // while unwinding) has nowhere to go: the name is hidden and unique to this call.
         let _ = std::fs::remove_dir_all(&self.path);
     }
+}
+
+/// Writes a whole folder atomically: `fill` writes the files into a fresh temporary folder
+/// beside `dest` (a [`TempDir`]); then every file and the folder are flushed and the folder
+/// replaces `dest` ([`commit_dir`]). On failure, or a panic in `fill`, nothing is left but the
+/// old `dest`.
+pub fn write_dir_atomic(dest: &Path, fill: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+    let tmp = TempDir::beside(dest)?;
+    fill(tmp.path())?;
+    tmp.commit().map(drop)
 }

@@ -1,7 +1,7 @@
 //! The damped pendulum of SPEC.md: `θ̈ = −(g/l) sin θ − (b l/m) θ̇ + cos θ · u/(m l)`, dt = 0.02.
 
 use super::integrator::{dopri5, Tolerance};
-use super::System;
+use super::system::System;
 use crate::rng::Rng;
 use std::f64::consts::PI;
 

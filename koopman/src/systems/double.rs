@@ -1,7 +1,7 @@
 //! The double pendulum of SPEC.md: `θ̈ = M(θ)⁻¹ (τ − C(θ, θ̇) − G(θ))`, dt = 0.01, no damping.
 
 use super::integrator::{dopri5, Tolerance};
-use super::System;
+use super::system::System;
 use crate::rng::Rng;
 use std::f64::consts::PI;
 

@@ -2,7 +2,7 @@
 //! `x1⁺ = 0.85 x1`, `x2⁺ = 0.9 x2`, `x3⁺ = 0.9 x3 + Σ_{p=1}^{n_poly−2} b_p x1^p`,
 //! `b = linspace(0.9, 0.1, n_poly − 2)`.
 
-use super::System;
+use super::system::System;
 use crate::rng::Rng;
 use crate::{Error, Result};
 
