@@ -11,7 +11,10 @@
 # collected once and reused, and a row's model trained for Q = I is reused for q̇ 0.01); its
 # report.json, figure8.png and variant go to OUT/{row}-s{seed}-{q}/. Resumable: a run whose
 # OUT/{row}-s{seed}-{q}/report.json exists is skipped. Runs at nice 19, one at a time. The
-# scenario's default budget (3,000 training windows, 1,500 iterations), not SPEC's.
+# scenario's default budget (3,000 training windows, 1,500 iterations), not SPEC's, unless
+# WINDOWS (training windows; validation and test a tenth each) and/or ITERATIONS are set in the
+# environment — use a fresh OUT per budget, e.g.
+#   WINDOWS=20000 ITERATIONS=10000 scripts/franka-regulariser-table.sh /tmp/franka-reg-20k
 # At the end: the table (python -m koopbridge.experiments.franka_regulariser table --runs OUT).
 set -euo pipefail
 OUT=${1:?usage: $0 OUT [SEEDS] [ROWS]}
@@ -24,6 +27,9 @@ mkdir -p "$OUT/work" "$OUT/bin"
 [[ -x $OUT/bin/koopbridge ]] || cp "$ROOT/target/release/koopbridge" "$OUT/bin/koopbridge"
 KB="$OUT/bin/koopbridge"
 export KOOPBRIDGE_PYTHON="$PY"
+BUDGET=()
+[[ -n ${WINDOWS:-} ]] && BUDGET+=(--windows "$WINDOWS")
+[[ -n ${ITERATIONS:-} ]] && BUDGET+=(--iterations "$ITERATIONS")
 first=${SEEDS%% *}
 for seed in $SEEDS; do
   for row in $ROWS; do
@@ -33,7 +39,7 @@ for seed in $SEEDS; do
       if [[ -f $dest/report.json ]]; then echo "skip $dest (done)"; continue; fi
       mkdir -p "$dest"
       (cd "$ROOT" && "$PY" -m koopbridge.experiments.franka_regulariser variant \
-        --row "$row" --seed "$seed" --q "$q" --out "$dest/scenario.toml")
+        --row "$row" --seed "$seed" --q "$q" "${BUDGET[@]}" --out "$dest/scenario.toml")
       rm -f "$OUT/work/report.json" "$OUT/work/figure8.png"
       echo "== $(date -u +%H:%M:%S) $row seed $seed $q"
       if nice -n 19 "$KB" run "$dest/scenario.toml" --out "$OUT/work" >"$dest/run.log" 2>&1; then

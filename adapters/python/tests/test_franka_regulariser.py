@@ -121,3 +121,18 @@ def test_table_means_and_relative_change(tmp_path):
     both = next(line for line in md.splitlines() if line.startswith("| both |"))
     assert "8.500 ± 0.707 (n=2)" in both and f"{100 * (8.5 / 11 - 1):+.1f} %" in both
     assert "| base | — | 11.000 ± 1.414 (n=2) | 2.000 |" in md
+
+
+def test_variant_with_a_budget_changes_only_the_data_size_and_iterations():
+    text = (ROOT / "scenarios" / "franka-figure8.toml").read_text()
+    orig = tomllib.loads(text)
+    v = tomllib.loads(franka_regulariser.variant(text, "both", 17382, "spec", windows=20000, iterations=10000))
+    assert (v["collect"]["train_windows"], v["collect"]["val_windows"], v["collect"]["test_windows"]) == (20000, 2000, 2000)
+    assert v["train"]["config"]["iterations"] == 10000
+    assert v["full"] == orig["full"]  # --full keeps SPEC's budget
+    rest = {k: x for k, x in v["collect"].items() if not k.endswith("_windows")}
+    assert rest == {k: x for k, x in orig["collect"].items() if not k.endswith("_windows")}
+    e = tomllib.loads(franka_regulariser.variant(text, "edmd", 17382, "spec", windows=20000, iterations=10000))
+    assert e["train"]["config"] == {} and e["collect"]["train_windows"] == 20000
+    with pytest.raises(ValueError, match="positive"):
+        franka_regulariser.variant(text, "base", 1, "spec", windows=0)

@@ -43,10 +43,18 @@ _MPC = re.compile(r"^mpc = \{ horizon = 15, q = \[[^\]]*\] \}\n", re.M)
 _AFTER = "figure8_scenario report --u-limit 1.0 --sim arm0 --out {out}"
 
 
-def variant(text: str, row: str, seed: int, q: str) -> str:
+_WINDOWS = re.compile(r"^(?P<key>train|val|test)_windows = \d+\n", re.M)
+
+
+def variant(text: str, row: str, seed: int, q: str, windows: int | None = None, iterations: int | None = None) -> str:
     """The scenario ``text`` (``scenarios/franka-figure8.toml``) for ``row``, training seed
     ``seed`` and weighting ``q``; the after-control hook skips the error-state rows (not part of
-    the table). Raises ``ValueError`` when the file no longer has the expected shape."""
+    the table). ``windows`` (training windows; validation and test get a tenth each) and
+    ``iterations`` replace the default budget's, when given (``[full]`` is left as it is). Raises
+    ``ValueError`` when the file no longer has the expected shape or a budget is not positive."""
+    for name, v in (("windows", windows), ("iterations", iterations)):
+        if v is not None and v < 1:
+            raise ValueError(f"{name} must be a positive count, got {v}")
     if row not in ROWS:
         raise ValueError(f"unknown row {row!r}; valid: {', '.join(ROWS)}")
     if q not in QS:
@@ -55,19 +63,34 @@ def variant(text: str, row: str, seed: int, q: str) -> str:
     if m is None or len(_MPC.findall(text)) != 1 or text.count(_AFTER) != 1:
         raise ValueError("the scenario no longer has the [train] config / [control] mpc / after-control hook lines this variant edits")
     kind, extra = ROWS[row]
+    base_cfg = m.group("cfg")
+    if iterations is not None:
+        base_cfg, n = re.subn(r"iterations = \d+", f"iterations = {iterations}", base_cfg)
+        if n != 1:
+            raise ValueError("the scenario's [train] config has no iterations entry to replace")
     if kind == "edmd":
         cfg = ""  # EDMD alone refuses the gradient-training settings (least squares, no seed)
     else:
-        cfg = ", ".join(p for p in (m.group("cfg"), extra, f"seed = {seed}") if p)
+        cfg = ", ".join(p for p in (base_cfg, extra, f"seed = {seed}") if p)
     train = f'[train]\nmodel = ["{kind}"]\nconfig = {{ {cfg} }}\n'
     out = text[: m.start()] + train + text[m.end() :]
     if kind == "edmd":
         # [full].train_config is checked against the kind even without --full; EDMD refuses iterations.
         out = re.sub(r"^train_config = \{[^}]*\}\n", "", out, flags=re.M)
+    if windows is not None:
+        collect = out.index("[collect]")
+        end = out.find("\n[", collect + 1)
+        block = out[collect:end]
+        sizes = {"train": windows, "val": max(1, windows // 10), "test": max(1, windows // 10)}
+        block, n = _WINDOWS.subn(lambda w: f"{w.group('key')}_windows = {sizes[w.group('key')]}\n", block)
+        if n != 3:
+            raise ValueError("the scenario's [collect] no longer has train/val/test_windows lines")
+        out = out[:collect] + block + out[end:]
     if q == "spec":
         out = _MPC.sub("mpc = { horizon = 15 }\n", out)
     out = out.replace(_AFTER, _AFTER + " --no-error-state")
-    out = f"# Variant for issue 26 §4: row {row}, seed {seed}, {QS[q]} (koopbridge.experiments.franka_regulariser).\n" + out
+    budget = "" if windows is None and iterations is None else f", budget windows={windows or 'default'} iterations={iterations or 'default'}"
+    out = f"# Variant for issue 26 §4: row {row}, seed {seed}, {QS[q]}{budget} (koopbridge.experiments.franka_regulariser).\n" + out
     tomllib.loads(out)  # still a valid TOML file
     return out
 
@@ -126,6 +149,8 @@ def parser() -> argparse.ArgumentParser:
     v.add_argument("--row", required=True, choices=list(ROWS), help="the table row: Koopman base/cov/ctrl/both, edmd, nndm")
     v.add_argument("--seed", type=int, default=17382, help="the training seed (default: %(default)s; unused by edmd)")
     v.add_argument("--q", default="spec", choices=list(QS), help="spec: Q = I (SPEC); qd001: the scenario's q (q̇ weight 0.01)")
+    v.add_argument("--windows", type=int, help="training windows instead of the scenario's default budget (validation and test: a tenth each)")
+    v.add_argument("--iterations", type=int, help="training iterations instead of the scenario's default budget")
     v.add_argument("--out", required=True, help="the variant TOML to write")
     t = sub.add_parser("table", help="gather OUT/{row}-s{seed}-{q}/report.json into a Markdown table")
     t.add_argument("--runs", required=True, help="the driver's output folder")
@@ -138,7 +163,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     a = parser().parse_args(argv)
     try:
         if a.cmd == "variant":
-            text = variant(Path(a.scenario).read_text(), a.row, a.seed, a.q)
+            text = variant(Path(a.scenario).read_text(), a.row, a.seed, a.q, a.windows, a.iterations)
             Path(a.out).parent.mkdir(parents=True, exist_ok=True)
             Path(a.out).write_text(text)
         else:
