@@ -141,10 +141,13 @@ pub struct SimRegion {
     pub low: Option<InputBound>,
     /// Upper input bounds of the uniform policy.
     pub high: Option<InputBound>,
+    /// Its own inputs for `Policy::Adapter`, in place of the policy's `inputs` (a scenario's
+    /// `[[sims]]` `collect_inputs`); the box and bounds above then apply to these.
+    pub inputs: Option<CollectPolicy>,
 }
 
 impl SimRegion {
-    /// Whether it sets anything.
+    /// Whether it sets no initial-state box and no input bounds (its `inputs` aside).
     pub fn is_empty(&self) -> bool {
         self.x0_box.is_none() && self.low.is_none() && self.high.is_none()
     }
@@ -164,8 +167,9 @@ pub fn collect(
 }
 
 /// [`collect`] with a data region per simulator: `regions[j]` (absent or empty = the job's)
-/// overrides the job's initial-state box and the uniform policy's input bounds for `sims[j]`.
-/// With `Policy::Adapter` the box and bounds travel in the `collect` request's uniform policy
+/// overrides the job's initial-state box and the uniform policy's input bounds for `sims[j]`,
+/// and with `Policy::Adapter` its `inputs` replace the policy's for `sims[j]`. With
+/// `Policy::Adapter` the box and bounds travel in the `collect` request's uniform policy
 /// (PROTOCOL.md, "Collect"); a planned or expert policy takes neither (`Error::Config`). Every
 /// dataset with a box or bounds records them in its metadata (`region`).
 pub fn collect_regions(
@@ -191,7 +195,7 @@ pub fn collect_regions(
         let mut boxes = Vec::with_capacity(sims.len());
         for (j, s) in sims.iter().enumerate() {
             let (r, xb) = (region(j), box_of(j));
-            let p = match inputs {
+            let p = match r.inputs.as_ref().unwrap_or(inputs) {
                 CollectPolicy::Uniform {
                     low,
                     high,
@@ -228,7 +232,7 @@ pub fn collect_regions(
                     }
                 }
                 p => {
-                    if xb.is_some() || !r.is_empty() {
+                    if xb.is_some() || r.low.is_some() || r.high.is_some() {
                         return Err(Error::Config(format!(
                             "simulator '{}': an initial-state box or input bounds need uniform \
                              inputs; the {} policy draws its own windows",
@@ -261,6 +265,19 @@ pub fn collect_regions(
     for (j, s) in sims.iter().enumerate() {
         let info = &s.info.sim;
         let r = region(j);
+        if let Some(p) = &r.inputs {
+            return Err(Error::Config(format!(
+                "simulator '{}': its own collect inputs ({}) replace an adapter policy's; the \
+                 lockstep {} policy chooses the inputs here",
+                s.id,
+                p.describe(),
+                if matches!(policy, Policy::Scripted { .. }) {
+                    "scripted"
+                } else {
+                    "uniform"
+                }
+            )));
+        }
         if let Policy::Scripted { inputs } = policy {
             if r.low.is_some() || r.high.is_some() {
                 return Err(Error::Config(format!(

@@ -130,6 +130,14 @@ pub struct SimSpec {
     /// Upper bounds of its uniform random inputs (one value or `nu`), over the policy's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub u_high: Option<crate::messages::InputBound>,
+    /// This simulator's own collect inputs, in place of the `inputs` of `[collect] policy =
+    /// { kind = "adapter" }` (a `collect` request's `policy`, PROTOCOL.md "Collect"): e.g.
+    /// `{ kind = "expert" }` for a legged robot that walks with its expert beside simulators
+    /// that draw uniform inputs (`Scenario::sim_policy`). Only with the adapter policy; a
+    /// planned or expert policy only for an external adapter (`command`: a built-in system
+    /// draws uniform inputs only) and without a data region (`x0_*`, `u_low`/`u_high`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub collect_inputs: Option<crate::messages::CollectPolicy>,
 }
 
 impl SimSpec {
@@ -145,6 +153,7 @@ impl SimSpec {
             x0_radius: None,
             u_low: None,
             u_high: None,
+            collect_inputs: None,
         }
     }
 }

@@ -75,12 +75,14 @@ steps = 5
 mpc = { horizon = 4 }
 "#;
 
-/// The adapter policies (windows run by the simulators), both input policies.
+/// The adapter policies (windows run by the simulators), both input policies; a simulator's
+/// own inputs.
 const ADAPTER_UNIFORM: &str = r#"
 name = "keys"
 [[sims]]
 id = "pend"
 env = "damped-pendulum"
+collect_inputs = { kind = "uniform", low = -0.05, high = 0.05 }
 [collect]
 policy = { kind = "adapter", inputs = { kind = "uniform", low = -0.1, high = 0.1 }, block = 5 }
 train_windows = 10
@@ -102,9 +104,10 @@ test_windows = 2
 
 /// Every table of the schema, named by its keys (array indices left out) and, for a tagged
 /// table, its `kind`.
-const SCHEMA: [&str; 18] = [
+const SCHEMA: [&str; 19] = [
     "",
     "sims",
+    "sims.collect_inputs(uniform)",
     "collect",
     "collect.policy(uniform)",
     "collect.policy(scripted)",

@@ -30,7 +30,9 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
     let shared_box = sc.collect.x0_box()?;
     for (j, (s, info)) in sc.sims.iter().zip(infos).enumerate() {
         let region = sc.sim_region(j)?;
-        let (low, high) = match &sc.collect.policy {
+        // Its own adapter inputs (`collect_inputs`), else the shared policy.
+        let policy = sc.sim_policy(j);
+        let (low, high) = match &policy {
             Policy::Uniform { low, high }
             | Policy::Adapter {
                 inputs: CollectPolicy::Uniform { low, high, .. },
@@ -39,7 +41,7 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
             _ => (&None, &None),
         };
         let uniform = !matches!(
-            sc.collect.policy,
+            policy,
             Policy::Scripted { .. }
                 | Policy::Adapter {
                     inputs: CollectPolicy::Planned { .. }
@@ -51,7 +53,7 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
         // The adapter policy's bounds default to the simulator's (then checked by it).
         let explicit =
             low.is_some() || high.is_some() || region.low.is_some() || region.high.is_some();
-        if uniform && (explicit || matches!(sc.collect.policy, Policy::Uniform { .. })) {
+        if uniform && (explicit || matches!(policy, Policy::Uniform { .. })) {
             let (low, high) = (
                 region.low.clone().or(low.clone()),
                 region.high.clone().or(high.clone()),

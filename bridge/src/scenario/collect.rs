@@ -119,21 +119,28 @@ impl CollectSpec {
         Ok(xb)
     }
 
-    /// Refuses a data region (an initial-state box, input bounds) that the policy cannot take:
-    /// `Policy::Adapter` with planned or expert inputs (the simulator draws those windows itself).
+    /// Refuses a data region (an initial-state box, input bounds) that the policy cannot take
+    /// ([`takes_region`]).
     pub(crate) fn check_takes_region(&self, table: &str) -> Result<()> {
-        match &self.policy {
-            Policy::Adapter { inputs, .. }
-                if !matches!(inputs, crate::messages::CollectPolicy::Uniform { .. }) =>
-            {
-                Err(Error::Config(format!(
-                    "{table}: an initial-state box or input bounds need uniform inputs; with \
-                     [collect] policy inputs = {} the simulator draws its windows itself",
-                    inputs.describe()
-                )))
-            }
-            _ => Ok(()),
+        takes_region(&self.policy, table)
+    }
+}
+
+/// Refuses a data region (an initial-state box, input bounds) in scenario table `table` that
+/// `policy` cannot take: `Policy::Adapter` with planned or expert inputs (the simulator draws
+/// those windows itself).
+pub(crate) fn takes_region(policy: &Policy, table: &str) -> Result<()> {
+    match policy {
+        Policy::Adapter { inputs, .. }
+            if !matches!(inputs, crate::messages::CollectPolicy::Uniform { .. }) =>
+        {
+            Err(Error::Config(format!(
+                "{table}: an initial-state box or input bounds need uniform inputs; with \
+                 inputs = {} the simulator draws its windows itself",
+                inputs.describe()
+            )))
         }
+        _ => Ok(()),
     }
 }
 
