@@ -138,6 +138,13 @@ pub struct SimSpec {
     /// draws uniform inputs only) and without a data region (`x0_*`, `u_low`/`u_high`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub collect_inputs: Option<crate::messages::CollectPolicy>,
+    /// `koopman::train::TrainConfig` fields for this simulator's models only, over `[train].config`
+    /// (and, with `--full`, over its merge with `[full].train_config`): e.g. a z-scored, smaller
+    /// model for a 35-state robot beside small systems (`Scenario::train_config_of`). Needs
+    /// `[train]`; checked as `[train].config` is, against every kind of `[train].model`; not
+    /// part of what the collected data depend on.
+    #[serde(default, skip_serializing_if = "serde_json::Map::is_empty")]
+    pub train_config: serde_json::Map<String, serde_json::Value>,
 }
 
 impl SimSpec {
@@ -154,6 +161,7 @@ impl SimSpec {
             u_low: None,
             u_high: None,
             collect_inputs: None,
+            train_config: serde_json::Map::new(),
         }
     }
 }
@@ -367,6 +375,12 @@ impl Scenario {
             let mut c = t.config.clone();
             c.remove(crate::services::model_kind::KIND_KEY);
             train_config(&c).map_err(|e| config("[train].config", e))?;
+        }
+        for s in self.sims.iter().filter(|s| !s.train_config.is_empty()) {
+            let mut c = self.train_config_of(&s.id);
+            c.remove(crate::services::model_kind::KIND_KEY);
+            train_config(&c)
+                .map_err(|e| config(&format!("[[sims]] '{}' train_config", s.id), e))?;
         }
         self.check_train()?;
         if let Some(f) = &self.full {

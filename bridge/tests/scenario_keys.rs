@@ -10,14 +10,15 @@ use toml::Value;
 
 const UNKNOWN: &str = "zz_not_a_setting";
 
-/// One control entry with every sub-table, a uniform policy with bounds, training, hooks,
-/// participants and `[full]`.
+/// One control entry with every sub-table, a uniform policy with bounds, training (a
+/// simulator's own settings too), hooks, participants and `[full]`.
 const EVERYTHING: &str = r#"
 name = "keys"
 description = "every table"
 [[sims]]
 id = "pend"
 env = "damped-pendulum"
+train_config = { n_mult = 2 }
 [collect]
 policy = { kind = "uniform", low = -1.0, high = [1.0] }
 train_windows = 10
@@ -104,10 +105,11 @@ test_windows = 2
 
 /// Every table of the schema, named by its keys (array indices left out) and, for a tagged
 /// table, its `kind`.
-const SCHEMA: [&str; 19] = [
+const SCHEMA: [&str; 20] = [
     "",
     "sims",
     "sims.collect_inputs(uniform)",
+    "sims.train_config",
     "collect",
     "collect.policy(uniform)",
     "collect.policy(scripted)",

@@ -22,9 +22,18 @@ struct Record<T> {
     report: T,
 }
 
-/// What the collected data depends on: the simulators (spec and `info`) and `[collect]`.
+/// What the collected data depends on: the simulators (spec without their `train_config`, and
+/// `info`) and `[collect]`.
 pub fn collect_key(sc: &Scenario, infos: &[&SimInfo]) -> serde_json::Value {
-    serde_json::json!({"sims": sc.sims, "infos": infos, "collect": sc.collect})
+    let sims: Vec<_> = sc
+        .sims
+        .iter()
+        .map(|s| crate::scenario::SimSpec {
+            train_config: serde_json::Map::new(),
+            ..s.clone()
+        })
+        .collect();
+    serde_json::json!({"sims": sims, "infos": infos, "collect": sc.collect})
 }
 
 /// What a trained model depends on: the data (`collect_key`) and the job config it is trained
@@ -98,6 +107,23 @@ mod tests {
         forget(&p).unwrap();
         assert_eq!(load::<u32>(&p, &k1), None);
         std::fs::remove_dir_all(&d).ok();
+    }
+
+    #[test]
+    fn a_simulators_training_settings_are_not_what_its_data_depend_on() {
+        let text = |own: &str| {
+            format!(
+                "name = \"k\"\n[[sims]]\nid = \"p\"\nenv = \"damped-pendulum\"\n{own}\n\
+                 [collect]\npolicy = {{ kind = \"adapter\" }}\ntrain_windows = 2\n\
+                 val_windows = 1\ntest_windows = 1\n[train]\nconfig = {{}}\n"
+            )
+        };
+        let key = |own: &str| collect_key(&Scenario::parse(&text(own)).unwrap(), &[]);
+        assert_eq!(key(""), key("train_config = { n_mult = 4 }"));
+        assert_ne!(
+            key(""),
+            key("collect_inputs = { kind = \"uniform\", low = 0.1 }")
+        );
     }
 
     #[test]

@@ -224,8 +224,8 @@ pub fn run_scenario_with(
         } else {
             "training (trainer service)".to_string()
         }));
-        let key = reuse::train_key(&collect_key, &job_config(sc, kind)?);
         for s in &sc.sims {
+            let key = reuse::train_key(&collect_key, &job_config(sc, &s.id, kind)?);
             trained.push((kind, train_one(sc, opts, &cluster, &s.id, kind, &key, on)?));
         }
     }

@@ -50,17 +50,18 @@ pub fn train_model(
     train_model_as(sc, opts, cluster, sim, kind, model, train, on)
 }
 
-/// The job config of a `kind` model with the scenario's `[train].config`
-/// ([`ModelKind::job_config`]: the settings the kind uses, and the kind).
+/// The job config of simulator `sim`'s `kind` model with the scenario's `[train].config` and
+/// the simulator's own `train_config` over it ([`Scenario::train_config_of`];
+/// [`ModelKind::job_config`]: the settings the kind uses, and the kind).
 pub fn job_config(
     sc: &Scenario,
+    sim: &str,
     kind: ModelKind,
 ) -> Result<serde_json::Map<String, serde_json::Value>> {
-    let t = sc
-        .train
-        .as_ref()
-        .ok_or_else(|| Error::Config("no [train]".into()))?;
-    Ok(kind.job_config(&t.config))
+    if sc.train.is_none() {
+        return Err(Error::Config("no [train]".into()));
+    }
+    Ok(kind.job_config(&sc.train_config_of(sim)))
 }
 
 /// [`train_model`] of a model of kind `kind` (the trainer service trains each kind with its own
@@ -76,7 +77,7 @@ pub fn train_model_as(
     train: &Path,
     on: &mut dyn FnMut(Event<'_>),
 ) -> Result<TrainReport> {
-    let config = job_config(sc, kind)?;
+    let config = job_config(sc, sim, kind)?;
     let dir = opts.out_dir.join("data").join(sim);
     let abs = |p: PathBuf| -> DatasetRef {
         DatasetRef::Path {

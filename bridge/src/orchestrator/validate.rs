@@ -89,6 +89,15 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
                 train_setting_names().join(", ")
             ))
         })?;
+        for s in sc.sims.iter().filter(|s| !s.train_config.is_empty()) {
+            train_config(&sc.train_config_of(&s.id)).map_err(|e| {
+                Error::Config(format!(
+                    "[[sims]] '{}' train_config: {e}; valid settings: {}",
+                    s.id,
+                    train_setting_names().join(", ")
+                ))
+            })?;
+        }
         if t.kinds().contains(&ModelKind::Bilinear) {
             if let Some(s) = sc.sims.iter().zip(infos).find(|(_, i)| i.nu() == 0) {
                 return Err(Error::Config(format!(
@@ -99,14 +108,19 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
                 )));
             }
         }
-        if t.config.get("ctrl") == Some(&serde_json::Value::Bool(true)) {
-            if let Some(s) = sc.sims.iter().zip(infos).find(|(_, i)| i.nu() == 0) {
-                return Err(Error::Config(format!(
-                    "[train].config sets ctrl = true, but simulator '{}': {}",
-                    s.0.id,
-                    koopman::train::AUTONOMOUS_CTRL
-                )));
-            }
+        let ctrl =
+            |id: &str| sc.train_config_of(id).get("ctrl") == Some(&serde_json::Value::Bool(true));
+        if let Some(s) = sc
+            .sims
+            .iter()
+            .zip(infos)
+            .find(|(s, i)| i.nu() == 0 && ctrl(&s.id))
+        {
+            return Err(Error::Config(format!(
+                "[train].config sets ctrl = true, but simulator '{}': {}",
+                s.0.id,
+                koopman::train::AUTONOMOUS_CTRL
+            )));
         }
     }
     for ctrl in &sc.control {

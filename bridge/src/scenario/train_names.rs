@@ -3,7 +3,7 @@
 
 use super::Scenario;
 use crate::error::{Error, Result};
-use crate::services::model_kind::ModelKind;
+use crate::services::model_kind::{check_settings_for, ModelKind};
 
 impl Scenario {
     /// The name in the model store of simulator `sim`'s model of kind `kind`: `{name}-{sim}`
@@ -16,14 +16,53 @@ impl Scenario {
         }
     }
 
+    /// The `TrainConfig` fields simulator `sim`'s models are trained with: `[train].config` (with
+    /// `--full`, merged with `[full].train_config`), its `[[sims]]` `train_config` over them.
+    /// Empty without `[train]`.
+    pub fn train_config_of(&self, sim: &str) -> serde_json::Map<String, serde_json::Value> {
+        let mut c = self
+            .train
+            .as_ref()
+            .map(|t| t.config.clone())
+            .unwrap_or_default();
+        if let Some(s) = self.sims.iter().find(|s| s.id == sim) {
+            for (k, v) in &s.train_config {
+                c.insert(k.clone(), v.clone());
+            }
+        }
+        c
+    }
+
     /// Checks `[train]` ([`super::train::TrainSpec::check`]) and what its kinds are asked to do elsewhere: no
     /// two models share a name ([`Scenario::model_name`]), and every kind can serve each
     /// `[control]` entry (`feedforward_file`, the error-state MPC, needs a lifted-linear model:
     /// koopman or edmd; `offset_free` is not for an NNDM's random shooting).
     pub(crate) fn check_train(&self) -> Result<()> {
         let Some(t) = &self.train else {
+            if let Some(s) = self.sims.iter().find(|s| !s.train_config.is_empty()) {
+                return Err(Error::Config(format!(
+                    "[[sims]] '{}': train_config needs [train] (it overrides [train].config)",
+                    s.id
+                )));
+            }
             return Ok(());
         };
+        for s in self.sims.iter().filter(|s| !s.train_config.is_empty()) {
+            let bad = |m: String| {
+                Err(Error::Config(format!(
+                    "[[sims]] '{}' train_config: {m}",
+                    s.id
+                )))
+            };
+            if s.train_config.contains_key("bilinear") {
+                return bad(
+                    "`bilinear` chooses the model kind, which [train].model sets for every \
+                     simulator"
+                        .into(),
+                );
+            }
+            check_settings_for(&t.kinds(), &self.train_config_of(&s.id)).or_else(bad)?;
+        }
         let empty = serde_json::Map::new();
         t.check(self.full.as_ref().map_or(&empty, |f| &f.train_config))
             .map_err(|e| match e {
@@ -195,5 +234,63 @@ steps = 20
             e.contains("model kind 'bilinear'") && e.contains("lifted-linear"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn a_simulator_trains_with_its_own_settings_over_the_shared_ones() {
+        let two = BASE.replace(
+            "[collect]",
+            "train_config = { n_mult = 4, normalise = true }\n[[sims]]\nid = \"other\"\nenv = \"damped-pendulum\"\n[collect]",
+        );
+        let s = Scenario::parse(&format!(
+            "{two}[train]\nconfig = {{ iterations = 7, n_mult = 8 }}\n"
+        ))
+        .unwrap();
+        let own = s.train_config_of("pend");
+        assert_eq!(
+            (&own["iterations"], &own["n_mult"], &own["normalise"]),
+            (&7.into(), &4.into(), &true.into())
+        );
+        let shared = s.train_config_of("other");
+        assert_eq!(
+            (&shared["n_mult"], shared.get("normalise")),
+            (&8.into(), None)
+        );
+        // `--full` merges under it: the simulator's own settings stay on top.
+        let mut full = Scenario::parse(&format!(
+            "{two}[train]\nconfig = {{ n_mult = 8 }}\n[full]\ntrain_config = {{ n_mult = 16, iterations = 9 }}\n"
+        ))
+        .unwrap();
+        full.apply_full();
+        let own = full.train_config_of("pend");
+        assert_eq!((&own["n_mult"], &own["iterations"]), (&4.into(), &9.into()));
+        assert_eq!(full.train_config_of("other")["n_mult"], 16);
+        // Refused, naming the simulator: an unknown setting, a kind, one a kind cannot honour,
+        // and no [train] to override.
+        let bad = |own: &str, train: &str| {
+            let text = BASE.replace("[collect]", &format!("train_config = {own}\n[collect]"));
+            let text = match train {
+                "" => text.replace(
+                    "[control]\nx0 = [-2.5, 0.1]\nreference = [0.0, 0.0]\nsteps = 20\n",
+                    "",
+                ),
+                t => format!("{text}[train]\n{t}\n"),
+            };
+            Scenario::parse(&text).unwrap_err().to_string()
+        };
+        let e = bad("{ n_mul = 4 }", "config = {}");
+        assert!(
+            e.contains("[[sims]] 'pend' train_config") && e.contains("n_mul"),
+            "{e}"
+        );
+        let e = bad("{ bilinear = true }", "config = {}");
+        assert!(e.contains("'pend' train_config: `bilinear`"), "{e}");
+        let e = bad("{ normalise = true }", "model = \"nndm\"");
+        assert!(
+            e.contains("'pend' train_config") && e.contains("model kind 'nndm'"),
+            "{e}"
+        );
+        let e = bad("{ n_mult = 4 }", "");
+        assert!(e.contains("train_config needs [train]"), "{e}");
     }
 }
