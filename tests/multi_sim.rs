@@ -1,7 +1,9 @@
 //! `scenarios/multi-sim.toml` end to end at a smoke budget (its default budget takes minutes):
-//! two FMUs (FMI 2 and 3), a built-in Rust system, the MuJoCo Franka and the Drake Kinova
-//! collected, trained and controlled in one lockstep loop; and (ignored: a measurement) the
-//! loop's macro-step rate against the slowest simulator alone in the same run.
+//! two FMUs (FMI 2 and 3), a built-in Rust system, the MuJoCo Franka, the Drake Kinova and the
+//! MuJoCo Go2 (with its own expert inputs and training settings) collected, trained and
+//! controlled in one lockstep loop; a Go2 control entry of the wrong length refused before
+//! collection; and (ignored: a measurement) the loop's macro-step rate against the slowest
+//! simulator alone in the same run.
 
 mod common;
 
@@ -64,7 +66,14 @@ fn run(scenario: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {
     serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap()
 }
 
-const SIMS: [&str; 5] = ["pend-fmu", "double-fmu", "rust-pend", "franka", "kinova"];
+const SIMS: [&str; 6] = [
+    "pend-fmu",
+    "double-fmu",
+    "rust-pend",
+    "franka",
+    "kinova",
+    "go2",
+];
 
 #[test]
 fn the_multi_sim_scenario_collects_trains_and_controls_every_simulator_in_one_loop() {
@@ -75,7 +84,7 @@ fn the_multi_sim_scenario_collects_trains_and_controls_every_simulator_in_one_lo
     let out = common::scratch("multi-sim").join("out");
     let r = run(&smoke_scenario("multi-sim-smoke.toml", 100), &out, &[]);
     assert_eq!(r["collect"]["sims"], serde_json::json!(SIMS));
-    let nx = [2, 4, 2, 14, 14];
+    let nx = [2, 4, 2, 14, 14, 35];
     for (j, id) in SIMS.iter().enumerate() {
         let c = &r["controls"][j];
         assert_eq!(c["sim"], *id);
@@ -119,19 +128,115 @@ fn the_multi_sim_scenario_collects_trains_and_controls_every_simulator_in_one_lo
         } else {
             assert!(d.meta.region.is_none(), "{id}");
         }
+        // The Go2 collected with its own inputs (the expert) and trained with its own settings
+        // (z-scored, n_mult 4: N = 35 · 5) over the smoke's shared ones (raw, n_mult 2).
+        let model: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(out.join(format!("models/multi-sim-{id}/config.json"))).unwrap(),
+        )
+        .unwrap();
+        if *id == "go2" {
+            assert_eq!(d.meta.policy, r#"adapter-{"kind":"expert"}"#);
+            assert_eq!(model["latent_dim"], 175);
+            assert!(
+                model["normalisation"].is_object(),
+                "{}",
+                model["normalisation"]
+            );
+            // A fall is in its control entry (step_flags), with the step it began.
+            let f = &c["step_flags"];
+            assert!(
+                f.is_null() || f["first_terminated"].is_u64() == (f["terminated"] != 0),
+                "{f}"
+            );
+        } else {
+            assert_eq!(d.meta.policy, "adapter-uniform", "{id}");
+            assert_eq!(model["latent_dim"], nx[j] * 3, "{id}");
+            assert!(model["normalisation"].is_null(), "{id}");
+        }
     }
     assert_eq!(r["control"], r["controls"][0]);
     let l = &r["control_loop"];
     assert_eq!(l["sims"], serde_json::json!(SIMS));
     assert_eq!(l["macro_steps"], 100);
     assert!(l["macro_steps_per_second"].as_f64().unwrap() > 0.0);
-    assert_eq!(l["step_round_trip_median_us"].as_array().unwrap().len(), 5);
+    assert_eq!(l["step_round_trip_median_us"].as_array().unwrap().len(), 6);
     // After the warm-up the loop named its critical path, and every other simulator (all were
     // started by this run) was given a lower CPU priority.
     let critical = l["critical_path"].as_str().expect("a critical path");
     let others: Vec<&str> = SIMS.iter().copied().filter(|s| *s != critical).collect();
-    assert_eq!(others.len(), 4, "{critical} is not one of {SIMS:?}");
+    assert_eq!(others.len(), 5, "{critical} is not one of {SIMS:?}");
     assert_eq!(l["deprioritised"], serde_json::json!(others));
+}
+
+/// The Go2's `[[sims]]` and `[[control]]` entries of `scenarios/multi-sim.toml`, as they are there.
+fn go2_entries() -> (String, String) {
+    let text = std::fs::read_to_string(root().join("scenarios/multi-sim.toml")).unwrap();
+    let block = |start: &str| {
+        let i = text.find(start).unwrap_or_else(|| panic!("no {start:?}"));
+        let rest = &text[i..];
+        let end = rest[1..].find("\n[").map_or(rest.len(), |e| e + 1);
+        rest[..end].to_string()
+    };
+    (
+        block("[[sims]]\nid = \"go2\""),
+        block("[[control]]\nsim = \"go2\""),
+    )
+}
+
+#[test]
+fn a_go2_control_entry_of_the_wrong_length_fails_before_collection_naming_it() {
+    if let Err(why) = python_ready() {
+        eprintln!("skipped: {why}");
+        return;
+    }
+    let (sim, control) = go2_entries();
+    let dir = common::scratch("multi-sim-go2-bad");
+    // Cut one value off x0, then off the reference (the last one: `, 0.2…]` → `]`).
+    let cut = |key: &str| {
+        let line = control
+            .lines()
+            .find(|l| l.starts_with(&format!("{key} = [")))
+            .unwrap();
+        let short = format!("{}]", &line[..line.rfind(", ").unwrap()]);
+        control.replace(line, &short)
+    };
+    for (i, (entry, expect)) in [
+        (
+            cut("x0"),
+            "x0 has 34 values, the simulator has 35 states (base_qw",
+        ),
+        (cut("reference"), "reference has 34 values; expected 35"),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let text = format!(
+            "name = \"go2-bad\"\n{sim}\n[collect]\npolicy = {{ kind = \"adapter\", block = 4 }}\n\
+             train_windows = 4\nval_windows = 4\ntest_windows = 4\n[train]\nconfig = {{ iterations = 5 }}\n\n{entry}"
+        );
+        // Inside the repository, so that `{python}` is its venv.
+        let file = root().join("target").join(format!("go2-bad-{i}.toml"));
+        std::fs::write(&file, text).unwrap();
+        let out = dir.join(format!("out{i}"));
+        let o = std::process::Command::new(common::exe())
+            .args([
+                "run",
+                file.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+            ])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "case {i} ran");
+        assert!(
+            stderr.contains("[control] for simulator 'go2'") && stderr.contains(expect),
+            "case {i}: {stderr}"
+        );
+        assert!(!out.join("data/go2").exists(), "case {i} collected");
+        assert!(!out.join("report.json").exists(), "case {i} reported");
+    }
+    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// The figure of issue 14: the macro-step rate of the five-simulator control loop against the
