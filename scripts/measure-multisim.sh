@@ -20,9 +20,12 @@ trap 'rm -f "$sc"' EXIT
 # At CI's smoke budget (the models of tests/multi_sim.rs; the default budget takes minutes), every
 # simulator STEPS control steps.
 sed -e "s/^steps = \(100\|200\|300\)$/steps = $steps/" \
-    -e "s/^train_windows = 1000$/train_windows = 60/; s/^val_windows = 100$/val_windows = 12/; s/^test_windows = 100$/test_windows = 12/" \
-    -e "s/^config = { iterations = 5000, hidden = \[128, 128\], n_mult = 8, /config = { iterations = 200, hidden = [32, 32], n_mult = 2, batch = 32, /" \
+    -e "s/^train_windows = 600$/train_windows = 60/; s/^val_windows = 60$/val_windows = 12/; s/^test_windows = 60$/test_windows = 12/" \
+    -e "s/^config = { iterations = 3000, hidden = \[128, 128\], n_mult = 8, /config = { iterations = 200, hidden = [32, 32], n_mult = 2, batch = 32, /" \
     scenarios/multi-sim.toml > "$sc"
+# The budget lines above must match the scenario's: say so rather than time the default budget.
+grep -q "^train_windows = 60$" "$sc" && grep -q "^config = { iterations = 200, " "$sc" || {
+  echo "measure-multisim: scenarios/multi-sim.toml's [collect]/[train] budget lines changed; update the sed lines above" >&2; exit 2; }
 for r in $(seq 1 "$rounds"); do
   for i in "${!bins[@]}"; do
     out=$work/bin$i-round$r
