@@ -108,8 +108,7 @@ fn the_multi_sim_scenario_collects_trains_and_controls_every_simulator_in_one_lo
         };
         assert!(out.join(png).is_file(), "{id}");
         // The simulators' data were collected together, from their own info.
-        let d =
-            koopman::data::Dataset::load_npz(&out.join(format!("data/{id}/train.npz"))).unwrap();
+        let d = common::collected(&out, id, "train");
         assert_eq!((d.n, d.steps, d.nx), (60, 15, nx[j]));
         // rust-pend and kinova have their own data region ([[sims]] x0_center/x0_radius): it
         // reached the simulator (every window starts in it) and the metadata record it.

@@ -5,8 +5,6 @@
 
 mod common;
 
-use koopman::data::Dataset;
-
 const TWO: &str = r#"
 name = "own-inputs"
 [[sims]]
@@ -25,10 +23,6 @@ steps = 5
 seed = 3
 "#;
 
-fn load(out: &std::path::Path, sim: &str) -> Dataset {
-    Dataset::load_npz(&out.join(format!("data/{sim}/train.npz"))).unwrap()
-}
-
 #[test]
 fn a_simulators_own_inputs_replace_the_shared_ones_in_its_requests_only() {
     let dir = common::scratch("own-inputs");
@@ -36,7 +30,10 @@ fn a_simulators_own_inputs_replace_the_shared_ones_in_its_requests_only() {
     std::fs::write(&sc, TWO).unwrap();
     let out = dir.join("out");
     common::run_scenario(&sc, &out, &[]);
-    let (shared, own) = (load(&out, "shared"), load(&out, "own"));
+    let (shared, own) = (
+        common::collected(&out, "shared", "train"),
+        common::collected(&out, "own", "train"),
+    );
     assert_eq!((shared.n, own.n), (6, 6));
     // Its own bounds U(0.7, 0.7): every input exactly 0.7 (ignored, they would be within ±0.3).
     assert!(own.u.iter().all(|&u| u == 0.7), "{:?}", own.u);

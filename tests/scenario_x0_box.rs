@@ -6,7 +6,7 @@
 
 mod common;
 
-use koopman::data::{DataRegion, Dataset};
+use koopman::data::DataRegion;
 
 const BOXED: &str = r#"
 name = "x0-box"
@@ -24,10 +24,6 @@ x0_low = [0.5, -0.2]
 x0_high = [0.9, 0.1]
 "#;
 
-fn load(out: &std::path::Path, split: &str) -> Dataset {
-    Dataset::load_npz(&out.join(format!("data/pend/{split}.npz"))).unwrap()
-}
-
 #[test]
 fn every_window_starts_in_the_box_and_reruns_bit_for_bit() {
     let dir = common::scratch("x0-box");
@@ -44,7 +40,10 @@ fn every_window_starts_in_the_box_and_reruns_bit_for_bit() {
     };
     let mut firsts = Vec::new();
     for split in ["train", "val", "test"] {
-        let (d, again) = (load(&a, split), load(&b, split));
+        let (d, again) = (
+            common::collected(&a, "pend", split),
+            common::collected(&b, "pend", split),
+        );
         // Two runs in fresh folders (nothing reused): the same bits.
         assert_eq!(d, again, "{split}: a rerun with the same seed differs");
         assert_eq!(d.meta.region.as_ref(), Some(&want), "{split}");
@@ -72,7 +71,10 @@ fn every_window_starts_in_the_box_and_reruns_bit_for_bit() {
     std::fs::write(&sc2, around).unwrap();
     let c = dir.join("c");
     common::run_scenario(&sc2, &c, &[]);
-    let (d, e) = (load(&a, "train"), load(&c, "train"));
+    let (d, e) = (
+        common::collected(&a, "pend", "train"),
+        common::collected(&c, "pend", "train"),
+    );
     let r = e.meta.region.clone().unwrap();
     for (got, want) in r.x0_low.unwrap().iter().zip([0.5, -0.2]) {
         assert!((got - want).abs() < 1e-12, "{got}");

@@ -310,3 +310,10 @@ pub fn run_scenario(
     );
     o
 }
+
+/// The `split` (`train`, `val`, `test`) a scenario run into `out` collected for simulator `sim`
+/// (`OUT/data/SIM/SPLIT.npz`).
+pub fn collected(out: &std::path::Path, sim: &str, split: &str) -> koopman::data::Dataset {
+    let path = out.join(format!("data/{sim}/{split}.npz"));
+    koopman::data::Dataset::load_npz(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
