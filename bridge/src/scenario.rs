@@ -19,6 +19,7 @@ use crate::error::{Error, Result};
 use crate::keyexpr::validate_chunk;
 
 pub mod collect;
+mod data_region;
 pub mod extras;
 mod region;
 pub mod train;
@@ -27,6 +28,8 @@ mod train_names;
 pub use collect::{CollectSpec, Policy};
 pub use extras::{CommandLine, HookPhase, HookSpec, ParticipantRole, ParticipantSpec};
 pub use train::TrainSpec;
+
+use data_region::with_x0_box;
 
 /// A whole scenario.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -94,57 +97,49 @@ pub fn repository_of(file: &Path) -> PathBuf {
         .map_or_else(|| dir.clone(), Path::to_path_buf)
 }
 
-/// A simulator to start.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SimSpec {
-    /// Its id (`[a-z0-9_-]`).
-    pub id: String,
-    /// The built-in system (`koopbridge sim --env`); required without `command`. With `command`,
-    /// optionally the reference system the external simulator implements (for reports).
-    #[serde(default)]
-    pub env: String,
-    /// An external adapter to start instead of `koopbridge sim` (program and arguments). It runs
-    /// in the repository of the scenario file ([`Scenario::base_dir`]): relative paths resolve
-    /// there, and `{python}` as the program means that repository's venv Python
-    /// (`.venv/bin/python`, else `python3` from `PATH`). The orchestrator appends
-    /// `--id ID --session S --stdin-lifeline --connect ENDPOINT`.
-    #[serde(default)]
-    pub command: Option<Vec<String>>,
-    /// This simulator's own data region, over `[collect]`'s (`Scenario::sim_region`): the
-    /// lower corner of its initial-state box (`nx` values), with `x0_high`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub x0_low: Option<Vec<f64>>,
-    /// The upper corner of its initial-state box (`nx` values), with `x0_low`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub x0_high: Option<Vec<f64>>,
-    /// The centre of its initial-state box (`nx` values), with `x0_radius`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub x0_center: Option<Vec<f64>>,
-    /// The half-widths of its initial-state box around `x0_center` (one value or `nx`, ≥ 0).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub x0_radius: Option<crate::messages::InputBound>,
-    /// Lower bounds of its uniform random inputs (one value or `nu`), over the policy's.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub u_low: Option<crate::messages::InputBound>,
-    /// Upper bounds of its uniform random inputs (one value or `nu`), over the policy's.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub u_high: Option<crate::messages::InputBound>,
-    /// This simulator's own collect inputs, in place of the `inputs` of `[collect] policy =
-    /// { kind = "adapter" }` (a `collect` request's `policy`, PROTOCOL.md "Collect"): e.g.
-    /// `{ kind = "expert" }` for a legged robot that walks with its expert beside simulators
-    /// that draw uniform inputs (`Scenario::sim_policy`). Only with the adapter policy; a
-    /// planned or expert policy only for an external adapter (`command`: a built-in system
-    /// draws uniform inputs only) and without a data region (`x0_*`, `u_low`/`u_high`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub collect_inputs: Option<crate::messages::CollectPolicy>,
-    /// `koopman::train::TrainConfig` fields for this simulator's models only, over `[train].config`
-    /// (and, with `--full`, over its merge with `[full].train_config`): e.g. a z-scored, smaller
-    /// model for a 35-state robot beside small systems (`Scenario::train_config_of`). Needs
-    /// `[train]`; checked as `[train].config` is, against every kind of `[train].model`; not
-    /// part of what the collected data depend on.
-    #[serde(default, skip_serializing_if = "serde_json::Map::is_empty")]
-    pub train_config: serde_json::Map<String, serde_json::Value>,
+with_x0_box! {
+    /// A simulator to start.
+    #[derive(Clone, Debug, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct SimSpec {
+        /// Its id (`[a-z0-9_-]`).
+        pub id: String,
+        /// The built-in system (`koopbridge sim --env`); required without `command`. With
+        /// `command`, optionally the reference system the external simulator implements (for
+        /// reports).
+        #[serde(default)]
+        pub env: String,
+        /// An external adapter to start instead of `koopbridge sim` (program and arguments). It
+        /// runs in the repository of the scenario file ([`Scenario::base_dir`]): relative paths
+        /// resolve there, and `{python}` as the program means that repository's venv Python
+        /// (`.venv/bin/python`, else `python3` from `PATH`). The orchestrator appends
+        /// `--id ID --session S --stdin-lifeline --connect ENDPOINT`.
+        #[serde(default)]
+        pub command: Option<Vec<String>>,
+        @x0_box("This simulator's own initial-state box, over `[collect]`'s \
+                 (`Scenario::sim_region`): `x0_low`/`x0_high` or `x0_center`/`x0_radius`."),
+        /// Lower bounds of its uniform random inputs (one value or `nu`), over the policy's.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pub u_low: Option<crate::messages::InputBound>,
+        /// Upper bounds of its uniform random inputs (one value or `nu`), over the policy's.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pub u_high: Option<crate::messages::InputBound>,
+        /// This simulator's own collect inputs, in place of the `inputs` of `[collect] policy =
+        /// { kind = "adapter" }` (a `collect` request's `policy`, PROTOCOL.md "Collect"): e.g.
+        /// `{ kind = "expert" }` for a legged robot that walks with its expert beside simulators
+        /// that draw uniform inputs (`Scenario::sim_policy`). Only with the adapter policy; a
+        /// planned or expert policy only for an external adapter (`command`: a built-in system
+        /// draws uniform inputs only) and without a data region (`x0_*`, `u_low`/`u_high`).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pub collect_inputs: Option<crate::messages::CollectPolicy>,
+        /// `koopman::train::TrainConfig` fields for this simulator's models only, over
+        /// `[train].config` (and, with `--full`, over its merge with `[full].train_config`): e.g.
+        /// a z-scored, smaller model for a 35-state robot beside small systems
+        /// (`Scenario::train_config_of`). Needs `[train]`; checked as `[train].config` is, against
+        /// every kind of `[train].model`; not part of what the collected data depend on.
+        #[serde(default, skip_serializing_if = "serde_json::Map::is_empty")]
+        pub train_config: serde_json::Map<String, serde_json::Value>,
+    }
 }
 
 impl SimSpec {
@@ -398,33 +393,7 @@ impl Scenario {
             })?;
         }
         if let Policy::Uniform { low, high } = &self.collect.policy {
-            let values = |b: &Option<crate::messages::InputBound>| match b {
-                Some(crate::messages::InputBound::All(v)) => vec![*v],
-                Some(crate::messages::InputBound::Each(v)) => v.clone(),
-                None => Vec::new(),
-            };
-            let (lo, hi) = (values(low), values(high));
-            if let Some(v) = lo.iter().chain(&hi).find(|v| !v.is_finite()) {
-                return Err(Error::Config(format!(
-                    "collect.policy: `low` and `high` must be finite, got {v}"
-                )));
-            }
-            let pairs: Vec<(f64, f64)> = match (lo.len(), hi.len()) {
-                (0, _) | (_, 0) => Vec::new(),
-                (1, _) => hi.iter().map(|&h| (lo[0], h)).collect(),
-                (_, 1) => lo.iter().map(|&l| (l, hi[0])).collect(),
-                (a, b) if a == b => lo.iter().copied().zip(hi.iter().copied()).collect(),
-                (a, b) => {
-                    return Err(Error::Config(format!(
-                        "collect.policy: `low` has {a} values and `high` {b}"
-                    )))
-                }
-            };
-            if let Some((l, h)) = pairs.iter().find(|(l, h)| l > h) {
-                return Err(Error::Config(format!(
-                    "collect.policy: `low` {l} > `high` {h}"
-                )));
-            }
+            data_region::check_bounds("collect.policy", ["`low`", "`high`"], low, high)?;
         }
         Ok(())
     }

@@ -70,12 +70,7 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
             })?;
         }
         if let Some(xb) = &region.x0_box {
-            let keys = if s.x0_center.is_some() {
-                ["x0_center", "x0_center"]
-            } else {
-                ["x0_low", "x0_high"]
-            };
-            crate::collect::check_x0_box(xb, keys, &s.id, info)
+            crate::collect::check_x0_box(xb, s.x0_keys(), &s.id, info)
                 .map_err(|m| Error::Config(format!("[[sims]] '{}': {m}", s.id)))?;
         } else if let Some(xb) = &shared_box {
             crate::collect::check_x0_box(xb, sc.collect.x0_keys(), &s.id, info)

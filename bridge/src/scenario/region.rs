@@ -4,8 +4,9 @@
 use super::Scenario;
 use crate::collect::SimRegion;
 use crate::error::{Error, Result};
-use crate::messages::{CollectPolicy, InputBound};
+use crate::messages::CollectPolicy;
 use crate::scenario::collect::takes_region;
+use crate::scenario::data_region::check_bounds;
 use crate::scenario::Policy;
 
 impl Scenario {
@@ -26,7 +27,7 @@ impl Scenario {
     /// The data region of simulator `sims[j]` that overrides `[collect]`'s ([`SimRegion`]; empty
     /// when its entry sets none): its `x0_low`/`x0_high` or `x0_center`/`x0_radius`,
     /// `u_low`/`u_high`, and its `collect_inputs`. Checked without the simulator: the box as
-    /// `[collect]`'s ([`super::collect::x0_box_of`]); bounds finite, of equal length (or one of
+    /// `[collect]`'s ([`super::data_region::x0_box_of`]); bounds finite, of equal length (or one of
     /// them a single value), `low ≤ high`; bounds only with a uniform policy (lockstep or adapter
     /// inputs); a box not with a planned or expert adapter policy ([`Scenario::sim_policy`]: its
     /// own inputs, else the shared ones); `collect_inputs` only with `kind = "adapter"`, and a
@@ -39,10 +40,8 @@ impl Scenario {
         };
         let table = format!("[[sims]] '{}'", s.id);
         self.check_collect_inputs(s, &table)?;
-        let x0_box =
-            super::collect::x0_box_of(&table, [&s.x0_low, &s.x0_high, &s.x0_center], &s.x0_radius)?;
         let region = SimRegion {
-            x0_box,
+            x0_box: s.x0_box_in(&table)?,
             low: s.u_low.clone(),
             high: s.u_high.clone(),
             inputs: s.collect_inputs.clone(),
@@ -67,7 +66,7 @@ impl Scenario {
                  inputs (drop them, or use kind = \"uniform\" or \"adapter\")"
             )));
         }
-        check_bounds(&table, &region.low, &region.high)?;
+        check_bounds(&table, ["u_low", "u_high"], &region.low, &region.high)?;
         Ok(region)
     }
 
@@ -101,32 +100,6 @@ impl Scenario {
         }
         Ok(())
     }
-}
-
-/// Input bounds as a scenario gives them: finite, `low ≤ high` where both are given (a single
-/// value against every value of the other side), and lengths that fit each other.
-fn check_bounds(table: &str, low: &Option<InputBound>, high: &Option<InputBound>) -> Result<()> {
-    let values = |b: &Option<InputBound>| match b {
-        Some(InputBound::All(v)) => vec![*v],
-        Some(InputBound::Each(v)) => v.clone(),
-        None => Vec::new(),
-    };
-    let bad = |m: String| Err(Error::Config(format!("{table}: {m}")));
-    let (lo, hi) = (values(low), values(high));
-    if let Some(v) = lo.iter().chain(&hi).find(|v| !v.is_finite()) {
-        return bad(format!("u_low and u_high must be finite, got {v}"));
-    }
-    let pairs: Vec<(f64, f64)> = match (lo.len(), hi.len()) {
-        (0, _) | (_, 0) => Vec::new(),
-        (1, _) => hi.iter().map(|&h| (lo[0], h)).collect(),
-        (_, 1) => lo.iter().map(|&l| (l, hi[0])).collect(),
-        (a, b) if a == b => lo.iter().copied().zip(hi.iter().copied()).collect(),
-        (a, b) => return bad(format!("u_low has {a} values and u_high {b}")),
-    };
-    if let Some((l, h)) = pairs.iter().find(|(l, h)| l > h) {
-        return bad(format!("u_low {l} > u_high {h}"));
-    }
-    Ok(())
 }
 
 #[cfg(test)]
