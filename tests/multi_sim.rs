@@ -217,17 +217,7 @@ fn a_go2_control_entry_of_the_wrong_length_fails_before_collection_naming_it() {
         let file = root().join("target").join(format!("go2-bad-{i}.toml"));
         std::fs::write(&file, text).unwrap();
         let out = dir.join(format!("out{i}"));
-        let o = std::process::Command::new(common::exe())
-            .args([
-                "run",
-                file.to_str().unwrap(),
-                "--out",
-                out.to_str().unwrap(),
-            ])
-            .output()
-            .unwrap();
-        let stderr = String::from_utf8_lossy(&o.stderr);
-        assert!(!o.status.success(), "case {i} ran");
+        let stderr = common::run_scenario_refused(&file, &out, &format!("case {i}"));
         assert!(
             stderr.contains("[control] for simulator 'go2'") && stderr.contains(expect),
             "case {i}: {stderr}"

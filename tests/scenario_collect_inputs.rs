@@ -65,12 +65,7 @@ fn inputs_a_simulator_cannot_collect_with_fail_before_anything_starts() {
         );
         std::fs::write(&sc, text).unwrap();
         let out = dir.join(format!("out{i}"));
-        let o = std::process::Command::new(common::exe())
-            .args(["run", sc.to_str().unwrap(), "--out", out.to_str().unwrap()])
-            .output()
-            .unwrap();
-        let stderr = String::from_utf8_lossy(&o.stderr);
-        assert!(!o.status.success(), "case {i} ran");
+        let stderr = common::run_scenario_refused(&sc, &out, &format!("case {i}"));
         assert!(stderr.contains(expect), "case {i}: {stderr}");
         assert!(!out.join("data").exists(), "case {i} collected");
     }

@@ -119,12 +119,7 @@ fn a_bad_box_fails_before_collection_naming_it() {
         let sc = dir.join(format!("bad{i}.toml"));
         std::fs::write(&sc, BOXED.replace(from, to)).unwrap();
         let out = dir.join(format!("out{i}"));
-        let o = std::process::Command::new(common::exe())
-            .args(["run", sc.to_str().unwrap(), "--out", out.to_str().unwrap()])
-            .output()
-            .unwrap();
-        let stderr = String::from_utf8_lossy(&o.stderr);
-        assert!(!o.status.success(), "case {i} ran");
+        let stderr = common::run_scenario_refused(&sc, &out, &format!("case {i}"));
         assert!(stderr.contains(expect), "case {i}: {stderr}");
         // Nothing collected, nothing half-written.
         assert!(!out.join("data/pend").exists(), "case {i} wrote data");

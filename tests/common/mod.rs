@@ -317,3 +317,24 @@ pub fn collected(out: &std::path::Path, sim: &str, split: &str) -> koopman::data
     let path = out.join(format!("data/{sim}/{split}.npz"));
     koopman::data::Dataset::load_npz(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
+
+/// Runs `koopbridge run SCENARIO --out OUT` expecting a refusal: fails the test (naming `case`)
+/// when the run succeeds, and returns its stderr for the caller's checks of the message.
+pub fn run_scenario_refused(
+    scenario: &std::path::Path,
+    out: &std::path::Path,
+    case: &str,
+) -> String {
+    let o = std::process::Command::new(exe())
+        .args([
+            "run",
+            scenario.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(!o.status.success(), "{case} ran:\n{stderr}");
+    stderr
+}
