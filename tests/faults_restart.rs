@@ -77,6 +77,9 @@ fn a_killed_router_between_client_peers_is_detected_within_1s_and_they_reconnect
 }
 
 /// A tiny collect + train scenario whose training lasts seconds (killed in the middle).
+/// 20,000 iterations (~7 s on 2 quiet cores): long enough that the kill lands mid-training on a
+/// loaded machine too (with 1,500, ~0.5 s, a CI run finished the training before the kill: the
+/// finished job's checkpoint is removed and the rerun rightly trains afresh).
 const SCENARIO: &str = r#"
 name = "killed"
 [[sims]]
@@ -90,7 +93,7 @@ test_windows = 20
 steps = 15
 seed = 5
 [train]
-config = { iterations = 1500, hidden = [32, 32], n_mult = 4, batch = 64, validate_every = 100 }
+config = { iterations = 20000, hidden = [32, 32], n_mult = 4, batch = 64, validate_every = 100 }
 [control]
 x0 = [-1.0, 0.1]
 reference = [0.0, 0.0]
