@@ -293,16 +293,7 @@ pub fn run_scenario(
     out: &std::path::Path,
     extra: &[&str],
 ) -> std::process::Output {
-    let o = std::process::Command::new(exe())
-        .args([
-            "run",
-            scenario.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ])
-        .args(extra)
-        .output()
-        .unwrap();
+    let o = koopbridge_run(scenario, out, extra);
     assert!(
         o.status.success(),
         "koopbridge run failed:\n{}",
@@ -325,16 +316,26 @@ pub fn run_scenario_refused(
     out: &std::path::Path,
     case: &str,
 ) -> String {
-    let o = std::process::Command::new(exe())
+    let o = koopbridge_run(scenario, out, &[]);
+    let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(!o.status.success(), "{case} ran:\n{stderr}");
+    stderr
+}
+
+/// `koopbridge run SCENARIO --out OUT EXTRA…`, run to its end, whatever its outcome.
+fn koopbridge_run(
+    scenario: &std::path::Path,
+    out: &std::path::Path,
+    extra: &[&str],
+) -> std::process::Output {
+    std::process::Command::new(exe())
         .args([
             "run",
             scenario.to_str().unwrap(),
             "--out",
             out.to_str().unwrap(),
         ])
+        .args(extra)
         .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
-    assert!(!o.status.success(), "{case} ran:\n{stderr}");
-    stderr
+        .unwrap()
 }
