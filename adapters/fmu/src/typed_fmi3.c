@@ -14,12 +14,8 @@
  *   31 w (Float64[2] in); 32 wsum (Float64 out, = w[0] + 2 w[1]). */
 
 #include <stdint.h>
-#include <stdio.h>
-#include <stdlib.h>
-#include <string.h>
 
-#include "fmi3Functions.h"
-
+#define FMU_NAME "typed_fmi3"
 #define TOKEN "{5d0c2b7e-8a41-4f3c-9e6d-1b2a3c4d5e6f}"
 #define NVARS 33
 #define NMAX 8
@@ -37,55 +33,52 @@ typedef union {
     uint64_t u;
 } Value;
 
-typedef enum { ST_INSTANTIATED, ST_INIT, ST_STEP, ST_TERMINATED } Phase;
-
 typedef struct {
     Value v[NVARS];
     double w[2];
-    Phase phase;
-    fmi3InstanceEnvironment env;
-    fmi3LogMessageCallback log;
-} Instance;
+} Model;
+#define MODEL_TIME(c) ((c)->m.v[VR_TIME].f)
 
-static fmi3Status fail(Instance *c, const char *msg) {
-    if (c && c->log) c->log(c->env, fmi3Error, "logStatusError", msg);
-    return fmi3Error;
+#include "fmi3_common.h"
+
+static void model_reset(Instance *c) {
+    memset(&c->m, 0, sizeof c->m);
+    c->m.v[VR_MODE].i = 1;
+    c->m.v[VR_GAIN].f = 1.0;
+    c->m.v[VR_N].u = 3;
 }
 
-static void set_defaults(Instance *c) {
-    memset(c->v, 0, sizeof c->v);
-    c->w[0] = c->w[1] = 0.0;
-    c->v[VR_MODE].i = 1;
-    c->v[VR_GAIN].f = 1.0;
-    c->v[VR_N].u = 3;
-    c->phase = ST_INSTANTIATED;
+static fmi3Status model_initialize(Instance *c) {
+    c->m.v[VR_X].f = c->m.v[VR_X0].f;
+    c->m.v[VR_STEPS].i = 0;
+    return fmi3OK;
 }
 
 /* The value of scalar `vr` (outputs computed from the state and the inputs). */
 static Value value_of(const Instance *c, fmi3ValueReference vr) {
     Value r;
     if (vr == VR_X && c->phase == ST_INIT) {
-        r.f = c->v[VR_X0].f;
+        r.f = c->m.v[VR_X0].f;
     } else if (vr == VR_XF) {
-        r.f = (float)(c->phase == ST_INIT ? c->v[VR_X0].f : c->v[VR_X].f);
+        r.f = (float)(c->phase == ST_INIT ? c->m.v[VR_X0].f : c->m.v[VR_X].f);
     } else if (vr >= VR_ECHO && vr < VR_ECHO + 8) {
         static const int SRC[8] = {7, 8, 9, 10, 3, 11, 12, 13};
-        r = c->v[SRC[vr - VR_ECHO]];
+        r = c->m.v[SRC[vr - VR_ECHO]];
     } else if (vr == VR_WSUM) {
-        r.f = c->w[0] + 2.0 * c->w[1];
+        r.f = c->m.w[0] + 2.0 * c->m.w[1];
     } else if (vr == VR_ON_OUT) {
-        r = c->v[VR_ON];
+        r = c->m.v[VR_ON];
     } else if (vr == VR_MODE_OUT) {
-        r = c->v[VR_MODE];
+        r = c->m.v[VR_MODE];
     } else {
-        r = c->v[vr];
+        r = c->m.v[vr];
     }
     return r;
 }
 
 /* The number of values of `vr` (arrays: their size). */
 static size_t size_of(const Instance *c, fmi3ValueReference vr) {
-    if (vr == VR_Y) return (size_t)c->v[VR_N].u;
+    if (vr == VR_Y) return (size_t)c->m.v[VR_N].u;
     if (vr == VR_M) return 4;
     if (vr == VR_W) return 2;
     return 1;
@@ -104,10 +97,10 @@ static fmi3Status get_values(Instance *c, const char *fn, const fmi3ValueReferen
         }
         if (k + size_of(c, vr[i]) > nv) return fail(c, "nValues is too small");
         if (vr[i] == VR_W) {
-            out[k++].f = c->w[0];
-            out[k++].f = c->w[1];
+            out[k++].f = c->m.w[0];
+            out[k++].f = c->m.w[1];
         } else if (vr[i] == VR_Y || vr[i] == VR_M) {
-            const double x = c->phase == ST_INIT ? c->v[VR_X0].f : c->v[VR_X].f;
+            const double x = c->phase == ST_INIT ? c->m.v[VR_X0].f : c->m.v[VR_X].f;
             for (j = 0; j < size_of(c, vr[i]); j++)
                 out[k++].f = vr[i] == VR_Y ? (double)(j + 1) * x : x + 10.0 * (double)(j / 2) + (double)(j % 2);
         } else {
@@ -144,16 +137,16 @@ static fmi3Status check_set(Instance *c, const char *fn, const fmi3ValueReferenc
     return fmi3OK;
 }
 
-#define GETTER(fn, T, t1, t2, field)                                                                      \
+#define GETTER(fn, T, t1, t2, field)                                                                     \
     fmi3Status fn(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr, T values[], size_t nv) { \
-        Value buf[NMAX * NVARS];                                                                          \
-        size_t i;                                                                                         \
-        fmi3Status s;                                                                                     \
+        Value buf[NMAX * NVARS];                                                                         \
+        size_t i;                                                                                        \
+        fmi3Status s;                                                                                    \
         if (nv > NMAX * NVARS) return fail((Instance *)inst, #fn ": too many values");                   \
-        s = get_values((Instance *)inst, #fn, vr, nvr, t1, t2, buf, nv);                                  \
-        if (s != fmi3OK) return s;                                                                        \
-        for (i = 0; i < nv; i++) values[i] = (T)buf[i].field;                                             \
-        return fmi3OK;                                                                                    \
+        s = get_values((Instance *)inst, #fn, vr, nvr, t1, t2, buf, nv);                                 \
+        if (s != fmi3OK) return s;                                                                       \
+        for (i = 0; i < nv; i++) values[i] = (T)buf[i].field;                                            \
+        return fmi3OK;                                                                                   \
     }
 GETTER(fmi3GetFloat64, fmi3Float64, F64, F64, f)
 GETTER(fmi3GetFloat32, fmi3Float32, F32, F32, f)
@@ -167,23 +160,23 @@ GETTER(fmi3GetInt64, fmi3Int64, I64, ENUM, i)
 GETTER(fmi3GetUInt64, fmi3UInt64, U64, U64, u)
 GETTER(fmi3GetBoolean, fmi3Boolean, BOOL, BOOL, i)
 
-#define SETTER(fn, T, t1, t2, field)                                                                            \
+#define SETTER(fn, T, t1, t2, field)                                                                           \
     fmi3Status fn(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr, const T values[], size_t nv) { \
-        Instance *c = (Instance *)inst;                                                                         \
-        size_t i, k = 0;                                                                                        \
-        fmi3Status s = check_set(c, #fn, vr, nvr, t1, t2, nv);                                                  \
-        if (s != fmi3OK) return s;                                                                              \
-        for (i = 0; i < nvr; i++) {                                                                             \
-            if (vr[i] == VR_N && (values[k] < 1 || (uint64_t)values[k] > NMAX))                                 \
-                return fail(c, "n must be between 1 and 8");                                                    \
-            if (vr[i] == VR_W) {                                                                                \
-                c->w[0] = (double)values[k++];                                                                  \
-                c->w[1] = (double)values[k++];                                                                  \
-            } else {                                                                                            \
-                c->v[vr[i]].field = values[k++];                                                                \
-            }                                                                                                   \
-        }                                                                                                       \
-        return fmi3OK;                                                                                          \
+        Instance *c = (Instance *)inst;                                                                        \
+        size_t i, k = 0;                                                                                       \
+        fmi3Status s = check_set(c, #fn, vr, nvr, t1, t2, nv);                                                 \
+        if (s != fmi3OK) return s;                                                                             \
+        for (i = 0; i < nvr; i++) {                                                                            \
+            if (vr[i] == VR_N && (values[k] < 1 || (uint64_t)values[k] > NMAX))                                \
+                return fail(c, "n must be between 1 and 8");                                                   \
+            if (vr[i] == VR_W) {                                                                               \
+                c->m.w[0] = (double)values[k++];                                                               \
+                c->m.w[1] = (double)values[k++];                                                               \
+            } else {                                                                                           \
+                c->m.v[vr[i]].field = values[k++];                                                             \
+            }                                                                                                  \
+        }                                                                                                      \
+        return fmi3OK;                                                                                         \
     }
 SETTER(fmi3SetFloat64, fmi3Float64, F64, F64, f)
 SETTER(fmi3SetFloat32, fmi3Float32, F32, F32, f)
@@ -231,190 +224,24 @@ fmi3Status fmi3SetBinary(fmi3Instance inst, const fmi3ValueReference vr[], size_
     return check_set((Instance *)inst, "fmi3SetBinary", vr, nvr, BIN, BIN, nv);
 }
 
-/* ---- common functions ---- */
-const char *fmi3GetVersion(void) { return fmi3Version; }
-
-fmi3Status fmi3SetDebugLogging(fmi3Instance c, fmi3Boolean on, size_t n, const fmi3String cats[]) {
-    (void)on;
-    (void)n;
-    (void)cats;
-    return c ? fmi3OK : fmi3Error;
-}
-
-fmi3Instance fmi3InstantiateModelExchange(fmi3String name, fmi3String token, fmi3String res, fmi3Boolean visible,
-                                          fmi3Boolean logging, fmi3InstanceEnvironment env,
-                                          fmi3LogMessageCallback log) {
-    (void)name;
-    (void)token;
-    (void)res;
-    (void)visible;
-    (void)logging;
-    if (log) log(env, fmi3Error, "logStatusError", "typed_fmi3 supports co-simulation only");
-    return NULL;
-}
-
-fmi3Instance fmi3InstantiateScheduledExecution(fmi3String name, fmi3String token, fmi3String res,
-                                               fmi3Boolean visible, fmi3Boolean logging,
-                                               fmi3InstanceEnvironment env, fmi3LogMessageCallback log,
-                                               fmi3ClockUpdateCallback cu, fmi3LockPreemptionCallback lp,
-                                               fmi3UnlockPreemptionCallback up) {
-    (void)name;
-    (void)token;
-    (void)res;
-    (void)visible;
-    (void)logging;
-    (void)cu;
-    (void)lp;
-    (void)up;
-    if (log) log(env, fmi3Error, "logStatusError", "typed_fmi3 supports co-simulation only");
-    return NULL;
-}
-
-fmi3Instance fmi3InstantiateCoSimulation(fmi3String name, fmi3String token, fmi3String res, fmi3Boolean visible,
-                                         fmi3Boolean logging, fmi3Boolean eventModeUsed,
-                                         fmi3Boolean earlyReturnAllowed, const fmi3ValueReference req[],
-                                         size_t nreq, fmi3InstanceEnvironment env, fmi3LogMessageCallback log,
-                                         fmi3IntermediateUpdateCallback iu) {
-    Instance *c;
-    (void)res;
-    (void)visible;
-    (void)logging;
-    (void)eventModeUsed;
-    (void)earlyReturnAllowed;
-    (void)req;
-    (void)nreq;
-    (void)iu;
-    if (!name) return NULL;
-    if (!token || strcmp(token, TOKEN) != 0) {
-        if (log) log(env, fmi3Error, "logStatusError", "instantiation token mismatch");
-        return NULL;
-    }
-    c = (Instance *)calloc(1, sizeof(Instance));
-    if (!c) return NULL;
-    c->env = env;
-    c->log = log;
-    set_defaults(c);
-    return c;
-}
-
-void fmi3FreeInstance(fmi3Instance inst) { free(inst); }
-
-fmi3Status fmi3EnterInitializationMode(fmi3Instance inst, fmi3Boolean tolDef, fmi3Float64 tol, fmi3Float64 start,
-                                       fmi3Boolean stopDef, fmi3Float64 stop) {
-    Instance *c = (Instance *)inst;
-    (void)tolDef;
-    (void)tol;
-    (void)stopDef;
-    (void)stop;
-    if (!c || c->phase != ST_INSTANTIATED) return fail(c, "fmi3EnterInitializationMode: wrong state");
-    c->v[VR_TIME].f = start;
-    c->phase = ST_INIT;
-    return fmi3OK;
-}
-
-fmi3Status fmi3ExitInitializationMode(fmi3Instance inst) {
-    Instance *c = (Instance *)inst;
-    if (!c || c->phase != ST_INIT) return fail(c, "fmi3ExitInitializationMode: wrong state");
-    c->v[VR_X].f = c->v[VR_X0].f;
-    c->v[VR_STEPS].i = 0;
-    c->phase = ST_STEP;
-    return fmi3OK;
-}
-
-fmi3Status fmi3EnterEventMode(fmi3Instance c) { return fail((Instance *)c, "fmi3EnterEventMode: no events"); }
-
-fmi3Status fmi3Terminate(fmi3Instance inst) {
-    Instance *c = (Instance *)inst;
-    if (!c) return fmi3Error;
-    c->phase = ST_TERMINATED;
-    return fmi3OK;
-}
-
-fmi3Status fmi3Reset(fmi3Instance inst) {
-    Instance *c = (Instance *)inst;
-    if (!c) return fmi3Error;
-    set_defaults(c);
-    return fmi3OK;
-}
-
-/* Functions of capabilities the FMU does not declare: they report an error and change nothing. */
-#define UNSUPPORTED(fn, ...)                                                \
-    fmi3Status fn(fmi3Instance inst_, __VA_ARGS__) {                        \
-        return fail((Instance *)inst_, #fn " is not supported by this FMU"); \
-    }
-#define UNUSED_ARGS_BEGIN _Pragma("GCC diagnostic push") _Pragma("GCC diagnostic ignored \"-Wunused-parameter\"")
-#define UNUSED_ARGS_END _Pragma("GCC diagnostic pop")
-
-UNUSED_ARGS_BEGIN
-UNSUPPORTED(fmi3GetClock, const fmi3ValueReference vr[], size_t nvr, fmi3Clock v[])
-UNSUPPORTED(fmi3SetClock, const fmi3ValueReference vr[], size_t nvr, const fmi3Clock v[])
-UNSUPPORTED(fmi3GetNumberOfVariableDependencies, fmi3ValueReference vr, size_t *n)
-UNSUPPORTED(fmi3GetVariableDependencies, fmi3ValueReference d, size_t ed[], fmi3ValueReference ind[], size_t ei[],
-            fmi3DependencyKind k[], size_t n)
-UNSUPPORTED(fmi3GetFMUState, fmi3FMUState *s)
-UNSUPPORTED(fmi3SetFMUState, fmi3FMUState s)
-UNSUPPORTED(fmi3FreeFMUState, fmi3FMUState *s)
-UNSUPPORTED(fmi3SerializedFMUStateSize, fmi3FMUState s, size_t *n)
-UNSUPPORTED(fmi3SerializeFMUState, fmi3FMUState s, fmi3Byte b[], size_t n)
-UNSUPPORTED(fmi3DeserializeFMUState, const fmi3Byte b[], size_t n, fmi3FMUState *s)
-UNSUPPORTED(fmi3GetDirectionalDerivative, const fmi3ValueReference u[], size_t nu, const fmi3ValueReference k[],
-            size_t nk, const fmi3Float64 seed[], size_t ns, fmi3Float64 sens[], size_t nsens)
-UNSUPPORTED(fmi3GetAdjointDerivative, const fmi3ValueReference u[], size_t nu, const fmi3ValueReference k[],
-            size_t nk, const fmi3Float64 seed[], size_t ns, fmi3Float64 sens[], size_t nsens)
-UNSUPPORTED(fmi3GetIntervalDecimal, const fmi3ValueReference vr[], size_t n, fmi3Float64 iv[],
-            fmi3IntervalQualifier q[])
-UNSUPPORTED(fmi3GetIntervalFraction, const fmi3ValueReference vr[], size_t n, fmi3UInt64 c[], fmi3UInt64 r[],
-            fmi3IntervalQualifier q[])
-UNSUPPORTED(fmi3GetShiftDecimal, const fmi3ValueReference vr[], size_t n, fmi3Float64 s[])
-UNSUPPORTED(fmi3GetShiftFraction, const fmi3ValueReference vr[], size_t n, fmi3UInt64 c[], fmi3UInt64 r[])
-UNSUPPORTED(fmi3SetIntervalDecimal, const fmi3ValueReference vr[], size_t n, const fmi3Float64 iv[])
-UNSUPPORTED(fmi3SetIntervalFraction, const fmi3ValueReference vr[], size_t n, const fmi3UInt64 c[],
-            const fmi3UInt64 r[])
-UNSUPPORTED(fmi3SetShiftDecimal, const fmi3ValueReference vr[], size_t n, const fmi3Float64 s[])
-UNSUPPORTED(fmi3SetShiftFraction, const fmi3ValueReference vr[], size_t n, const fmi3UInt64 c[],
-            const fmi3UInt64 r[])
-UNSUPPORTED(fmi3UpdateDiscreteStates, fmi3Boolean *a, fmi3Boolean *b, fmi3Boolean *d, fmi3Boolean *e,
-            fmi3Boolean *f, fmi3Float64 *t)
-UNSUPPORTED(fmi3CompletedIntegratorStep, fmi3Boolean no, fmi3Boolean *e, fmi3Boolean *t)
-UNSUPPORTED(fmi3SetTime, fmi3Float64 t)
-UNSUPPORTED(fmi3SetContinuousStates, const fmi3Float64 x[], size_t n)
-UNSUPPORTED(fmi3GetContinuousStateDerivatives, fmi3Float64 dx[], size_t n)
-UNSUPPORTED(fmi3GetEventIndicators, fmi3Float64 e[], size_t n)
-UNSUPPORTED(fmi3GetContinuousStates, fmi3Float64 x[], size_t n)
-UNSUPPORTED(fmi3GetNominalsOfContinuousStates, fmi3Float64 x[], size_t n)
-UNSUPPORTED(fmi3GetNumberOfEventIndicators, size_t *n)
-UNSUPPORTED(fmi3GetNumberOfContinuousStates, size_t *n)
-UNSUPPORTED(fmi3GetOutputDerivatives, const fmi3ValueReference vr[], size_t nvr, const fmi3Int32 o[],
-            fmi3Float64 v[], size_t nv)
-UNSUPPORTED(fmi3ActivateModelPartition, fmi3ValueReference clock, fmi3Float64 t)
-UNUSED_ARGS_END
-
 fmi3Status fmi3EnterConfigurationMode(fmi3Instance c) { return fail((Instance *)c, "n is fixed"); }
 fmi3Status fmi3ExitConfigurationMode(fmi3Instance c) { return fail((Instance *)c, "n is fixed"); }
-fmi3Status fmi3EvaluateDiscreteStates(fmi3Instance c) { return fail((Instance *)c, "no discrete states"); }
-fmi3Status fmi3EnterContinuousTimeMode(fmi3Instance c) { return fail((Instance *)c, "co-simulation only"); }
 
 /* ---- co-simulation ---- */
-fmi3Status fmi3EnterStepMode(fmi3Instance c) {
-    return fail((Instance *)c, "fmi3EnterStepMode: event mode is not used by this FMU");
-}
-
 fmi3Status fmi3DoStep(fmi3Instance inst, fmi3Float64 t, fmi3Float64 h, fmi3Boolean noSetPrior,
                       fmi3Boolean *eventNeeded, fmi3Boolean *terminate, fmi3Boolean *earlyReturn,
                       fmi3Float64 *lastTime) {
     Instance *c = (Instance *)inst;
-    const int64_t mode = c ? c->v[VR_MODE].i : 0;
+    const int64_t mode = c ? c->m.v[VR_MODE].i : 0;
     const double s = mode == 1 ? 1.0 : mode == 2 ? -1.0 : 0.0;
     (void)noSetPrior;
-    if (eventNeeded) *eventNeeded = fmi3False;
-    if (terminate) *terminate = fmi3False;
-    if (earlyReturn) *earlyReturn = fmi3False;
-    if (!c || c->phase != ST_STEP) return fail(c, "fmi3DoStep: the FMU is not initialized");
+    if (do_step_checks(c, eventNeeded, terminate, earlyReturn) != fmi3OK) return fmi3Error;
     if (!(h > 0.0)) return fail(c, "fmi3DoStep: communication step size must be positive");
     if (mode < 1 || mode > 3) return fail(c, "fmi3DoStep: mode must be 1, 2 or 3");
-    if (c->v[VR_ON].i) c->v[VR_X].f += h * (double)(float)c->v[VR_GAIN].f * (double)c->v[VR_DRIVE].i * s;
-    c->v[VR_STEPS].i = (c->v[VR_STEPS].i + 1) & 0xFF;
-    c->v[VR_TIME].f = t + h;
-    if (lastTime) *lastTime = c->v[VR_TIME].f;
+    if (c->m.v[VR_ON].i)
+        c->m.v[VR_X].f += h * (double)(float)c->m.v[VR_GAIN].f * (double)c->m.v[VR_DRIVE].i * s;
+    c->m.v[VR_STEPS].i = (c->m.v[VR_STEPS].i + 1) & 0xFF;
+    c->m.v[VR_TIME].f = t + h;
+    if (lastTime) *lastTime = c->m.v[VR_TIME].f;
     return fmi3OK;
 }
