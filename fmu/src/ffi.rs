@@ -1,10 +1,11 @@
 //! What the FMI 3 and FMI 2 bindings share: the handle behind an instance pointer, logging
-//! through the master's callback, and calls that never unwind into the master (a panic becomes
-//! `Fatal` with a logged message).
+//! through the master's callback, calls that never unwind into the master (a panic becomes
+//! `Fatal` with a logged message), and the bodies of the functions both versions export
+//! (instantiate, free, step, value access, unsupported functions).
 
-use std::ffi::{c_char, CStr, CString};
-use std::panic::{catch_unwind, AssertUnwindSafe};
-use std::path::PathBuf;
+use std::ffi::{c_char, c_void, CStr, CString};
+use std::panic::{catch_unwind, AssertUnwindSafe, UnwindSafe};
+use std::path::{Path, PathBuf};
 
 use crate::instance::{Failure, Instance, Status};
 
@@ -38,6 +39,99 @@ impl<L: Logger> Handle<L> {
             _ => "logStatusError",
         };
         self.logger.log(&self.name, status, category, message);
+    }
+
+    /// `doStep`: solves the MPC for the inputs as set and holds the command over the step from
+    /// `t` to `t + h`; a step that ends with a warning status logs the warning.
+    pub fn do_step(&mut self, t: f64, h: f64) -> Result<Status, Failure> {
+        let s = self.inst.do_step(t, h)?;
+        if s == Status::Warning {
+            self.log(Status::Warning, &self.inst.step_warning(h));
+        }
+        Ok(s)
+    }
+}
+
+/// Instantiate (`what`: the FMI function's name): runs `make` without unwinding into the master
+/// and hands the new instance to the master as a pointer; on failure logs `what: reason` through
+/// `logger` (a panic as `Fatal`) and returns NULL.
+pub fn instantiate<L: Logger>(
+    what: &str,
+    name: String,
+    logger: L,
+    logging_on: bool,
+    make: impl FnOnce() -> Result<Instance, String> + UnwindSafe,
+) -> *mut c_void {
+    match catch_unwind(make) {
+        Ok(Ok(inst)) => Box::into_raw(Box::new(Handle {
+            inst,
+            name,
+            logger,
+            logging_on,
+        })) as *mut c_void,
+        Ok(Err(message)) => {
+            logger.log(
+                &name,
+                Status::Error,
+                "logStatusError",
+                &format!("{what}: {message}"),
+            );
+            std::ptr::null_mut()
+        }
+        Err(_) => {
+            logger.log(
+                &name,
+                Status::Fatal,
+                "logStatusError",
+                &format!("{what}: internal error"),
+            );
+            std::ptr::null_mut()
+        }
+    }
+}
+
+/// The instance for the resources at `location` (a resource path or `file:` URI; `missing` is
+/// the reason when the master gave none), checked against the master's `token` (GUID).
+pub fn load(
+    location: Option<String>,
+    missing: &str,
+    token: Option<String>,
+) -> Result<Instance, String> {
+    let location = location.ok_or(missing)?;
+    let dir = resource_dir(&location)?;
+    Instance::new(Path::new(&dir), token.as_deref())
+}
+
+/// FreeInstance: drops the handle behind `ptr` (NULL: nothing), never unwinding into the master.
+///
+/// # Safety
+/// `ptr` is NULL or a pointer returned by this library's instantiate, not used afterwards.
+pub unsafe fn free<L: Logger>(ptr: *mut Handle<L>) {
+    if !ptr.is_null() {
+        // Nothing sees the handle after the drop, so a panic in it leaves no broken state.
+        let _ = catch_unwind(AssertUnwindSafe(|| drop(Box::from_raw(ptr))));
+    }
+}
+
+/// A function of a capability the FMU does not declare: `Error`, logged (unless `ptr` is NULL).
+///
+/// # Safety
+/// As [`call`].
+pub unsafe fn unsupported<L: Logger>(ptr: *mut Handle<L>, what: &str) -> i32 {
+    call(ptr, what, |_| {
+        Err(Failure::error("not supported by this co-simulation FMU"))
+    })
+}
+
+/// A getter or setter of a type (`type_name`) the FMU has no variable of: OK for an empty
+/// request (`n == 0`), an error naming the type otherwise.
+pub fn no_variables(n: usize, type_name: &str) -> Result<Status, Failure> {
+    if n == 0 {
+        Ok(Status::Ok)
+    } else {
+        Err(Failure::error(format!(
+            "this FMU has no {type_name} variables"
+        )))
     }
 }
 

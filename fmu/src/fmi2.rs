@@ -5,10 +5,9 @@
 #![allow(non_snake_case)]
 
 use std::ffi::{c_char, c_int, c_void};
-use std::path::Path;
 
 use crate::ffi::{self, c_string, call, Handle, Logger};
-use crate::instance::{Failure, Instance, Status};
+use crate::instance::Status;
 
 /// `fmi2Component`.
 pub type Fmi2Component = *mut c_void;
@@ -49,7 +48,6 @@ pub struct Fmi2CallbackFunctions {
     pub component_environment: *mut c_void,
 }
 
-const ERROR: Fmi2Status = Status::Error as i32;
 /// `fmi2CoSimulation` of `fmi2Type`.
 pub const FMI2_COSIMULATION: c_int = 1;
 
@@ -133,42 +131,16 @@ pub unsafe extern "C" fn fmi2Instantiate(
         }
     };
     let name = ffi::string(instance_name).unwrap_or_else(|| "controller".into());
-    let made = std::panic::catch_unwind(|| {
+    ffi::instantiate("fmi2Instantiate", name, logger, logging_on != 0, || {
         if fmu_type != FMI2_COSIMULATION {
             return Err("model exchange is not supported: this is a co-simulation FMU".to_string());
         }
-        let guid = ffi::string(fmu_guid);
-        let location = ffi::string(fmu_resource_location)
-            .ok_or("no resource location: the model and controller.json travel in resources/")?;
-        let dir = ffi::resource_dir(&location)?;
-        Instance::new(Path::new(&dir), guid.as_deref())
-    });
-    match made {
-        Ok(Ok(inst)) => Box::into_raw(Box::new(Handle {
-            inst,
-            name,
-            logger,
-            logging_on: logging_on != 0,
-        })) as Fmi2Component,
-        Ok(Err(message)) => {
-            logger.log(
-                &name,
-                Status::Error,
-                "logStatusError",
-                &format!("fmi2Instantiate: {message}"),
-            );
-            std::ptr::null_mut()
-        }
-        Err(_) => {
-            logger.log(
-                &name,
-                Status::Fatal,
-                "logStatusError",
-                "fmi2Instantiate: internal error",
-            );
-            std::ptr::null_mut()
-        }
-    }
+        ffi::load(
+            ffi::string(fmu_resource_location),
+            "no resource location: the model and controller.json travel in resources/",
+            ffi::string(fmu_guid),
+        )
+    })
 }
 
 /// `fmi2FreeInstance`.
@@ -177,9 +149,7 @@ pub unsafe extern "C" fn fmi2Instantiate(
 /// `c` comes from `fmi2Instantiate` and is not used afterwards.
 #[no_mangle]
 pub unsafe extern "C" fn fmi2FreeInstance(c: Fmi2Component) {
-    if !c.is_null() {
-        let _ = std::panic::catch_unwind(|| drop(Box::from_raw(c as *mut H)));
-    }
+    ffi::free(c as *mut H);
 }
 
 /// `fmi2SetupExperiment`: the start time.
@@ -258,16 +228,7 @@ pub unsafe extern "C" fn fmi2DoStep(
     _no_set_fmu_state_prior_to_current_point: Fmi2Boolean,
 ) -> Fmi2Status {
     call(c as *mut H, "fmi2DoStep", |h| {
-        let s = h
-            .inst
-            .do_step(current_communication_point, communication_step_size)?;
-        if s == Status::Warning {
-            h.log(
-                Status::Warning,
-                &h.inst.step_warning(communication_step_size),
-            );
-        }
-        Ok(s)
+        h.do_step(current_communication_point, communication_step_size)
     })
 }
 
@@ -345,13 +306,7 @@ macro_rules! no_variables_of_type {
         /// `c` comes from `fmi2Instantiate`.
         #[no_mangle]
         pub unsafe extern "C" fn $name(c: Fmi2Component, _vr: *const u32, nvr: usize, _value: $values) -> Fmi2Status {
-            call(c as *mut H, stringify!($name), |_| {
-                if nvr == 0 {
-                    Ok(Status::Ok)
-                } else {
-                    Err(Failure::error(concat!("this FMU has no ", $type_name, " variables")))
-                }
-            })
+            call(c as *mut H, stringify!($name), |_| ffi::no_variables(nvr, $type_name))
         }
     )*};
 }
@@ -373,12 +328,7 @@ macro_rules! unsupported {
         #[no_mangle]
         pub unsafe extern "C" fn $name(c: Fmi2Component, $($arg: $ty),*) -> Fmi2Status {
             $(let _ = $arg;)*
-            if c.is_null() {
-                return ERROR;
-            }
-            call(c as *mut H, stringify!($name), |_| {
-                Err(Failure::error("not supported by this co-simulation FMU"))
-            })
+            ffi::unsupported(c as *mut H, stringify!($name))
         }
     )*};
 }

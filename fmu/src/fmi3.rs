@@ -5,10 +5,9 @@
 #![allow(non_snake_case)]
 
 use std::ffi::{c_char, c_void};
-use std::path::Path;
 
 use crate::ffi::{self, c_string, call, Handle, Logger};
-use crate::instance::{Failure, Instance, Status};
+use crate::instance::{Failure, Status};
 
 /// `fmi3Instance`.
 pub type Fmi3Instance = *mut c_void;
@@ -33,8 +32,6 @@ pub type Fmi3LogMessage = Option<
 >;
 /// `fmi3IntermediateUpdateCallback` (never called: no intermediate updates).
 pub type Fmi3IntermediateUpdate = Option<unsafe extern "C" fn()>;
-
-const ERROR: Fmi3Status = Status::Error as i32;
 
 /// The FMI 3 logger of an instance.
 pub struct Log3 {
@@ -102,44 +99,24 @@ pub unsafe extern "C" fn fmi3InstantiateCoSimulation(
         cb: log_message,
     };
     let name = ffi::string(instance_name).unwrap_or_else(|| "controller".into());
-    let made = std::panic::catch_unwind(|| {
-        if event_mode_used {
-            return Err(
-                "event mode is not supported by this FMU (hasEventMode = false)".to_string(),
-            );
-        }
-        let token = ffi::string(instantiation_token);
-        let location = ffi::string(resource_path)
-            .ok_or("no resource path: the model and controller.json travel in resources/")?;
-        let dir = ffi::resource_dir(&location)?;
-        Instance::new(Path::new(&dir), token.as_deref())
-    });
-    match made {
-        Ok(Ok(inst)) => Box::into_raw(Box::new(Handle {
-            inst,
-            name,
-            logger,
-            logging_on,
-        })) as Fmi3Instance,
-        Ok(Err(message)) => {
-            logger.log(
-                &name,
-                Status::Error,
-                "logStatusError",
-                &format!("fmi3InstantiateCoSimulation: {message}"),
-            );
-            std::ptr::null_mut()
-        }
-        Err(_) => {
-            logger.log(
-                &name,
-                Status::Fatal,
-                "logStatusError",
-                "fmi3InstantiateCoSimulation: internal error",
-            );
-            std::ptr::null_mut()
-        }
-    }
+    ffi::instantiate(
+        "fmi3InstantiateCoSimulation",
+        name,
+        logger,
+        logging_on,
+        || {
+            if event_mode_used {
+                return Err(
+                    "event mode is not supported by this FMU (hasEventMode = false)".to_string(),
+                );
+            }
+            ffi::load(
+                ffi::string(resource_path),
+                "no resource path: the model and controller.json travel in resources/",
+                ffi::string(instantiation_token),
+            )
+        },
+    )
 }
 
 /// `fmi3FreeInstance`.
@@ -148,9 +125,7 @@ pub unsafe extern "C" fn fmi3InstantiateCoSimulation(
 /// `instance` comes from `fmi3InstantiateCoSimulation` and is not used afterwards.
 #[no_mangle]
 pub unsafe extern "C" fn fmi3FreeInstance(instance: Fmi3Instance) {
-    if !instance.is_null() {
-        let _ = std::panic::catch_unwind(|| drop(Box::from_raw(instance as *mut H)));
-    }
+    ffi::free(instance as *mut H);
 }
 
 /// `fmi3EnterInitializationMode`.
@@ -208,15 +183,7 @@ pub unsafe extern "C" fn fmi3DoStep(
         *last_successful_time = current_communication_point;
     }
     call(instance as *mut H, "fmi3DoStep", |h| {
-        let s = h
-            .inst
-            .do_step(current_communication_point, communication_step_size)?;
-        if s == Status::Warning {
-            h.log(
-                Status::Warning,
-                &h.inst.step_warning(communication_step_size),
-            );
-        }
+        let s = h.do_step(current_communication_point, communication_step_size)?;
         if !last_successful_time.is_null() {
             *last_successful_time = current_communication_point + communication_step_size;
         }
@@ -346,13 +313,7 @@ macro_rules! no_variables_of_type {
             _values: $values,
             _n_values: usize,
         ) -> Fmi3Status {
-            call(instance as *mut H, stringify!($name), |_| {
-                if n_vrs == 0 {
-                    Ok(Status::Ok)
-                } else {
-                    Err(Failure::error(concat!("this FMU has no ", $type_name, " variables")))
-                }
-            })
+            call(instance as *mut H, stringify!($name), |_| ffi::no_variables(n_vrs, $type_name))
         }
     )*};
 }
@@ -391,12 +352,7 @@ macro_rules! unsupported {
         #[no_mangle]
         pub unsafe extern "C" fn $name(instance: Fmi3Instance, $($arg: $ty),*) -> Fmi3Status {
             $(let _ = $arg;)*
-            if instance.is_null() {
-                return ERROR;
-            }
-            call(instance as *mut H, stringify!($name), |_| {
-                Err(Failure::error("not supported by this co-simulation FMU"))
-            })
+            ffi::unsupported(instance as *mut H, stringify!($name))
         }
     )*};
 }
@@ -458,18 +414,12 @@ pub unsafe extern "C" fn fmi3InstantiateModelExchange(
     instance_environment: *mut c_void,
     log_message: Fmi3LogMessage,
 ) -> Fmi3Instance {
-    let name = ffi::string(instance_name).unwrap_or_default();
-    let log = Log3 {
-        env: instance_environment,
-        cb: log_message,
-    };
-    log.log(
-        &name,
-        Status::Error,
-        "logStatusError",
+    refuse(
+        instance_name,
+        instance_environment,
+        log_message,
         "model exchange is not supported: this is a co-simulation FMU",
-    );
-    std::ptr::null_mut()
+    )
 }
 
 /// `fmi3InstantiateScheduledExecution`: not supported; logs and returns NULL.
@@ -489,16 +439,30 @@ pub unsafe extern "C" fn fmi3InstantiateScheduledExecution(
     _lock_preemption: Option<unsafe extern "C" fn()>,
     _unlock_preemption: Option<unsafe extern "C" fn()>,
 ) -> Fmi3Instance {
+    refuse(
+        instance_name,
+        instance_environment,
+        log_message,
+        "scheduled execution is not supported: this is a co-simulation FMU",
+    )
+}
+
+/// An instantiate function of an interface this FMU does not declare: logs `message` as an
+/// error through `log_message` and returns NULL.
+///
+/// # Safety
+/// `instance_name` is NULL or NUL-terminated; `log_message` is NULL or a valid callback.
+unsafe fn refuse(
+    instance_name: Fmi3String,
+    instance_environment: *mut c_void,
+    log_message: Fmi3LogMessage,
+    message: &str,
+) -> Fmi3Instance {
     let name = ffi::string(instance_name).unwrap_or_default();
     let log = Log3 {
         env: instance_environment,
         cb: log_message,
     };
-    log.log(
-        &name,
-        Status::Error,
-        "logStatusError",
-        "scheduled execution is not supported: this is a co-simulation FMU",
-    );
+    log.log(&name, Status::Error, "logStatusError", message);
     std::ptr::null_mut()
 }
