@@ -13,6 +13,7 @@ pub mod data;
 pub mod eval;
 pub mod export_fmu;
 pub mod learning_curve;
+pub mod natural_order;
 pub mod plan;
 pub mod router;
 pub mod run;
