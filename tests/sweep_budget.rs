@@ -117,6 +117,36 @@ fn a_budget_sweep_trains_c_n_ln_n_windows_and_reuses_a_fixed_m_point() {
 }
 
 #[test]
+fn the_n_fit_of_a_mixed_sweep_keeps_to_the_fixed_m_family() {
+    let dir = common::scratch("sweep-budget-n-fit");
+    let data = dir.join("data/pend");
+    common::small_pendulum_dataset(&data, 8);
+    let out = dir.join("sweep");
+    // Fixed m = 200 at N = 4, 6 and the c = 10 points m = 56, 108: four runs, four distinct m.
+    let stdout = sweep(
+        &data,
+        &out,
+        &["--samples", "200", "--n-mult", "1,2", "--budget", "10"],
+    );
+    assert!(stdout.contains("sweep of 4 points"), "{stdout}");
+    // scaling-n: the m = 200 curve only (the budget points' own m would each be a one-point curve).
+    let fits = json(&out.join("scaling-n/scaling.json"));
+    let curves = fits["curves"].as_array().unwrap();
+    assert_eq!(curves.len(), 1, "{fits}");
+    let ds: Vec<f64> = curves[0]["points"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p[0].as_f64().unwrap())
+        .collect();
+    assert_eq!(ds, [4.0, 6.0], "{fits}");
+    // scaling-budget still has the c = 10 curve over the same N.
+    let budget = json(&out.join("scaling-budget/scaling.json"));
+    assert_eq!(budget["curves"].as_array().unwrap().len(), 1, "{budget}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
 fn results_written_before_budgets_existed_still_load() {
     let old = r#"{"name": "d-m1000-n16-s1-both", "env": "damped-pendulum",
         "pairing": "reference", "m": 1000, "n_mult": 16, "latent_dim": 34, "seed": 1,

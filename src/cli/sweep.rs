@@ -432,23 +432,39 @@ pub fn run(args: SweepArgs) -> anyhow::Result<()> {
     let results = read_results(&out)?;
     conditioning_plot(&out.join("conditioning.png"), &results)?;
     let runs = out.join("runs");
+    // The m and n fits are over the fixed-m family (--samples); the budget points have their own
+    // m each and would only add one-point curves there. The budget fit reads every run and keeps
+    // those that carry budget factors.
+    let fixed_m_runs: Vec<PathBuf> = points
+        .iter()
+        .filter(|p| samples.contains(&p.m))
+        .map(|p| runs.join(&p.name))
+        .filter(|dir| dir.join("metrics.json").is_file())
+        .collect();
     if results.len() >= 3 {
-        for (over, dir, wanted) in [
-            (super::scaling::Axis::M, "scaling-m", samples.len() > 1),
+        for (over, dir, wanted, fitted_runs) in [
+            (
+                super::scaling::Axis::M,
+                "scaling-m",
+                samples.len() > 1,
+                fixed_m_runs.clone(),
+            ),
             (
                 super::scaling::Axis::N,
                 "scaling-n",
                 !samples.is_empty() && args.n_mult.len() > 1,
+                fixed_m_runs.clone(),
             ),
             (
                 super::scaling::Axis::Budget,
                 "scaling-budget",
                 !args.budget.is_empty() && args.n_mult.len() > 1,
+                vec![runs.clone()],
             ),
         ] {
-            if wanted {
+            if wanted && !fitted_runs.is_empty() {
                 super::scaling::run(super::scaling::ScalingArgs {
-                    runs: vec![runs.clone()],
+                    runs: fitted_runs,
                     over,
                     out: Some(out.join(dir)),
                     json: false,
