@@ -34,6 +34,16 @@ fn json(path: &Path) -> serde_json::Value {
         .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
+/// The D values (N here) of one curve of a scaling.json.
+fn curve_ds(curve: &serde_json::Value) -> Vec<f64> {
+    curve["points"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p[0].as_f64().unwrap())
+        .collect()
+}
+
 #[test]
 fn a_budget_sweep_trains_c_n_ln_n_windows_and_reuses_a_fixed_m_point() {
     let dir = common::scratch("sweep-budget");
@@ -104,13 +114,7 @@ fn a_budget_sweep_trains_c_n_ln_n_windows_and_reuses_a_fixed_m_point() {
     let curves = fits["curves"].as_array().unwrap();
     assert_eq!(curves.len(), 2, "{fits}");
     for k in curves {
-        let ds: Vec<f64> = k["points"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|p| p[0].as_f64().unwrap())
-            .collect();
-        assert_eq!(ds, [4.0, 6.0], "{k}");
+        assert_eq!(curve_ds(k), [4.0, 6.0], "{k}");
     }
     assert!(out.join("scaling-budget/scaling.png").is_file());
     let _ = std::fs::remove_dir_all(&dir);
@@ -133,13 +137,7 @@ fn the_n_fit_of_a_mixed_sweep_keeps_to_the_fixed_m_family() {
     let fits = json(&out.join("scaling-n/scaling.json"));
     let curves = fits["curves"].as_array().unwrap();
     assert_eq!(curves.len(), 1, "{fits}");
-    let ds: Vec<f64> = curves[0]["points"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|p| p[0].as_f64().unwrap())
-        .collect();
-    assert_eq!(ds, [4.0, 6.0], "{fits}");
+    assert_eq!(curve_ds(&curves[0]), [4.0, 6.0], "{fits}");
     // scaling-budget still has the c = 10 curve over the same N.
     let budget = json(&out.join("scaling-budget/scaling.json"));
     assert_eq!(budget["curves"].as_array().unwrap().len(), 1, "{budget}");
