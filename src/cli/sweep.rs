@@ -12,7 +12,7 @@ use bridge::keyexpr::{fresh_session_id, Keys};
 use bridge::services::trainer::DatasetRef;
 use bridge::session::{free_loopback_endpoint, open_session};
 use bridge::sweep::{
-    data_budget, read_results, run_sweep, write_csv, DataShape, Regularisers, SweepData,
+    data_budget, read_results, run_dir, run_sweep, write_csv, DataShape, Regularisers, SweepData,
     SweepEvent, SweepGrid, SweepOptions, PAPER_BUDGET,
 };
 use koopman::data::Dataset;
@@ -432,14 +432,13 @@ pub fn run(args: SweepArgs) -> anyhow::Result<()> {
     let results = read_results(&out)?;
     conditioning_plot(&out.join("conditioning.png"), &results)?;
     let runs = out.join("runs");
-    // The m and n fits are over the fixed-m family (--samples); the budget points have their own
-    // m each and would only add one-point curves there. The budget fit reads every run and keeps
-    // those that carry budget factors.
-    let fixed_m_runs: Vec<PathBuf> = points
+    // The m and n fits are over the finished runs of the fixed-m family (--samples); the budget
+    // points have their own m each and would only add one-point curves there. The budget fit reads
+    // every run and keeps those that carry budget factors.
+    let fixed_m_runs: Vec<PathBuf> = results
         .iter()
-        .filter(|p| samples.contains(&p.m))
-        .map(|p| runs.join(&p.name))
-        .filter(|dir| dir.join("metrics.json").is_file())
+        .filter(|r| samples.contains(&r.m))
+        .map(|r| run_dir(&out, &r.name))
         .collect();
     if results.len() >= 3 {
         for (over, dir, wanted, fitted_runs) in [
