@@ -66,6 +66,8 @@ class Served:
         return self
 
     def __exit__(self, *exc) -> None:
+        if exc[1] is not None and self.error is not None:
+            exc[1].add_note(f"serve() on the background thread had failed: {self.error!r}")
         self.adapter.stop()
         self.thread.join(timeout=10)
         assert not self.thread.is_alive(), "serve() did not return after stop()"

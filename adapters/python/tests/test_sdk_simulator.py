@@ -1,6 +1,7 @@
 """The Simulator SDK: SimInfo's checks and its round trip to the dict the Rust side reads,
-SimulatorAdapter's input checks, check_adapter passing a correct simulator (a Python one and the
-FMU) and catching broken ones, BridgeTimeout, and run_main's exit codes."""
+SimulatorAdapter's input checks, listening_client's retry of a taken port, check_adapter passing
+a correct simulator (a Python one and the FMU) and catching broken ones, BridgeTimeout, and
+run_main's exit codes."""
 
 from __future__ import annotations
 
@@ -86,6 +87,28 @@ def test_simulator_adapter_checks_inputs_before_the_simulator():
 def test_check_adapter_passes_a_correct_simulator():
     info = check_adapter(Decay())
     assert info.env == "decay"
+
+
+def test_listening_client_takes_another_port_when_the_probed_one_is_taken(monkeypatch):
+    import socket
+
+    import koopbridge.testing as kt
+
+    taken = socket.socket()
+    taken.bind(("127.0.0.1", 0))
+    taken.listen()
+    probes = [f"tcp/127.0.0.1:{taken.getsockname()[1]}"]
+    real = kt._free_endpoint
+    monkeypatch.setattr(kt, "_free_endpoint", lambda: probes.pop(0) if probes else real())
+    try:
+        client, ep = kt.listening_client("lc" + str(taken.getsockname()[1]))
+        with client:
+            assert ep != f"tcp/127.0.0.1:{taken.getsockname()[1]}" and not probes
+        probes.append(f"tcp/127.0.0.1:{taken.getsockname()[1]}")
+        with pytest.raises(koopbridge.KoopbridgeError, match="Address already in use"):
+            kt.listening_client("lc", tries=1)
+    finally:
+        taken.close()
 
 
 def test_check_adapter_passes_the_fmu(damped_fmu):

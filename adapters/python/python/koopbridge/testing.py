@@ -14,7 +14,7 @@ from ._native import Client, InvalidInput, RemoteError, Unsupported
 from .serving import SimulatorAdapter
 from .simulator import SimInfo, Simulator
 
-__all__ = ["check_adapter", "sample_inputs"]
+__all__ = ["check_adapter", "listening_client", "sample_inputs"]
 
 
 def _fail(msg: str) -> None:
@@ -60,6 +60,24 @@ def _free_endpoint() -> str:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+def listening_client(session: str, *, tries: int = 5) -> tuple[Client, str]:
+    """A ``Client`` of ``session`` listening on a free loopback port, and that endpoint, for the
+    peers (adapters, services) to ``connect`` to.
+
+    The client binds before any peer starts, so nothing else can take the port between the probe
+    and the bind unnoticed: a port taken in that gap fails the bind at once and another is tried
+    (``tries`` in all). The other order (a peer listens, the client connects) fails only after
+    the client's whole timeout, with nothing said about the peer's failed bind."""
+    for attempt in range(tries):
+        ep = _free_endpoint()
+        try:
+            return Client(session=session, listen=[ep]), ep
+        except Exception as e:  # noqa: BLE001 - a taken port is the only expected failure
+            if "Address already in use" not in str(e) or attempt + 1 == tries:
+                raise
+    raise AssertionError("unreachable")
 
 
 def check_adapter(sim: Simulator, *, seed: int = 1, steps: int = 5, atol: float = 1e-9, zenoh: bool = True, timeout: float = 20.0) -> SimInfo:
@@ -137,7 +155,7 @@ def check_adapter(sim: Simulator, *, seed: int = 1, steps: int = 5, atol: float 
 
 
 def _check_served(adapter: SimulatorAdapter, info: SimInfo, us: np.ndarray, a: np.ndarray, reset: dict[str, Any], timeout: float) -> None:
-    session, sim_id, ep = "check" + uuid.uuid4().hex[:10], "sim0", _free_endpoint()
+    session, sim_id = "check" + uuid.uuid4().hex[:10], "sim0"
     result: dict[str, Any] = {}
 
     def serve(**kw: Any) -> None:
@@ -146,10 +164,11 @@ def _check_served(adapter: SimulatorAdapter, info: SimInfo, us: np.ndarray, a: n
         except BaseException as e:  # reported below
             result["error"] = e
 
-    th = threading.Thread(target=serve, kwargs={"listen": [ep]}, daemon=True)
+    client, ep = listening_client(session)
+    th = threading.Thread(target=serve, kwargs={"connect": [ep]}, daemon=True)
     th.start()
     try:
-        with Client(session=session, connect=[ep]) as c:
+        with client as c:
             reply = c.connect_sim(sim_id, timeout=timeout)
             for key in ("env", "kind", "version", "state_names", "input_names", "angle_indices"):
                 if reply[key] != getattr(info, key):
@@ -191,6 +210,10 @@ def _check_served(adapter: SimulatorAdapter, info: SimInfo, us: np.ndarray, a: n
                 k, _, _ = c.step(sim_id, us[0])
                 if k != n + 1:
                     _fail(f"after the refused requests the next step has k = {k}, expected {n + 1}")
+    except BaseException as e:
+        if "error" in result:
+            e.add_note(f"check_adapter: serve() had failed: {result['error']!r}")
+        raise
     finally:
         adapter.stop()
         th.join(timeout=10)

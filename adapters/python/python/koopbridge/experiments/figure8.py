@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from .. import BridgeTimeout, Client
-from ..testing import _free_endpoint
+from ..testing import listening_client
 from .dataset_npz import write_atomic
 from .figure8_ref import SKIP, Figure8, joint_p_command, references, tracking_error
 
@@ -169,7 +169,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     session = a.session or "f8" + uuid.uuid4().hex[:10]
-    ep = _free_endpoint()
+    client, ep = listening_client(session)
     state = Path(tempfile.mkdtemp(prefix="figure8-state-"))
     adapter_cmd = [sys.executable, "-m", "koopbridge.adapters.mujoco", "--session", session, "--id", SIM_ID, "--connect", ep,
                    "--u-limit", repr(a.u_limit)]
@@ -179,7 +179,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     procs = [subprocess.Popen(cmd, stdout=logs[k], stderr=subprocess.STDOUT, stdin=subprocess.PIPE)
              for k, cmd in (("adapter", adapter_cmd), ("services", serve_cmd))]
     try:
-        with Client(session=session, listen=[ep]) as c:
+        with client as c:
             c.connect_sim(SIM_ID, timeout=60)
             mpc_cfg: dict[str, Any] = dict(horizon=a.horizon, u_min=[-a.u_limit] * 7, u_max=[a.u_limit] * 7)
             if a.q_weights:

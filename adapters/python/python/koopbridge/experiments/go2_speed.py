@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import socket
 import sys
 import threading
 import time
@@ -73,23 +72,18 @@ def bare_loop(model: Any, policy_path: str, steps: int, seed: int = 0) -> tuple[
     return time.perf_counter() - t0, heights / steps
 
 
-def _free_endpoint() -> str:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
-
-
 def _zenoh_collect(sim: Any, policy: dict[str, Any], windows: int, T: int) -> float | None:
     """Seconds for one Zenoh ``collect`` request of ``windows`` windows; None when the bridge
     does not carry the policy kind."""
-    from .. import Client
     from ..serving import SimulatorAdapter
+    from ..testing import listening_client
 
-    adapter, session, ep = SimulatorAdapter(sim), "speed" + uuid.uuid4().hex[:8], _free_endpoint()
-    th = threading.Thread(target=adapter.serve, kwargs=dict(session=session, id="go2", listen=[ep]), daemon=True)
+    adapter, session = SimulatorAdapter(sim), "speed" + uuid.uuid4().hex[:8]
+    client, ep = listening_client(session)
+    th = threading.Thread(target=adapter.serve, kwargs=dict(session=session, id="go2", connect=[ep]), daemon=True)
     th.start()
     try:
-        with Client(session=session, connect=[ep]) as c:
+        with client as c:
             c.connect_sim("go2", timeout=20)
             t0 = time.perf_counter()
             try:

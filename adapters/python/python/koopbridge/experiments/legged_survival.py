@@ -29,7 +29,7 @@ from typing import Any, Self
 import numpy as np
 
 from .. import BridgeTimeout, Client, RemoteError
-from ..testing import _free_endpoint
+from ..testing import listening_client
 from .dataset_npz import DatasetMeta, save_dataset_npz, write_atomic
 from .figure8 import koopbridge_cli
 from .go2_track import GO2_LAYOUT, REFERENCE_SEED, Reference, Rollout, StateLayout, make_references, replay, rollout_windows, track
@@ -260,7 +260,7 @@ class Bridge:
         store.mkdir()
         for m in self.models:
             os.symlink(m.path, store / m.label)
-        ep = _free_endpoint()
+        self.client, ep = listening_client(self.session)
         adapter = [sys.executable, "-m", self.robot.adapter, "--session", self.session, "--id", self.robot.sim_id, "--connect", ep, "--quiet",
                    *self.adapter_args]
         serve = [koopbridge_cli(), "serve", "mpc", "--session", self.session, "--id", self.robot.mpc_id, "--store", str(store),
@@ -271,7 +271,6 @@ class Bridge:
                 f = open(self.log_dir / f"{name}.log", "wb")
                 self.logs.append(f)
                 self.procs.append(subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, stdin=subprocess.PIPE))
-            self.client = Client(session=self.session, listen=[ep])
             self.info = self.client.connect_sim(self.robot.sim_id, timeout=120)
         except BaseException:
             self.__exit__(None, None, None)
