@@ -353,6 +353,15 @@ impl SimClient {
                 Err(Error::Timeout { .. }) if Instant::now() < deadline => {
                     std::thread::sleep(Duration::from_millis(50))
                 }
+                // The whole wait, not the last query's remnant of it.
+                Err(Error::Timeout { who, .. }) => {
+                    return Err(Error::Timeout {
+                        who,
+                        what: "info (no reply; is it running, on this session and reachable?)"
+                            .into(),
+                        after_ms: timeout.as_millis() as u64,
+                    })
+                }
                 Err(e) => return Err(e),
             }
         };
@@ -515,4 +524,29 @@ pub fn step_all(
         .zip(inputs)
         .map(|((s, p), u)| s.finish_step(p, u, live))
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::session::{open_session, ZenohOptions};
+
+    /// A simulator that never answers: the timeout names the whole wait, not the last query's
+    /// remnant of it (it used to say "after 0 ms").
+    #[test]
+    fn connecting_to_an_absent_simulator_times_out_naming_the_whole_wait() {
+        let s = open_session(&ZenohOptions::default()).unwrap();
+        let c = Client::new(s, Keys::new("absent-sim-test").unwrap());
+        let wait = Duration::from_millis(2500);
+        let t = Instant::now();
+        match SimClient::connect(&c, "nobody", wait) {
+            Err(Error::Timeout { who, after_ms, .. }) => {
+                assert_eq!(after_ms, 2500);
+                assert!(who.contains("nobody"), "{who}");
+            }
+            Err(e) => panic!("expected a timeout, got {e}"),
+            Ok(_) => panic!("connected to a simulator that does not exist"),
+        }
+        assert!(t.elapsed() >= wait, "gave up early: {:?}", t.elapsed());
+    }
 }
