@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 import koopbridge
-from conftest import free_endpoint, reset_state
+from conftest import reset_state
+from koopbridge.testing import listening_client
 
 
 class Linear(koopbridge.Adapter):
@@ -41,9 +42,9 @@ class Linear(koopbridge.Adapter):
 
 def test_lockstep_steps_errors_and_stop(session_id, serve_in_thread):
     sim = Linear()
-    ep = free_endpoint()  # multicast scouting is off: the client connects to the adapter
-    with serve_in_thread(sim, session=session_id, id="lin", listen=[ep]) as served:
-        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+    client, ep = listening_client(session_id)  # multicast scouting is off: the client connects to the adapter
+    with serve_in_thread(sim, session=session_id, id="lin", connect=[ep]) as served:
+        with client as c:
             info = c.connect_sim("lin", timeout=10)
             assert info["env"] == "linear" and info["state_names"] == ["a", "b"] and info["kind"] == "python"
             assert info["dt"] == 0.1 and info["mode"] == "lockstep"
@@ -96,9 +97,9 @@ class Ending(Linear):
 
 def test_step_status_reaches_the_client_in_the_step_reply(session_id, serve_in_thread):
     sim = Ending()
-    ep = free_endpoint()
-    with serve_in_thread(sim, session=session_id, id="end", listen=[ep]) as served:
-        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+    client, ep = listening_client(session_id)
+    with serve_in_thread(sim, session=session_id, id="end", connect=[ep]) as served:
+        with client as c:
             c.connect_sim("end", timeout=10)
             c.reset("end", x0=[0.0, 0.0])
             flags = lambda t, tr, cl: {"terminated": t, "truncated": tr, "clipped": cl}  # noqa: E731
@@ -134,9 +135,9 @@ def test_step_status_reaches_the_client_in_the_step_reply(session_id, serve_in_t
 
 
 def test_a_simulator_without_step_status_gives_empty_flags(session_id, serve_in_thread):
-    ep = free_endpoint()
-    with serve_in_thread(Linear(), session=session_id, id="lin", listen=[ep]):
-        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+    client, ep = listening_client(session_id)
+    with serve_in_thread(Linear(), session=session_id, id="lin", connect=[ep]):
+        with client as c:
             c.connect_sim("lin", timeout=10)
             c.reset("lin", x0=[5.0, 5.0])
             _, _, _, status = c.step("lin", [1.0, 1.0], with_status=True)

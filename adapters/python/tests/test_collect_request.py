@@ -15,6 +15,7 @@ import koopbridge
 from conftest import Child, free_endpoint, reset_state
 from koopbridge import SimulatorAdapter
 from koopbridge.collect import UniformPolicy, collect_windows
+from koopbridge.testing import listening_client
 
 SPEC = {"kind": "uniform", "low": -0.12, "high": 0.12}
 
@@ -73,10 +74,10 @@ def test_the_fmu_adapter_serves_collect(damped_fmu, session_id, serve_in_thread)
     local = fmu()
     ref = collect_windows(local, UniformPolicy((-8.0,), (8.0,)), seed=5, n_windows=3, T=10, start=3)
     local.close()
-    ep = free_endpoint()
+    client, ep = listening_client(session_id)
     served = SimulatorAdapter(fmu())
-    with serve_in_thread(served, session=session_id, id="fmu", listen=[ep]) as s:
-        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+    with serve_in_thread(served, session=session_id, id="fmu", connect=[ep]) as s:
+        with client as c:
             c.connect_sim("fmu", timeout=20)
             x, u = c.collect("fmu", seed=5, block=1, block_windows=3, steps=10, policy={"kind": "uniform", "low": -8, "high": 8})
             assert remote_code(lambda: c.collect("fmu", 5, 0, 3, 10, policy={"kind": "planned"})) == "unsupported"
@@ -101,9 +102,9 @@ class Decay(koopbridge.Adapter):
 
 
 def test_a_plain_adapter_is_collected_with_its_reset_and_step(session_id, serve_in_thread):
-    ep = free_endpoint()
-    with serve_in_thread(Decay(), session=session_id, id="d", listen=[ep]) as s:
-        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+    client, ep = listening_client(session_id)
+    with serve_in_thread(Decay(), session=session_id, id="d", connect=[ep]) as s:
+        with client as c:
             c.connect_sim("d", timeout=20)
             x, u = c.collect("d", seed=1, block=0, block_windows=5, steps=4)
             again, _ = c.collect("d", seed=1, block=0, block_windows=5, steps=4)

@@ -8,12 +8,11 @@ import numpy as np
 import pytest
 
 import koopbridge
-from conftest import free_endpoint
 from koopbridge import InvalidInput
 from koopbridge.adapters.drake_model import VELOCITY_LIMITS, robosuite_mjcf
 from koopbridge.adapters.drake_sim import DrakeGen3Sim
 from koopbridge.serving import SimulatorAdapter
-from koopbridge.testing import check_adapter
+from koopbridge.testing import check_adapter, listening_client
 
 
 @pytest.fixture(scope="module")
@@ -121,10 +120,10 @@ def test_collect_executes_plans_into_windows(sim):
 
 
 def test_adapter_over_zenoh_keeps_serving_after_errors(serve_in_thread, session_id):
-    ep = free_endpoint()
+    client, ep = listening_client(session_id)
     adapter = SimulatorAdapter(DrakeGen3Sim())
-    with serve_in_thread(adapter, session=session_id, id="gen3", listen=[ep]):
-        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+    with serve_in_thread(adapter, session=session_id, id="gen3", connect=[ep]):
+        with client as c:
             info = c.connect_sim("gen3", timeout=20)
             assert info["kind"] == "drake" and info["extra"]["drake"]["joints"][0] == "Actuator1"
             x = c.reset("gen3", seed=1)

@@ -8,13 +8,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import koopbridge
-from conftest import free_endpoint
 from koopbridge import InvalidInput, SimulatorAdapter, Unsupported
 from koopbridge.adapters.drake_sim import DrakeGen3Sim
 from koopbridge.adapters.drake_windows import PlannedPolicy, plan_for
 from koopbridge.collect import PlannedPolicy as SdkPlannedPolicy
 from koopbridge.collect import collect_windows, policy_from_json
+from koopbridge.testing import listening_client
 
 
 @pytest.fixture(scope="module")
@@ -86,9 +85,9 @@ def test_planned_policy_is_one_sdk_type_and_unsupported_without_a_planner(sim):
 
 def test_the_drake_adapter_serves_the_planned_policy_over_zenoh(sim, session_id, serve_in_thread):
     local = sim.collect(PlannedPolicy(2), 11, 3, 15, start=2)
-    ep = free_endpoint()
-    with serve_in_thread(SimulatorAdapter(DrakeGen3Sim()), session=session_id, id="gen3", listen=[ep]) as s:
-        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+    client, ep = listening_client(session_id)
+    with serve_in_thread(SimulatorAdapter(DrakeGen3Sim()), session=session_id, id="gen3", connect=[ep]) as s:
+        with client as c:
             c.connect_sim("gen3", timeout=30)
             x, u = c.collect("gen3", seed=11, block=1, block_windows=2, windows=2, steps=15, policy={"kind": "planned", "windows_per_plan": 2})
             x1, _ = c.collect("gen3", seed=11, block=2, block_windows=2, windows=1, steps=15, policy={"kind": "planned", "windows_per_plan": 2})

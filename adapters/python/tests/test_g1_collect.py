@@ -13,12 +13,12 @@ pytest.importorskip("mujoco")
 pytest.importorskip("onnxruntime")
 
 import koopbridge  # noqa: E402
-from conftest import free_endpoint  # noqa: E402
 from koopbridge import SimulatorAdapter  # noqa: E402
 from koopbridge.adapters import g1_model as g  # noqa: E402
 from koopbridge.adapters.g1_sim import G1Simulator  # noqa: E402
 from koopbridge.adapters.legged_policy import next_phase  # noqa: E402
 from koopbridge.collect import UniformPolicy  # noqa: E402
+from koopbridge.testing import listening_client  # noqa: E402
 
 try:
     g.model_file(), g.policy_file()
@@ -68,9 +68,9 @@ def test_expert_noise_records_the_targets_applied(sim):
 
 
 def test_expert_and_uniform_through_a_zenoh_collect_request(sim, session_id, serve_in_thread):
-    ep = free_endpoint()
-    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id="g1", listen=[ep]) as served:
-        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+    client, ep = listening_client(session_id)
+    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id="g1", connect=[ep]) as served:
+        with client as c:
             c.connect_sim("g1", timeout=20)
             xe, ue = c.collect("g1", seed=4, block=1, block_windows=2, steps=5, policy=SHORT)
             ref = sim.collect(sim.expert_policy(SHORT), 4, 2, 5, start=2)

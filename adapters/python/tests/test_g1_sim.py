@@ -15,13 +15,11 @@ import pytest
 mujoco = pytest.importorskip("mujoco")
 ort = pytest.importorskip("onnxruntime")
 
-import koopbridge  # noqa: E402
-from conftest import free_endpoint  # noqa: E402
 from koopbridge import SimulatorAdapter  # noqa: E402
 from koopbridge.adapters import g1_model as g  # noqa: E402
 from koopbridge.adapters.g1_sim import G1Simulator  # noqa: E402
 from koopbridge.adapters.legged_collect import ExpertPolicy  # noqa: E402
-from koopbridge.testing import check_adapter  # noqa: E402
+from koopbridge.testing import check_adapter, listening_client  # noqa: E402
 
 try:
     g.model_file(), g.policy_file()
@@ -219,9 +217,9 @@ def test_a_fall_arrives_in_the_step_reply_over_zenoh(session_id, serve_in_thread
     squat = stand.copy()
     squat[[0, 6]] = -2.0  # hip pitch
     squat[[3, 9]] = 3.0  # knee, past its limit 2.8798: clipped
-    ep = free_endpoint()
-    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id="g1", listen=[ep]) as served:
-        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+    client, ep = listening_client(session_id)
+    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id="g1", connect=[ep]) as served:
+        with client as c:
             c.connect_sim("g1", timeout=20)
             c.reset("g1", seed=5)
             replies = [c.step("g1", stand, with_status=True) for _ in range(5)]

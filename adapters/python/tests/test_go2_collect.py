@@ -14,12 +14,12 @@ pytest.importorskip("mujoco")
 pytest.importorskip("onnxruntime")
 
 import koopbridge  # noqa: E402
-from conftest import free_endpoint  # noqa: E402
 from koopbridge import SimulatorAdapter  # noqa: E402
 from koopbridge.adapters import go2_model as g  # noqa: E402
 from koopbridge.adapters.go2_sim import Go2Simulator  # noqa: E402
 from koopbridge.adapters.legged_collect import ExpertPolicy  # noqa: E402
 from koopbridge.collect import UniformPolicy  # noqa: E402
+from koopbridge.testing import listening_client  # noqa: E402
 
 try:
     g.package_files()
@@ -88,9 +88,9 @@ def test_pushes_land_between_windows(sim):
 
 
 def test_uniform_targets_through_a_zenoh_collect_request(sim, session_id, serve_in_thread):
-    ep = free_endpoint()
-    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id="go2", listen=[ep]) as served:
-        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+    client, ep = listening_client(session_id)
+    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id="go2", connect=[ep]) as served:
+        with client as c:
             c.connect_sim("go2", timeout=20)
             x, u = c.collect("go2", seed=4, block=1, block_windows=3, steps=5)
             here = sim.collect(UniformPolicy(), 4, 3, 5, start=3)

@@ -13,13 +13,11 @@ import pytest
 mujoco = pytest.importorskip("mujoco")
 ort = pytest.importorskip("onnxruntime")
 
-import koopbridge  # noqa: E402
-from conftest import free_endpoint  # noqa: E402
 from koopbridge import SimulatorAdapter  # noqa: E402
 from koopbridge.adapters import go2_model as g  # noqa: E402
 from koopbridge.adapters.go2_sim import Go2Simulator  # noqa: E402
 from koopbridge.adapters.legged_collect import ExpertPolicy  # noqa: E402
-from koopbridge.testing import check_adapter  # noqa: E402
+from koopbridge.testing import check_adapter, listening_client  # noqa: E402
 
 try:
     g.package_files()
@@ -215,14 +213,14 @@ def _fallen_from_state(x: np.ndarray) -> bool:
 def test_a_fall_arrives_in_the_step_reply_over_zenoh(session_id, serve_in_thread):
     sim = Go2Simulator(on_fall=None)
     info = sim.info()
-    ep = free_endpoint()
+    client, ep = listening_client(session_id)
     # Legs folded in hard, the calf targets past their limit (-0.838 rad, so clipped to it): the
     # body drops onto the floor.
     folded = np.array([0.0, 3.4, -0.5, 0.0, 3.4, -0.5, 0.0, 4.5, -0.5, 0.0, 4.5, -0.5])
     outside = bool(np.any(folded > np.array(info.u_max)) or np.any(folded < np.array(info.u_min)))
     assert outside, "the folded targets must lie outside the bounds for this test"
-    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id="go2", listen=[ep]) as served:
-        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id="go2", connect=[ep]) as served:
+        with client as c:
             c.connect_sim("go2", timeout=20)
             c.reset("go2", seed=5)
             replies = [c.step("go2", np.array(g.DEFAULT_POSE), with_status=True) for _ in range(5)]

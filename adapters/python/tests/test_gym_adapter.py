@@ -23,7 +23,7 @@ import koopbridge  # noqa: E402
 from conftest import ROOT, Child, free_endpoint, koopbridge_binary_or_skip  # noqa: E402
 from koopbridge import InvalidInput, SimulatorAdapter, Unsupported  # noqa: E402
 from koopbridge.adapters.gym_sim import GymError, GymSimulator  # noqa: E402
-from koopbridge.testing import check_adapter, sample_inputs  # noqa: E402
+from koopbridge.testing import check_adapter, listening_client, sample_inputs  # noqa: E402
 
 ENVS = ("InvertedPendulum-v5", "Reacher-v5")
 
@@ -67,9 +67,9 @@ def test_served_steps_equal_direct_env_steps(env_id, session_id, serve_in_thread
     info = sim.info()
     us = sample_inputs(info, 15, seed=4)
     env, raw = _direct(env_id)
-    ep = free_endpoint()
-    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id="g", listen=[ep]) as served:
-        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+    client, ep = listening_client(session_id)
+    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id="g", connect=[ep]) as served:
+        with client as c:
             c.connect_sim("g", timeout=20)
             x = c.reset("g", seed=11)
             env.reset(seed=11)
@@ -140,9 +140,9 @@ def test_termination_is_reported_and_stepping_goes_on(session_id, serve_in_threa
     ended: list[str] = []
     sim = GymSimulator("InvertedPendulum-v5", on_episode_end=ended.append)
     env, raw = _direct("InvertedPendulum-v5")
-    ep = free_endpoint()
-    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id="p", listen=[ep]) as served:
-        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+    client, ep = listening_client(session_id)
+    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id="p", connect=[ep]) as served:
+        with client as c:
             c.connect_sim("p", timeout=20)
             c.reset("p", seed=1)
             env.reset(seed=1)
@@ -184,9 +184,9 @@ def test_truncation_is_reported_and_stepping_goes_on():
 
 def test_truncation_arrives_in_the_step_reply(session_id, serve_in_thread):
     sim = GymSimulator("Reacher-v5", make_kwargs={"max_episode_steps": 3}, on_episode_end=None)
-    ep = free_endpoint()
-    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id="r", listen=[ep]) as served:
-        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+    client, ep = listening_client(session_id)
+    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id="r", connect=[ep]) as served:
+        with client as c:
             c.connect_sim("r", timeout=20)
             for episode in range(2):
                 c.reset("r", seed=episode)
@@ -202,9 +202,9 @@ def test_bad_requests_get_typed_errors_and_serving_goes_on(session_id, serve_in_
     sim = GymSimulator("Reacher-v5")
     with pytest.raises(InvalidInput, match="not reset yet"):
         sim.step([0.0, 0.0])
-    ep = free_endpoint()
-    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id="r", listen=[ep]) as served:
-        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+    client, ep = listening_client(session_id)
+    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id="r", connect=[ep]) as served:
+        with client as c:
             c.connect_sim("r", timeout=20)
             x = c.reset("r", seed=3)
             cases = [

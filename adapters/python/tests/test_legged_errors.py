@@ -16,8 +16,8 @@ pytest.importorskip("mujoco")
 pytest.importorskip("onnxruntime")
 
 import koopbridge  # noqa: E402
-from conftest import free_endpoint  # noqa: E402
 from koopbridge import InvalidInput, SimulatorAdapter, Unsupported  # noqa: E402
+from koopbridge.testing import listening_client  # noqa: E402
 
 
 def _go2() -> Any:
@@ -95,9 +95,9 @@ def test_typed_errors_over_zenoh_and_serving_goes_on(robot, session_id, serve_in
     name, Sim = robot
     sim = Sim()
     stand = _stand(sim)
-    ep = free_endpoint()
-    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id=name, listen=[ep]) as served:
-        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+    client, ep = listening_client(session_id)
+    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id=name, connect=[ep]) as served:
+        with client as c:
             c.connect_sim(name, timeout=20)
             x = c.reset(name, seed=3)
             wild = x.copy()

@@ -10,11 +10,11 @@ import pytest
 pytest.importorskip("mujoco")
 
 import koopbridge  # noqa: E402
-from conftest import free_endpoint  # noqa: E402
 from koopbridge import InvalidInput, SimulatorAdapter  # noqa: E402
 from koopbridge.adapters.mujoco_model import HOME  # noqa: E402
 from koopbridge.adapters.mujoco_sim import FrankaSimulator  # noqa: E402
 from koopbridge.collect import UniformPolicy, collect_windows, policy_from_json  # noqa: E402
+from koopbridge.testing import listening_client  # noqa: E402
 
 SPEC_POLICY = UniformPolicy(low=(-0.12,) * 7, high=(0.12,) * 7)
 
@@ -41,9 +41,9 @@ def test_deterministic_resumable_and_specs_ranges(sim):
 def test_collected_windows_equal_the_lockstep_path(sim, session_id, serve_in_thread):
     w = sim.collect(SPEC_POLICY, seed=7, n_windows=3, T=15)
     served_sim = FrankaSimulator()
-    ep = free_endpoint()
-    with serve_in_thread(SimulatorAdapter(served_sim), session=session_id, id="arm", listen=[ep]) as served:
-        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+    client, ep = listening_client(session_id)
+    with serve_in_thread(SimulatorAdapter(served_sim), session=session_id, id="arm", connect=[ep]) as served:
+        with client as c:
             c.connect_sim("arm", timeout=20)
             for i in range(3):
                 np.testing.assert_array_equal(c.reset("arm", seed=int(w.reset_seeds[i])), w.x[i, 0])

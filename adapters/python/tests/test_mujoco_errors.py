@@ -13,11 +13,11 @@ import pytest
 pytest.importorskip("mujoco")
 
 import koopbridge  # noqa: E402
-from conftest import free_endpoint  # noqa: E402
 from koopbridge import InvalidInput, SimulatorAdapter  # noqa: E402
 from koopbridge.adapters import mujoco_model  # noqa: E402
 from koopbridge.adapters.mujoco_model import ModelError  # noqa: E402
 from koopbridge.adapters.mujoco_sim import FrankaSimulator, SimFailure  # noqa: E402
+from koopbridge.testing import listening_client  # noqa: E402
 
 
 def test_bad_commands_and_resets_in_process():
@@ -55,9 +55,9 @@ def test_unstable_step_is_a_failure_and_a_reset_recovers(tmp_path, monkeypatch):
 def test_typed_errors_over_zenoh_and_serving_goes_on(session_id, serve_in_thread, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # MuJoCo logs its warnings to ./MUJOCO_LOG.TXT
     sim = FrankaSimulator()
-    ep = free_endpoint()
-    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id="arm", listen=[ep]) as served:
-        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+    client, ep = listening_client(session_id)
+    with serve_in_thread(SimulatorAdapter(sim), session=session_id, id="arm", connect=[ep]) as served:
+        with client as c:
             c.connect_sim("arm", timeout=20)
             x = c.reset("arm", seed=3)
             cases = [

@@ -15,7 +15,7 @@ import koopbridge
 from conftest import reset_state
 from koopbridge import InvalidInput, SimInfo, SimulatorAdapter, Unsupported
 from koopbridge.adapters.fmu_sim import FmuSimulator
-from koopbridge.testing import check_adapter
+from koopbridge.testing import check_adapter, listening_client
 
 
 class Decay:
@@ -232,11 +232,9 @@ def test_simulator_adapter_collects_through_any_simulator():
 
 
 def test_siminfo_from_an_info_reply(session_id, serve_in_thread):
-    from conftest import free_endpoint
-
-    ep = free_endpoint()
-    with serve_in_thread(SimulatorAdapter(Decay()), session=session_id, id="d", listen=[ep]):
-        with koopbridge.Client(session=session_id, connect=[ep]) as c:
+    client, ep = listening_client(session_id)
+    with serve_in_thread(SimulatorAdapter(Decay()), session=session_id, id="d", connect=[ep]):
+        with client as c:
             reply = c.connect_sim("d", timeout=10)
     info = SimInfo.from_dict(reply)
     assert info.env == "decay" and info.extra["units"] == ["m", "m/s"] and info.nx == 2
