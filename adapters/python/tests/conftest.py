@@ -7,13 +7,14 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-import threading
 import uuid
 from pathlib import Path
 from typing import Self
 
 import numpy as np
 import pytest
+
+from koopbridge.testing import ServedOnThread
 
 ROOT = Path(__file__).resolve().parents[3]
 FMU_DIR = ROOT / "adapters" / "fmu" / "build"
@@ -46,36 +47,10 @@ def session_id() -> str:
     return "t" + uuid.uuid4().hex[:12]
 
 
-class Served:
-    """An adapter served on a background thread; stopped and joined on exit."""
-
-    def __init__(self, adapter, **kw) -> None:
-        self.adapter = adapter
-        self.stats = None
-        self.error: BaseException | None = None
-        self.thread = threading.Thread(target=self._run, kwargs=kw, daemon=True)
-
-    def _run(self, **kw) -> None:
-        try:
-            self.stats = self.adapter.serve(**kw)
-        except BaseException as e:  # reported by the test
-            self.error = e
-
-    def __enter__(self) -> Self:
-        self.thread.start()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        if exc[1] is not None and self.error is not None:
-            exc[1].add_note(f"serve() on the background thread had failed: {self.error!r}")
-        self.adapter.stop()
-        self.thread.join(timeout=10)
-        assert not self.thread.is_alive(), "serve() did not return after stop()"
-
-
 @pytest.fixture
 def serve_in_thread():
-    return Served
+    """``koopbridge.testing.ServedOnThread``: an adapter served on a background thread."""
+    return ServedOnThread
 
 
 def fmu_adapter_cmd(fmu: Path, session: str, sim_id: str, *extra: str) -> list[str]:

@@ -42,7 +42,7 @@ class Linear(koopbridge.Adapter):
 
 def test_lockstep_steps_errors_and_stop(session_id, serve_in_thread):
     sim = Linear()
-    client, ep = listening_client(session_id)  # multicast scouting is off: the client connects to the adapter
+    client, ep = listening_client(session_id)  # multicast scouting is off: the adapter connects to the client
     with serve_in_thread(sim, session=session_id, id="lin", connect=[ep]) as served:
         with client as c:
             info = c.connect_sim("lin", timeout=10)

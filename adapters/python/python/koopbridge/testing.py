@@ -6,7 +6,7 @@ from __future__ import annotations
 import socket
 import threading
 import uuid
-from typing import Any
+from typing import Any, Self
 
 import numpy as np
 
@@ -14,7 +14,7 @@ from ._native import Client, InvalidInput, RemoteError, Unsupported
 from .serving import SimulatorAdapter
 from .simulator import SimInfo, Simulator
 
-__all__ = ["check_adapter", "listening_client", "sample_inputs"]
+__all__ = ["ServedOnThread", "check_adapter", "listening_client", "sample_inputs"]
 
 
 def _fail(msg: str) -> None:
@@ -78,6 +78,37 @@ def listening_client(session: str, *, tries: int = 5) -> tuple[Client, str]:
             if "Address already in use" not in str(e) or attempt + 1 == tries:
                 raise
     raise AssertionError("unreachable")
+
+
+class ServedOnThread:
+    """``adapter.serve(**kw)`` on a background thread, as a context manager: started on entry,
+    stopped and joined (10 s) on exit. ``stats`` is what serve() returned, ``error`` what it
+    raised; an exception leaving the ``with`` block gets serve()'s failure added as a note (a
+    client's timeout then names the failed bind behind it)."""
+
+    def __init__(self, adapter: Any, **kw: Any) -> None:
+        self.adapter = adapter
+        self.stats: Any = None
+        self.error: BaseException | None = None
+        self.thread = threading.Thread(target=self._run, kwargs=kw, daemon=True)
+
+    def _run(self, **kw: Any) -> None:
+        try:
+            self.stats = self.adapter.serve(**kw)
+        except BaseException as e:  # kept for the caller
+            self.error = e
+
+    def __enter__(self) -> Self:
+        self.thread.start()
+        return self
+
+    def __exit__(self, exc_type: object, exc: BaseException | None, tb: object) -> None:
+        if exc is not None and self.error is not None:
+            exc.add_note(f"serve() on the background thread had failed: {self.error!r}")
+        self.adapter.stop()
+        self.thread.join(timeout=10)
+        if self.thread.is_alive():
+            _fail("serve() still running 10 s after stop()")
 
 
 def check_adapter(sim: Simulator, *, seed: int = 1, steps: int = 5, atol: float = 1e-9, zenoh: bool = True, timeout: float = 20.0) -> SimInfo:
@@ -156,69 +187,52 @@ def check_adapter(sim: Simulator, *, seed: int = 1, steps: int = 5, atol: float 
 
 def _check_served(adapter: SimulatorAdapter, info: SimInfo, us: np.ndarray, a: np.ndarray, reset: dict[str, Any], timeout: float) -> None:
     session, sim_id = "check" + uuid.uuid4().hex[:10], "sim0"
-    result: dict[str, Any] = {}
-
-    def serve(**kw: Any) -> None:
-        try:
-            result["stats"] = adapter.serve(session=session, id=sim_id, **kw)
-        except BaseException as e:  # reported below
-            result["error"] = e
-
     client, ep = listening_client(session)
-    th = threading.Thread(target=serve, kwargs={"connect": [ep]}, daemon=True)
-    th.start()
-    try:
-        with client as c:
-            reply = c.connect_sim(sim_id, timeout=timeout)
-            for key in ("env", "kind", "version", "state_names", "input_names", "angle_indices"):
-                if reply[key] != getattr(info, key):
-                    _fail(f"info reply's {key} is {reply[key]!r}, the simulator says {getattr(info, key)!r}")
-            if reply["dt"] != info.dt or reply.get("extra", {}) != info.extra:
-                _fail("info reply's dt or extra differs from the simulator's SimInfo")
-            x = c.reset(sim_id, **reset)
-            if not np.array_equal(x, a[0]):
-                _fail("reset over Zenoh differs from the in-process reset")
-            for i, u in enumerate(us):
-                k, t, x = c.step(sim_id, u)
-                if k != i + 1 or not np.array_equal(x, a[i + 1]):
-                    _fail(f"step {i} over Zenoh: k = {k}, state differs from in-process by {np.max(np.abs(x - a[i + 1])):.3g}")
-            n = len(us)
-            if n:
-                k, _, x = c.step_at(sim_id, n - 1, us[-1])
-                if k != n or not np.array_equal(x, a[n]):
-                    _fail("a repeated step request was not answered with the first reply")
-            if n and info.nu:
-                try:
-                    c.step_at(sim_id, n - 1, us[-1] * 0.5 + 0.25)
-                    _fail("a repeated step k with another u was accepted")
-                except RemoteError as e:
-                    if e.code != "conflict":
-                        _fail(f"a repeated step k with another u gave {e.code}, expected conflict")
-            for bad, code in ((np.zeros(info.nu + 1), "dimension"), (np.full(info.nu, np.nan), "bad_request")):
-                if bad.size == 0:
-                    continue
-                try:
-                    c.step(sim_id, bad)
-                    _fail(f"step with {bad} was accepted")
-                except RemoteError as e:
-                    if e.code != code:
-                        _fail(f"step with {bad} gave {e.code}, expected {code}")
-            stats = c.connect_sim(sim_id, timeout=timeout)["stats"]
-            if stats["steps"] != n or stats["cache_hits"] != (1 if n else 0):
-                _fail(f"adapter counters after {n} steps and one repeat: {stats}")
-            if n:
-                k, _, _ = c.step(sim_id, us[0])
-                if k != n + 1:
-                    _fail(f"after the refused requests the next step has k = {k}, expected {n + 1}")
-    except BaseException as e:
-        if "error" in result:
-            e.add_note(f"check_adapter: serve() had failed: {result['error']!r}")
-        raise
-    finally:
-        adapter.stop()
-        th.join(timeout=10)
-    if th.is_alive() or "error" in result:
-        _fail(f"serve() did not end cleanly: {result.get('error', 'still running after stop()')}")
+    served = ServedOnThread(adapter, session=session, id=sim_id, connect=[ep])
+    with served, client as c:
+        reply = c.connect_sim(sim_id, timeout=timeout)
+        for key in ("env", "kind", "version", "state_names", "input_names", "angle_indices"):
+            if reply[key] != getattr(info, key):
+                _fail(f"info reply's {key} is {reply[key]!r}, the simulator says {getattr(info, key)!r}")
+        if reply["dt"] != info.dt or reply.get("extra", {}) != info.extra:
+            _fail("info reply's dt or extra differs from the simulator's SimInfo")
+        x = c.reset(sim_id, **reset)
+        if not np.array_equal(x, a[0]):
+            _fail("reset over Zenoh differs from the in-process reset")
+        for i, u in enumerate(us):
+            k, t, x = c.step(sim_id, u)
+            if k != i + 1 or not np.array_equal(x, a[i + 1]):
+                _fail(f"step {i} over Zenoh: k = {k}, state differs from in-process by {np.max(np.abs(x - a[i + 1])):.3g}")
+        n = len(us)
+        if n:
+            k, _, x = c.step_at(sim_id, n - 1, us[-1])
+            if k != n or not np.array_equal(x, a[n]):
+                _fail("a repeated step request was not answered with the first reply")
+        if n and info.nu:
+            try:
+                c.step_at(sim_id, n - 1, us[-1] * 0.5 + 0.25)
+                _fail("a repeated step k with another u was accepted")
+            except RemoteError as e:
+                if e.code != "conflict":
+                    _fail(f"a repeated step k with another u gave {e.code}, expected conflict")
+        for bad, code in ((np.zeros(info.nu + 1), "dimension"), (np.full(info.nu, np.nan), "bad_request")):
+            if bad.size == 0:
+                continue
+            try:
+                c.step(sim_id, bad)
+                _fail(f"step with {bad} was accepted")
+            except RemoteError as e:
+                if e.code != code:
+                    _fail(f"step with {bad} gave {e.code}, expected {code}")
+        stats = c.connect_sim(sim_id, timeout=timeout)["stats"]
+        if stats["steps"] != n or stats["cache_hits"] != (1 if n else 0):
+            _fail(f"adapter counters after {n} steps and one repeat: {stats}")
+        if n:
+            k, _, _ = c.step(sim_id, us[0])
+            if k != n + 1:
+                _fail(f"after the refused requests the next step has k = {k}, expected {n + 1}")
+    if served.error is not None:
+        _fail(f"serve() did not end cleanly: {served.error}")
     stats = adapter.serve(session=session, id="free0", free_run=True, rate_hz=1000.0, steps=3, **reset)
     if stats["steps"] != 3 or stats["published"] != 4:
         _fail(f"free run of 3 steps: counters {stats}")

@@ -12,7 +12,6 @@ import argparse
 import json
 import math
 import sys
-import threading
 import time
 import uuid
 from collections.abc import Sequence
@@ -76,24 +75,18 @@ def _zenoh_collect(sim: Any, policy: dict[str, Any], windows: int, T: int) -> fl
     """Seconds for one Zenoh ``collect`` request of ``windows`` windows; None when the bridge
     does not carry the policy kind."""
     from ..serving import SimulatorAdapter
-    from ..testing import listening_client
+    from ..testing import ServedOnThread, listening_client
 
     adapter, session = SimulatorAdapter(sim), "speed" + uuid.uuid4().hex[:8]
     client, ep = listening_client(session)
-    th = threading.Thread(target=adapter.serve, kwargs=dict(session=session, id="go2", connect=[ep]), daemon=True)
-    th.start()
-    try:
-        with client as c:
-            c.connect_sim("go2", timeout=20)
-            t0 = time.perf_counter()
-            try:
-                c.collect("go2", seed=1, block=0, block_windows=windows, steps=T, policy=policy)
-            except ValueError:
-                return None
-            return time.perf_counter() - t0
-    finally:
-        adapter.stop()
-        th.join(timeout=10)
+    with ServedOnThread(adapter, session=session, id="go2", connect=[ep]), client as c:
+        c.connect_sim("go2", timeout=20)
+        t0 = time.perf_counter()
+        try:
+            c.collect("go2", seed=1, block=0, block_windows=windows, steps=T, policy=policy)
+        except ValueError:
+            return None
+        return time.perf_counter() - t0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
