@@ -1,7 +1,8 @@
 //! `scenarios/go2-survival.toml` end to end at a smoke budget, in several processes over Zenoh
 //! (issue 25): the Go2 adapter's expert collects through the `collect` request, the trainer
 //! service trains the z-scored Koopman model and EDMD, and the before-control hook tracks held-out
-//! expert references with the MPC service — the survival table (floor and both models, finite),
+//! expert references with the MPC service, SPEC's formulation and the recommended error-state
+//! controller — the survival table (floor and every row, finite),
 //! its plots and the MCAP recording are written under the run's folder.
 
 use std::path::PathBuf;
@@ -80,11 +81,36 @@ fn go2_survival_scenario_runs_collect_train_and_the_survival_hook() {
         row("open-loop replay"),
         row("go2-survival-go2 (koopman)"),
         row("go2-survival-go2-edmd (edmd)"),
+        row("go2-survival-go2+error-state (koopman)"),
+        row("go2-survival-go2-edmd+error-state (edmd)"),
     ] {
         let mean = r["mean"].as_f64().unwrap();
         assert!(r["n"] == 2 && (0.0..=40.0).contains(&mean), "{r}");
     }
     assert_eq!(report["task"]["steps"], 40);
+    // The recommended controller's settings (docs/decisions/0017): Q on the joint positions only.
+    let es = &report["task"]["error_state"];
+    assert!(es["q"].as_str().unwrap().starts_with("joints"), "{es}");
+    assert_eq!(es["r"], 1.0);
+    let q = report["models"]["go2-survival-go2+error-state"]["weights"]["q"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no weights.q in {}", report["models"]));
+    let weighted: Vec<usize> = (0..q.len())
+        .filter(|&i| q[i].as_f64().unwrap() > 0.0)
+        .collect();
+    assert_eq!(
+        weighted,
+        (10..22).collect::<Vec<_>>(),
+        "Q's weighted states"
+    );
+    // The collection ran the noisy expert the file asks for.
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("data/go2/train.json")).unwrap()).unwrap();
+    assert!(
+        meta["policy"].to_string().contains("expert+noise"),
+        "the training data's policy: {}",
+        meta["policy"]
+    );
     for f in ["survival.png", "tracking.png", "tracking.mcap", "table.md"] {
         let len = std::fs::metadata(survival.join(f)).map(|m| m.len());
         assert!(len.is_ok_and(|n| n > 0), "{f} missing or empty");

@@ -134,10 +134,13 @@ def test_the_g1_survival_toml_through_koopbridge_run(tmp_path):
     assert r.returncode == 0, r.stderr[-3000:]
     rep = json.loads((out / "survival" / "report.json").read_text())
     rows = {row["controller"]: row for row in rep["table"]}
-    assert set(rows) == {"open-loop replay (floor)", "g1-survival-g1 (koopman)"}
+    assert set(rows) == {"open-loop replay (floor)", "g1-survival-g1 (koopman)", "g1-survival-g1+error-state (koopman)"}
     for row in rows.values():
         assert row["n"] == 2 and np.isfinite(row["mean"]) and 0 <= row["min"] <= row["mean"] <= row["max"] <= 40, row
     assert rep["task"]["held"] == "locked" and rep["task"]["steps"] == 40
+    # The recommended controller (docs/decisions/0017): Q on the 21 joint positions only, R = I.
+    q = rep["models"]["g1-survival-g1+error-state"]["weights"]["q"]
+    assert [i for i, w in enumerate(q) if w > 0] == list(range(10, 31)) and rep["task"]["error_state"]["r"] == 1.0
     assert json.loads((out / "report.json").read_text())["train"][0]["model"] == "g1-survival-g1"
     assert (out / "models" / "g1-survival-g1" / "config.json").is_file()
     shutil.rmtree(out, ignore_errors=True)

@@ -111,6 +111,25 @@ def test_q_zscore_is_identity_on_the_models_normalised_state(tmp_path):
     assert go2_survival.q_weights("1," * 34 + "2", [], 35)[0][-1] == 2.0
 
 
+def test_q_joints_keeps_the_zscore_weights_of_the_joint_positions_only(tmp_path):
+    std = np.linspace(0.5, 4.0, 35)
+    m = go2_survival.ModelEntry(tmp_path, "m", {"kind": "koopman", "normalisation": {"x_std": std.tolist()}})
+    q, source = go2_survival.q_weights("joints", [m], 35, joints=slice(10, 22))
+    want = np.where((np.arange(35) >= 10) & (np.arange(35) < 22), 1.0 / std**2, 0.0)
+    np.testing.assert_allclose(q, want)
+    assert source.startswith("joints") and "10..21" in source
+    with pytest.raises(go2_survival.SetupError, match="names no joint"):
+        go2_survival.q_weights("joints", [m], 35)
+
+
+def test_a_negative_or_nan_error_state_r_exits_2(tmp_path, capsys):
+    (tmp_path / "m").mkdir()
+    (tmp_path / "m" / "config.json").write_text('{"kind": "koopman"}')
+    for bad in ("-1", "nan"):
+        assert go2_survival.main(["--model", str(tmp_path / "m"), "--error-state-r", bad, "--out", str(tmp_path / "o")]) == 2
+        assert "--error-state-r must be finite" in capsys.readouterr().err
+
+
 def test_the_replay_floor_through_the_adapter_equals_the_replay_in_process(tmp_path, session_id):
     from koopbridge import Client
     from koopbridge.adapters.go2_sim import Go2Simulator

@@ -316,30 +316,43 @@ def _fall_rule(robot: LeggedRobot, info: dict[str, Any]) -> Any:
     return rule.fallen
 
 
-def q_weights(spec: str, models: list[ModelEntry], nx: int, refs: Sequence[Reference] = ()) -> tuple[list[float] | None, str]:
+def q_weights(spec: str, models: list[ModelEntry], nx: int, refs: Sequence[Reference] = (), joints: slice | None = None) -> tuple[list[float] | None, str]:
     """The diagonal of Q and where it comes from: ``identity`` (None: Q = I on the raw state),
     ``zscore`` (Q = I on the z-scored state: 1/σ² with σ the first ``--normalise`` model's state
-    statistics, else the references' own; the same Q for every model) or ``nx`` comma-separated
-    weights."""
+    statistics, else the references' own; the same Q for every model), ``joints`` (the z-scored
+    weights on the ``joints`` slice, the joint positions survival scores, and 0 on every other
+    state) or ``nx`` comma-separated weights."""
     if spec == "identity":
         return None, "identity (raw units)"
-    if spec == "zscore":
-        for m in models:
-            norm = m.config.get("normalisation")
-            if norm:
-                std = np.asarray(norm["x_std"], float)
-                return (1.0 / np.maximum(std, 1e-8) ** 2).tolist(), f"zscore: 1/std^2 of {m.label}'s normalisation (its train pool)"
-        if refs:
-            std = np.concatenate([r.x for r in refs]).std(axis=0)
-            return (1.0 / np.maximum(std, 1e-8) ** 2).tolist(), "zscore: 1/std^2 of the reference states (no normalised model given)"
-        raise SetupError("--q zscore needs a model trained with --normalise or references")
+    if spec in ("zscore", "joints"):
+        w, source = _zscore_weights(models, refs)
+        if spec == "zscore":
+            return w, f"zscore: {source}"
+        if joints is None:
+            raise SetupError("--q joints: this task names no joint positions")
+        keep = np.zeros(nx, bool)
+        keep[joints] = True
+        return [v if keep[i] else 0.0 for i, v in enumerate(w)], f"joints: {source}, on states {joints.start}..{joints.stop - 1} only"
     try:
         w = [float(v) for v in spec.split(",")]
     except ValueError as e:
-        raise SetupError(f"--q {spec!r}: expected identity, zscore or {nx} comma-separated numbers") from e
+        raise SetupError(f"--q {spec!r}: expected identity, zscore, joints or {nx} comma-separated numbers") from e
     if len(w) != nx or not all(np.isfinite(w)) or min(w) < 0:
         raise SetupError(f"--q: {len(w)} weights given, expected {nx} finite numbers >= 0")
     return w, "given"
+
+
+def _zscore_weights(models: list[ModelEntry], refs: Sequence[Reference]) -> tuple[list[float], str]:
+    """1/σ² of the first normalised model's state statistics, else of the references' states."""
+    for m in models:
+        norm = m.config.get("normalisation")
+        if norm:
+            std = np.asarray(norm["x_std"], float)
+            return (1.0 / np.maximum(std, 1e-8) ** 2).tolist(), f"1/std^2 of {m.label}'s normalisation (its train pool)"
+    if refs:
+        std = np.concatenate([r.x for r in refs]).std(axis=0)
+        return (1.0 / np.maximum(std, 1e-8) ** 2).tolist(), "1/std^2 of the reference states (no normalised model given)"
+    raise SetupError("--q zscore / joints needs a model trained with --normalise or references")
 
 
 def run(robot: LeggedRobot, a: argparse.Namespace, refs: list[Reference] | None = None) -> dict[str, Any]:
@@ -364,22 +377,20 @@ def run(robot: LeggedRobot, a: argparse.Namespace, refs: list[Reference] | None 
         if refs[0].x.shape[1] != nx or refs[0].u.shape[1] != nu:
             raise SetupError(f"the references are {refs[0].x.shape[1]}/{refs[0].u.shape[1]}-D, the adapter {nx}/{nu}-D")
         fallen = _fall_rule(robot, info)
-        q, q_source = q_weights(a.q, models, nx, refs)
-        mpc_cfg: dict[str, Any] = dict(horizon=a.horizon, u_min=list(info["u_min"]), u_max=list(info["u_max"]))
-        if q is not None:
-            mpc_cfg["q"] = q
-        if a.r > 0:
-            mpc_cfg["r"] = [a.r] * nu
+        q, q_source = q_weights(a.q, models, nx, refs, lay.q)
+        mpc_cfg = _mpc_settings(a.horizon, info, q, a.r)
+        es_q, es_q_source = q_weights(a.error_state_q, models, nx, refs, lay.q)
+        es_cfg = _mpc_settings(a.horizon, info, es_q, a.error_state_r)
         floor: list[Rollout] = [replay(c, sim_id, r, fallen, threshold=a.threshold, layout=lay) for r in refs]
         print(f"{prog}: replay floor {stats([f.survival for f in floor])}", file=sys.stderr, flush=True)
         results: dict[str, Any] = {}
         runs: dict[str, list[Rollout]] = {}
         for m in models:
-            conf = br.configure(m, **mpc_cfg)
-            if conf.get("nx") != nx or conf.get("nu") != nu:
-                raise SetupError(f"model {m.path} is {conf.get('nx')}/{conf.get('nu')}-D (nx/nu); the {robot.title} is {nx}/{nu}-D")
             modes = [False] + ([True] if a.error_state and m.kind in ("koopman", "edmd") else [])
             for es in modes:
+                conf = br.configure(m, **(es_cfg if es else mpc_cfg))
+                if conf.get("nx") != nx or conf.get("nu") != nu:
+                    raise SetupError(f"model {m.path} is {conf.get('nx')}/{conf.get('nu')}-D (nx/nu); the {robot.title} is {nx}/{nu}-D")
                 label = f"{m.label}+error-state" if es else m.label
                 t = time.perf_counter()
                 rs = []
@@ -390,11 +401,25 @@ def run(robot: LeggedRobot, a: argparse.Namespace, refs: list[Reference] | None 
                         print(f"{prog}: {label} reference {i}: survival {rs[-1].survival} (floor {floor[i].survival})", file=sys.stderr, flush=True)
                 runs[label] = rs
                 results[label] = _entry(m, conf, rs, floor, a.steps, time.perf_counter() - t, es)
+                cfg = es_cfg if es else mpc_cfg
+                results[label]["weights"] = dict(q=cfg.get("q"), r=cfg.get("r"))
                 print(f"{prog}: {label} ({m.kind}) {results[label]['survival']}", file=sys.stderr, flush=True)
-    report = _report(robot, a, models, refs, floor, results, runs, info, q_source, ref_s)
+    error_state = dict(q=es_q_source, r=a.error_state_r) if a.error_state else None
+    report = _report(robot, a, models, refs, floor, results, runs, info, q_source, ref_s, error_state)
     report["task"]["skipped_rollouts"] = skipped
     write_atomic(str(out / "report.json"), lambda f: f.write(json.dumps(report, indent=2).encode()))  # type: ignore[attr-defined]
     return report
+
+
+def _mpc_settings(horizon: int, info: dict[str, Any], q: list[float] | None, r: float) -> dict[str, Any]:
+    """The MPC service's settings: horizon, the adapter's input bounds, Q's diagonal (None: I)
+    and R = r·I (none when r = 0)."""
+    cfg: dict[str, Any] = dict(horizon=horizon, u_min=list(info["u_min"]), u_max=list(info["u_max"]))
+    if q is not None:
+        cfg["q"] = q
+    if r > 0:
+        cfg["r"] = [r] * len(info["u_min"])
+    return cfg
 
 
 def _entry(m: ModelEntry, conf: dict[str, Any], rs: list[Rollout], floor: list[Rollout], cap: int, wall: float, error_state: bool) -> dict[str, Any]:
@@ -415,7 +440,8 @@ def _entry(m: ModelEntry, conf: dict[str, Any], rs: list[Rollout], floor: list[R
 
 
 def _report(robot: LeggedRobot, a: argparse.Namespace, models: list[ModelEntry], refs: list[Reference], floor: list[Rollout], results: dict[str, Any],
-            runs: dict[str, list[Rollout]], info: dict[str, Any], q_source: str, ref_s: float) -> dict[str, Any]:
+            runs: dict[str, list[Rollout]], info: dict[str, Any], q_source: str, ref_s: float,
+            error_state: dict[str, Any] | None = None) -> dict[str, Any]:
     out = Path(a.out)
     fallen = _fall_rule(robot, info)
     floor_s = [f.survival for f in floor]
@@ -461,7 +487,7 @@ def _report(robot: LeggedRobot, a: argparse.Namespace, models: list[ModelEntry],
             held_out=robot.held_out.format(seed=a.seed),
             start=robot.start,
             metric=f"survival = steps until mean_j |q_j - q_ref_j| > {a.threshold} rad or a fall (base < min height or tilted), capped at {a.steps}",
-            horizon=a.horizon, q=q_source, r=a.r,
+            horizon=a.horizon, q=q_source, r=a.r, error_state=error_state,
             bounds="the joint limits (the adapter's u_min/u_max)", stop_at_failure=not a.continue_after_failure, references_s=round(ref_s, 1),
             **robot.task(a)),
         table=table,
@@ -481,7 +507,8 @@ def markdown_table(report: dict[str, Any]) -> str:
     """The survival table of ``report`` as Markdown (one row per controller, the floor first)."""
     t = report["task"]
     lines = [f"Survival steps over {t['references']} held-out references of {t['steps']} steps ({t['metric']}; Q {t['q']}, "
-             f"H {t['horizon']}, R = {t['r']})", "",
+             f"H {t['horizon']}, R = {t['r']}" + (f"; error-state rows: Q {es['q']}, R = {es['r']}" if (es := t.get("error_state")) else "")
+             + ")", "",
              "| controller | mean | std | sem | median | q25-q75 | min-max | at cap | above / below floor | solve median (p99) us |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     models = report["models"]
@@ -512,7 +539,11 @@ def parser(robot: LeggedRobot, description: str) -> argparse.ArgumentParser:
                    "dominated by the joint velocities) or nx comma-separated weights (default: %(default)s)")
     p.add_argument("--r", type=float, default=0.0, help="R = r I (default: %(default)s, SPEC)")
     p.add_argument("--error-state", action="store_true", help="also run, for each Koopman/EDMD model, the error-state MPC about the "
-                   "reference (its state as the plan, the expert's targets as feed-forward): not SPEC's formulation, a row beside it")
+                   "reference (its state as the plan, the expert's targets as feed-forward, R on the deviation from them): the "
+                   "recommended legged controller with --error-state-q/--error-state-r, a row beside SPEC's")
+    p.add_argument("--error-state-q", default="joints", help="Q of the error-state rows, as --q, or joints: the z-scored weights on "
+                   "the joint positions survival scores and 0 on every other state (default: %(default)s; docs/decisions/0017)")
+    p.add_argument("--error-state-r", type=float, default=1.0, help="R = r I on u - u_ff in the error-state rows (default: %(default)s)")
     p.add_argument("--continue-after-failure", action="store_true", help="run each reference to its end (or a fall) after the error "
                    "threshold is crossed: more on-policy data (survival is the same)")
     p.add_argument("--window-steps", type=int, default=15, help="transitions per on-policy window (default: %(default)s, the data's T)")
@@ -532,6 +563,9 @@ def main(robot: LeggedRobot, argv: Sequence[str] | None = None, description: str
     a = parser(robot, description).parse_args(argv)
     if a.references < 1 or a.steps < 1 or a.horizon < 1 or a.window_steps < 1 or not a.threshold > 0:
         print(f"{robot.prog}: --references, --steps, --horizon, --window-steps must be >= 1 and --threshold > 0", file=sys.stderr)
+        return 2
+    if not (np.isfinite(a.r) and a.r >= 0 and np.isfinite(a.error_state_r) and a.error_state_r >= 0):
+        print(f"{robot.prog}: --r and --error-state-r must be finite numbers >= 0", file=sys.stderr)
         return 2
     try:
         model_entries(a.model)
