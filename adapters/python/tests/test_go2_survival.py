@@ -122,6 +122,13 @@ def test_q_joints_keeps_the_zscore_weights_of_the_joint_positions_only(tmp_path)
         go2_survival.q_weights("joints", [m], 35)
 
 
+def test_the_scenario_driver_refuses_a_negative_noise(tmp_path, capsys):
+    from koopbridge.experiments import go2_scenario
+
+    assert go2_scenario.main(["--out", str(tmp_path / "o"), "--noise", "-0.1"]) == 2
+    assert "--noise must be a finite number >= 0" in capsys.readouterr().err
+
+
 def test_a_negative_or_nan_error_state_r_exits_2(tmp_path, capsys):
     (tmp_path / "m").mkdir()
     (tmp_path / "m" / "config.json").write_text('{"kind": "koopman"}')
@@ -181,8 +188,11 @@ def test_the_pipeline_on_a_tiny_model(tmp_path):
     from koopbridge.experiments import go2_scenario
 
     out = tmp_path / "run"
-    rc = go2_scenario.main(["--out", str(out), "--models", "both,edmd,nndm", "--aggregate", "1", "--references", "3", "--steps", "30"])
+    rc = go2_scenario.main(["--out", str(out), "--models", "both,edmd,nndm", "--aggregate", "1", "--references", "3", "--steps", "30",
+                            "--noise", "0.1"])
     assert rc == 0
+    # The expert collected with noise on its targets (--noise, recorded in the data's metadata).
+    assert "expert+noise" in json.loads((out / "data" / "collect.json").read_text())["policy"]["kind"]
     s = json.loads((out / "scenario.json").read_text())
     assert [r["round"] for r in s["rounds"]] == [0, 1]
     for rnd in s["rounds"]:

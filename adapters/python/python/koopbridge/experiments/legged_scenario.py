@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import subprocess
 import sys
 import time
@@ -139,7 +140,10 @@ def parser(sr: ScenarioRobot, description: str) -> argparse.ArgumentParser:
     p.add_argument("--references", type=int, help="held-out references (budget's default)")
     p.add_argument("--steps", type=int, help="reference length, steps (budget's default)")
     p.add_argument("--q", default="zscore", help=f"{sr.robot.prog} --q (default: %(default)s)")
-    p.add_argument("--error-state", action="store_true", help=f"{sr.robot.prog} --error-state: also the error-state MPC rows")
+    p.add_argument("--error-state", action="store_true", help=f"{sr.robot.prog} --error-state: also the recommended controller's rows "
+                   "(error-state MPC, Q on the joints, R = I)")
+    p.add_argument("--noise", type=float, default=0.0, help=f"{sr.data} --noise: sigma (rad) on the expert's targets while collecting "
+                   "(default: %(default)s, the paper's expert data; the scenario files use 0.2, docs/decisions/0017)")
     p.add_argument("--threads", type=int, default=2, help="training threads (default: %(default)s)")
     sr.add_args(p)
     return p
@@ -167,6 +171,9 @@ def main(sr: ScenarioRobot, argv: Sequence[str] | None = None, description: str 
     if bad or a.aggregate < 0 or min(b["iterations"], b["references"], b["steps"], b["n_mult"], b["validate_every"]) < 1:
         print(f"{prog}: unknown models {bad} (known: {list(VARIANTS)}) or a count < 1", file=sys.stderr)
         return 2
+    if not (math.isfinite(a.noise) and a.noise >= 0):
+        print(f"{prog}: --noise must be a finite number >= 0, got {a.noise}", file=sys.stderr)
+        return 2
     out = Path(a.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -178,7 +185,7 @@ def main(sr: ScenarioRobot, argv: Sequence[str] | None = None, description: str 
         if not a.data:
             _run([sys.executable, "-m", f"koopbridge.experiments.{sr.data}", "--out", str(data), "--windows", str(b["windows"]),
                   "--train", str(b["train"]), "--val", str(b["val"]), "--windows-per-episode", str(b["windows_per_episode"]),
-                  "--block", str(b["block"]), "--procs", str(b["procs"]), *flags], out / "logs" / "collect.log", prog)
+                  "--block", str(b["block"]), "--procs", str(b["procs"]), "--noise", str(a.noise), *flags], out / "logs" / "collect.log", prog)
         summary["data"] = str(data)
         summary["collect_s"] = round(time.perf_counter() - t0, 1)
         skipped: list[dict[str, Any]] = []
