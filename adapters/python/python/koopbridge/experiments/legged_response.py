@@ -216,11 +216,12 @@ def _plot(path: Path, results: dict[str, Any]) -> None:
         ax[1].plot(hs, [row["zscored_state"]["cosine"] for row in r["response"]["horizons"]], ls="--", label=f"{label} z-scored state")
         ax[2].plot(hs, [row["nominal_joint_error_rad"] for row in r["response"]["horizons"]], marker="o", label=label)
     first = next(iter(results.values()))["response"]["horizons"]
-    ax[2].plot([row["h"] for row in first], [row["sim_joint_gain"] / 12 for row in first], color="k", ls=":", label="sim joint gain / 12")
+    ax[1].plot([row["h"] for row in first], [row["constant_share_joints"] for row in first], color="k", ls=":",
+               label="share a state-independent response explains")
     ax[0].axhline(1, color="k", lw=0.5)
     ax[0].axhline(0, color="k", lw=0.5)
     ax[0].set(title="input response: projection on the simulator's", xlabel="steps after the input (h)", ylabel="⟨G_model, G_sim⟩ / ‖G_sim‖²")
-    ax[1].set(title="input response: cosine", xlabel="h", ylabel="cosine")
+    ax[1].set(title="input response: cosine", xlabel="h", ylabel="cosine / share")
     ax[2].set(title="nominal prediction error along the replay", xlabel="h", ylabel="mean |q_model − q_sim| (rad)")
     for a in ax:
         a.grid(alpha=0.3)
