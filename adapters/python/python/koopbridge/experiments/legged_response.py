@@ -263,22 +263,22 @@ def main(argv: Sequence[str] | None = None) -> int:
         models = []
         for d in a.model:
             try:
-                models.append((Path(d).name, KoopmanModel.load(d)))
+                models.append((Path(d).name, Path(d).resolve(), KoopmanModel.load(d)))
             except Exception as e:  # noqa: BLE001 - the loader's own error, named
                 raise SetupError(f"--model {d}: not a Koopman model folder ({e})") from e
-        for label, m in models:
+        for label, _, m in models:
             if (m.nx, m.nu) != (robot.nx, robot.nu):
                 raise SetupError(f"--model {label} is {m.nx}/{m.nu}-D; the {robot.title} is {robot.nx}/{robot.nu}-D")
         refs = references(robot, a.references, a.steps or robot.steps)
         results: dict[str, Any] = {}
-        for label, m in models:
+        for label, path, m in models:
             norm = m.normalisation
             scale = np.asarray(norm["x_std"], float) if norm else np.concatenate([r.x for r in refs]).std(axis=0)
             scale = np.maximum(scale, 1e-8)
             samples = response_along(robot, m, refs, every=a.every, horizon=a.horizon, delta=a.delta)
             if not samples:
                 raise SetupError("no sample: every replay fell before the horizon fits")
-            results[label] = dict(dir=str(Path(a.model[len(results)]).resolve()), response=summarise(samples, robot.layout.q, scale),
+            results[label] = dict(dir=str(path), response=summarise(samples, robot.layout.q, scale),
                                   prediction=prediction_by_origin(m, a.windows, robot.layout.q, scale, a.windows_limit))
     except SetupError as e:
         print(f"legged_response: {e}", file=sys.stderr)
