@@ -83,6 +83,14 @@ fn every_setting_has_a_row() {
         "phase",
         "role",
         "offset_free",
+        "references",
+        "survival",
+        "continue_after_failure",
+        "error_state",
+        "label",
+        "replay",
+        "q_from_data",
+        "onpolicy_steps",
     ] {
         assert!(row(key), "scenarios/README.md has no row for `{key}`");
     }

@@ -1,9 +1,10 @@
 //! `scenarios/go2-survival.toml` end to end at a smoke budget, in several processes over Zenoh
 //! (issue 25): the Go2 adapter's expert collects through the `collect` request, the trainer
-//! service trains the z-scored Koopman model and EDMD, and the before-control hook tracks held-out
-//! expert references with the MPC service, SPEC's formulation and the recommended error-state
-//! controller — the survival table (floor and every row, finite),
-//! its plots and the MCAP recording are written under the run's folder.
+//! service trains the z-scored Koopman model and EDMD, the before-control hook writes held-out
+//! expert references, and the scenario engine tracks them (issue 47) with the MPC service, SPEC's
+//! formulation and the recommended error-state controller — the survival rows (replay and every
+//! model, finite), the table and plot — with the same survival per reference and the same
+//! on-policy windows as the Python loop that ran this task before.
 
 use std::path::PathBuf;
 use std::process::Command;
@@ -26,7 +27,7 @@ fn shrink(mut text: String, edits: &[(&str, &str)]) -> String {
 }
 
 #[test]
-fn go2_survival_scenario_runs_collect_train_and_the_survival_hook() {
+fn go2_survival_scenario_tracks_in_the_engine_as_the_python_loop_did() {
     if !root().join(".venv/bin/python").exists() {
         panic!(".venv is missing: run scripts/setup-python.sh (the README's test command does)");
     }
@@ -67,34 +68,40 @@ fn go2_survival_scenario_runs_collect_train_and_the_survival_hook() {
     let stderr = String::from_utf8_lossy(&run.stderr);
     assert!(run.status.success(), "koopbridge run failed:\n{stderr}");
 
-    let survival = out.join("survival");
     let report: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(survival.join("report.json")).unwrap()).unwrap();
-    let table = report["table"].as_array().unwrap();
-    let row = |name: &str| {
-        table
-            .iter()
-            .find(|r| r["controller"].as_str().unwrap().starts_with(name))
-            .unwrap_or_else(|| panic!("no '{name}' row in {table:?}"))
-    };
-    for r in [
-        row("open-loop replay"),
-        row("go2-survival-go2 (koopman)"),
-        row("go2-survival-go2-edmd (edmd)"),
-        row("go2-survival-go2+error-state (koopman)"),
-        row("go2-survival-go2-edmd+error-state (edmd)"),
-    ] {
-        let mean = r["mean"].as_f64().unwrap();
-        assert!(r["n"] == 2 && (0.0..=40.0).contains(&mean), "{r}");
-    }
-    assert_eq!(report["task"]["steps"], 40);
-    // The recommended controller's settings (docs/decisions/0017): Q on the joint positions only.
-    let es = &report["task"]["error_state"];
-    assert!(es["q"].as_str().unwrap().starts_with("joints"), "{es}");
-    assert_eq!(es["r"], 1.0);
-    let q = report["models"]["go2-survival-go2+error-state"]["weights"]["q"]
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    let tasks = report["tracking"]
         .as_array()
-        .unwrap_or_else(|| panic!("no weights.q in {}", report["models"]));
+        .expect("report.json has `tracking`");
+    assert_eq!(tasks.len(), 2, "SPEC's task and the error-state one");
+    let row = |task: usize, name: &str| {
+        let rows = tasks[task]["rows"].as_array().unwrap();
+        rows.iter()
+            .find(|r| r["row"] == name)
+            .unwrap_or_else(|| panic!("no row '{name}' in task {task}: {rows:?}"))
+            .clone()
+    };
+    let rows = [
+        row(0, "replay"),
+        row(0, "go2-survival-go2"),
+        row(0, "go2-survival-go2-edmd"),
+        row(1, "go2-survival-go2+error-state"),
+        row(1, "go2-survival-go2-edmd+error-state"),
+    ];
+    for r in &rows {
+        let mean = r["survival"]["mean"].as_f64().unwrap();
+        assert!(
+            r["survival"]["n"] == 2 && (0.0..=40.0).contains(&mean),
+            "{r}"
+        );
+    }
+    assert_eq!(tasks[0]["steps"], 40);
+    // The recommended controller's settings (docs/decisions/0017): Q on the joint positions only,
+    // R = I.
+    let es = &rows[3]["mpc"];
+    let q = es["q"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no mpc.q in {es}"));
     let weighted: Vec<usize> = (0..q.len())
         .filter(|&i| q[i].as_f64().unwrap() > 0.0)
         .collect();
@@ -103,6 +110,71 @@ fn go2_survival_scenario_runs_collect_train_and_the_survival_hook() {
         (10..22).collect::<Vec<_>>(),
         "Q's weighted states"
     );
+    assert!(es["r"].as_array().unwrap().iter().all(|v| v == 1.0), "{es}");
+    for f in ["tracking/survival.png", "tracking/table.md"] {
+        let len = std::fs::metadata(out.join(f)).map(|m| m.len());
+        assert!(len.is_ok_and(|n| n > 0), "{f} missing or empty");
+    }
+
+    // Before and after the loop moved into the engine: the Python loop (`legged_survival`, the
+    // scenario's hook until issue 47) on the same references and models gives the same survival
+    // per reference and the same on-policy windows, row by row.
+    let py = out.join("python-loop");
+    let run = Command::new(root().join(".venv/bin/python"))
+        .args([
+            "-m",
+            "koopbridge.experiments.go2_survival",
+            "--references-file",
+        ])
+        .arg(out.join("references/go2.npz"))
+        .args([
+            "--steps",
+            "40",
+            "--error-state",
+            "--no-plot",
+            "--no-mcap",
+            "--model",
+        ])
+        .arg(out.join("models/go2-survival-go2"))
+        .arg("--model")
+        .arg(out.join("models/go2-survival-go2-edmd"))
+        .arg("--out")
+        .arg(&py)
+        .current_dir(root())
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "the Python loop failed:\n{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let before: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(py.join("report.json")).unwrap()).unwrap();
+    assert_eq!(
+        before["floor"]["survivals"], rows[0]["survivals"],
+        "the replay row"
+    );
+    for r in &rows[1..] {
+        let name = r["row"].as_str().unwrap();
+        assert_eq!(
+            before["models"][name]["survivals"], r["survivals"],
+            "survival per reference of {name}"
+        );
+        let windows = r["onpolicy"]["windows"].as_u64().unwrap();
+        assert_eq!(before["onpolicy"][name]["windows"], windows, "{name}");
+        if windows > 0 {
+            let engine = koopman::data::Dataset::load_npz(std::path::Path::new(
+                r["onpolicy"]["path"].as_str().unwrap(),
+            ))
+            .unwrap();
+            let python =
+                koopman::data::Dataset::load_npz(&py.join(format!("onpolicy/{name}.npz"))).unwrap();
+            assert!(
+                engine.x == python.x && engine.u == python.u,
+                "the on-policy windows of {name} differ"
+            );
+        }
+    }
     // The collection ran the noisy expert the file asks for.
     let meta: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("data/go2/train.json")).unwrap()).unwrap();
@@ -111,14 +183,7 @@ fn go2_survival_scenario_runs_collect_train_and_the_survival_hook() {
         "the training data's policy: {}",
         meta["policy"]
     );
-    for f in ["survival.png", "tracking.png", "tracking.mcap", "table.md"] {
-        let len = std::fs::metadata(survival.join(f)).map(|m| m.len());
-        assert!(len.is_ok_and(|n| n > 0), "{f} missing or empty");
-    }
-    // The model the hook tracked is the one this run trained.
-    let trained: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
-    assert_eq!(trained["train"][0]["model"], "go2-survival-go2");
+    assert_eq!(report["train"][0]["model"], "go2-survival-go2");
     assert!(out.join("models/go2-survival-go2/config.json").is_file());
     std::fs::remove_dir_all(&out).ok();
     std::fs::remove_file(&file).ok();

@@ -22,11 +22,13 @@ pub mod collect;
 mod data_region;
 pub mod extras;
 mod region;
+pub mod track;
 pub mod train;
 mod train_names;
 
 pub use collect::{CollectSpec, Policy};
 pub use extras::{CommandLine, HookPhase, HookSpec, ParticipantRole, ParticipantSpec};
+pub use track::{QFromData, SurvivalSpec, TrackSpec};
 pub use train::TrainSpec;
 
 use data_region::with_x0_box;
@@ -49,9 +51,15 @@ pub struct Scenario {
     #[serde(default)]
     pub train: Option<TrainSpec>,
     /// Closed-loop control (through the MPC service): one `[control]` table, or one
-    /// `[[control]]` entry per controlled simulator (all stepped in one lockstep loop).
+    /// `[[control]]` entry per controlled simulator (all stepped in one lockstep loop). The
+    /// entries with `references` are tracking tasks and move to [`Scenario::tracks`] when the
+    /// file is parsed.
     #[serde(default, deserialize_with = "one_or_many")]
     pub control: Vec<ControlSpec>,
+    /// The tracking tasks (`[control]` entries with `references`, [`TrackSpec`]), run one after
+    /// another after the lockstep loop of the others. Not a TOML field of its own.
+    #[serde(skip)]
+    pub tracks: Vec<TrackSpec>,
     /// Commands run at fixed phases of the run (`[[hooks]]`).
     #[serde(default)]
     pub hooks: Vec<HookSpec>,
@@ -165,7 +173,9 @@ impl SimSpec {
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ControlSpec {
-    /// Initial state (`nx` values) of the controlled simulator.
+    /// Initial state (`nx` values) of the controlled simulator (not with `references`: each
+    /// reference starts from its own first state).
+    #[serde(default)]
     pub x0: Vec<f64>,
     /// Reference state (`nx` values, or `horizon·nx`: the stacked x_1..x_H); exactly one of
     /// `reference` and `reference_file`.
@@ -190,8 +200,35 @@ pub struct ControlSpec {
     /// that no MPC weighting of the model does (docs/log/2026-12.md, session 8).
     #[serde(default)]
     pub position_loop: Option<PositionLoopSpec>,
-    /// Closed-loop steps.
+    /// Closed-loop steps (with `references`: at most this many per reference, default all).
+    #[serde(default)]
     pub steps: usize,
+    /// A tracking task ([`TrackSpec`]): an `.npz` of references, `x` (N, T+1, nx) and `u`
+    /// (N, T, nu) (the inputs that realised them), the layout of a collected dataset; one
+    /// closed loop per reference from its first state, and the replay row.
+    #[serde(default)]
+    pub references: Option<String>,
+    /// The survival metric of a tracking task ([`SurvivalSpec`]).
+    #[serde(default)]
+    pub survival: Option<SurvivalSpec>,
+    /// A tracking task runs each reference to its end (or a fall) after the threshold is crossed.
+    #[serde(default)]
+    pub continue_after_failure: bool,
+    /// A tracking task plans about each reference with its inputs as feed-forward.
+    #[serde(default)]
+    pub error_state: bool,
+    /// A tracking task's row suffix (`{model}+{label}`).
+    #[serde(default)]
+    pub label: Option<String>,
+    /// Whether a tracking task runs the replay row (default true).
+    #[serde(default)]
+    pub replay: Option<bool>,
+    /// A tracking task's Q from the training data's spread ([`QFromData`]).
+    #[serde(default)]
+    pub q_from_data: Option<QFromData>,
+    /// Transitions per on-policy window of a tracking task (default: `[collect]`'s T).
+    #[serde(default)]
+    pub onpolicy_steps: Option<usize>,
     /// `koopman::mpc::MpcConfig` fields to override (JSON object).
     #[serde(default)]
     pub mpc: serde_json::Map<String, serde_json::Value>,
@@ -249,10 +286,38 @@ impl Scenario {
 
     /// Parses and validates scenario text.
     pub fn parse(text: &str) -> Result<Self> {
-        let s: Scenario = toml::from_str(text).map_err(|e| Error::Config(e.to_string()))?;
+        let mut s: Scenario = toml::from_str(text).map_err(|e| Error::Config(e.to_string()))?;
+        s.split_tracks()?;
         s.validate()?;
         s.check_settings()?;
         Ok(s)
+    }
+
+    /// Moves the `[control]` entries with `references` (tracking tasks) to [`Scenario::tracks`];
+    /// an error names a key that does not fit its entry.
+    pub fn split_tracks(&mut self) -> Result<()> {
+        let mut plain = Vec::new();
+        for c in std::mem::take(&mut self.control) {
+            let id = self.controlled_id(&c).to_string();
+            match TrackSpec::of(&c, &id)? {
+                Some(t) => {
+                    if self
+                        .tracks
+                        .iter()
+                        .any(|o| o.label == t.label && self.tracked_id(o) == id)
+                    {
+                        return Err(Error::Config(format!(
+                            "simulator '{id}' has two tracking entries labelled {:?}: give each a distinct `label`",
+                            t.label.as_deref().unwrap_or("(none)")
+                        )));
+                    }
+                    self.tracks.push(t)
+                }
+                None => plain.push(c),
+            }
+        }
+        self.control = plain;
+        Ok(())
     }
 
     /// Checks names, counts and references.
@@ -297,7 +362,16 @@ impl Scenario {
         for j in 0..self.sims.len() {
             self.sim_region(j)?;
         }
-        if !self.control.is_empty() && self.train.is_none() {
+        for t in &self.tracks {
+            if let Some(id) = &t.sim {
+                if !self.sims.iter().any(|s| &s.id == id) {
+                    return Err(Error::Config(format!(
+                        "control.sim '{id}' is not among [[sims]]"
+                    )));
+                }
+            }
+        }
+        if !(self.control.is_empty() && self.tracks.is_empty()) && self.train.is_none() {
             return Err(Error::Config(
                 "[control] needs [train] (the model comes from training)".into(),
             ));
@@ -392,6 +466,14 @@ impl Scenario {
                 ))
             })?;
         }
+        for t in &self.tracks {
+            serde_json::from_value::<koopman::mpc::MpcConfig>(serde_json::Value::Object(
+                t.mpc.clone(),
+            ))
+            .map_err(|e| {
+                Error::Config(format!("[control].mpc for '{}': {e}", self.tracked_id(t)))
+            })?;
+        }
         if let Policy::Uniform { low, high } = &self.collect.policy {
             data_region::check_bounds("collect.policy", ["`low`", "`high`"], low, high)?;
         }
@@ -404,6 +486,21 @@ impl Scenario {
             .as_ref()
             .and_then(|id| self.sims.iter().position(|s| &s.id == id))
             .unwrap_or(0)
+    }
+
+    /// The index in `sims` of the simulator a tracking task drives (`sim`, else the first).
+    pub fn tracked_index(&self, t: &TrackSpec) -> usize {
+        t.sim
+            .as_ref()
+            .and_then(|id| self.sims.iter().position(|s| &s.id == id))
+            .unwrap_or(0)
+    }
+
+    /// The id of the simulator a tracking task drives.
+    pub fn tracked_id(&self, t: &TrackSpec) -> &str {
+        self.sims
+            .get(self.tracked_index(t))
+            .map_or("", |s| s.id.as_str())
     }
 
     /// The id of the simulator a control entry drives.

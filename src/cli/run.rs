@@ -274,6 +274,18 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             Err(e) => eprintln!("warning: could not draw {}: {e:#}", png.display()),
         }
     }
+    if !report.tracking.is_empty() {
+        for line in bridge::orchestrator::tracking::table(&report.tracking).lines() {
+            println!("  {line}");
+        }
+        let png = out_dir.join("tracking").join("survival.png");
+        if report.tracking.iter().any(|t| t.survival.is_some()) {
+            match plot_survival(&report.tracking, &png) {
+                Ok(()) => println!("  plot: {}", png.display()),
+                Err(e) => eprintln!("warning: could not draw {}: {e:#}", png.display()),
+            }
+        }
+    }
     println!("  report: {}", path.display());
     // Repeated at the end, where they are not lost among the progress lines.
     for w in &report.warnings {
@@ -385,6 +397,49 @@ fn plot_aggregation(
         });
     }
     time_series_png(path, "on-policy aggregation", "round", &panels, 900)
+}
+
+/// The tracking tasks' survival curves: per task, the share of references each row still tracked
+/// after k steps (a cumulative histogram of the survival steps; the replay row dashed).
+fn plot_survival(
+    tasks: &[bridge::orchestrator::tracking::TrackReport],
+    path: &std::path::Path,
+) -> anyhow::Result<()> {
+    use crate::plot::{time_series_png, Panel, Series};
+    let mut panels = Vec::new();
+    for task in tasks.iter().filter(|t| t.survival.is_some()) {
+        let t: Vec<f64> = (0..=task.steps).map(|k| k as f64).collect();
+        let series = task
+            .rows
+            .iter()
+            .enumerate()
+            .map(|(i, row)| {
+                let n = row.survivals.len().max(1) as f64;
+                let share: Vec<f64> = (0..=task.steps)
+                    .map(|k| row.survivals.iter().filter(|&&s| s >= k).count() as f64 / n)
+                    .collect();
+                let s = Series::new(&row.row, &t, &share).colored(i);
+                if row.model.is_none() {
+                    s.dashed()
+                } else {
+                    s
+                }
+            })
+            .collect();
+        panels.push(Panel {
+            title: format!(
+                "{}{}: share of {} references still tracked",
+                task.sim,
+                task.label
+                    .as_ref()
+                    .map_or(String::new(), |l| format!(" [{l}]")),
+                task.references
+            ),
+            y_label: "share".into(),
+            series,
+        });
+    }
+    time_series_png(path, "survival", "step", &panels, 900)
 }
 
 #[cfg(test)]

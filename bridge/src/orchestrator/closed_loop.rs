@@ -138,6 +138,9 @@ pub struct ControlTask<'a> {
     /// Publish every executed state on the simulator's `state` key (`StateMsg`, as a free-run
     /// adapter does), so that a recorder can record the closed loop.
     pub publish: bool,
+    /// Apply these inputs open loop (row k at step k, the last past the end) instead of asking
+    /// the MPC service: the replay row of a tracking task.
+    pub replay: Option<&'a [Vec<f64>]>,
 }
 
 /// One simulator's closed loop in progress.
@@ -154,6 +157,8 @@ pub struct ControlRun<'a> {
     step_us: Vec<f64>,
     not_solved: BTreeMap<String, usize>,
     flags: StepFlags,
+    terminated: Vec<bool>,
+    sim_failure: Option<String>,
     publisher: Option<zenoh::pubsub::Publisher<'static>>,
 }
 
@@ -191,6 +196,8 @@ impl<'a> ControlRun<'a> {
             step_us: Vec::new(),
             not_solved: BTreeMap::new(),
             flags: StepFlags::default(),
+            terminated: vec![first.status.terminated()],
+            sim_failure: None,
             publisher,
         };
         run.publish(first.k, first.t, &[])?;
@@ -222,10 +229,39 @@ impl<'a> ControlRun<'a> {
         Ok(())
     }
 
-    /// One step: solve at the current state (the reference window of this step), apply the
-    /// first input, step the simulator.
+    /// The states so far, x_0..x_k.
+    pub fn states(&self) -> &[Vec<f64>] {
+        &self.xs
+    }
+
+    /// Whether each state so far came with a `terminated` flag (a fall), x_0's from the reset.
+    pub fn terminated(&self) -> &[bool] {
+        &self.terminated
+    }
+
+    /// The solve times inside the MPC service so far, µs (none for a replay).
+    pub fn solve_times_us(&self) -> &[f64] {
+        &self.solve_us
+    }
+
+    /// The simulator's refusal that ended the loop ([`ControlRun::fail_step`]), if any.
+    pub fn sim_failure(&self) -> Option<&str> {
+        self.sim_failure.as_deref()
+    }
+
+    /// One step: decide the input ([`ControlRun::decide`]) and step the simulator with it.
     pub fn step(&mut self, client: &Client, live: &Liveliness) -> Result<()> {
+        let u = self.decide(client, live)?;
+        self.apply(u, live)
+    }
+
+    /// The input of the current step: the replayed one, or the MPC service's first planned input
+    /// for the current state (and the reference window of this step).
+    pub fn decide(&mut self, client: &Client, live: &Liveliness) -> Result<Vec<f64>> {
         let k = self.us.len();
+        if let Some(inputs) = self.task.replay {
+            return Ok(inputs[k.min(inputs.len() - 1)].clone());
+        }
         let (r, h) = (self.task.reference, self.task.horizon);
         let (mut reference, mut feedforward) = (r.window(k, h), r.feedforward(k, h));
         if let (Some(pl), Reference::Plan { .. }) = (self.task.position_loop, r) {
@@ -256,15 +292,30 @@ impl<'a> ControlRun<'a> {
                 .entry(status_name(r.status).to_string())
                 .or_default() += 1;
         }
-        let u = r.u[..nu].to_vec();
+        Ok(r.u[..nu].to_vec())
+    }
+
+    /// Steps the simulator with `u` and records the state it brought.
+    pub fn apply(&mut self, u: Vec<f64>, live: &Liveliness) -> Result<()> {
         let t = Instant::now();
         let next = self.sim.step(&u, Some(live))?;
         self.step_us.push(t.elapsed().as_secs_f64() * 1e6);
         self.xs.push(next.x);
+        self.terminated.push(next.status.terminated());
         self.flags.count(self.xs.len() - 1, next.status);
         self.publish(next.k, next.t, &u)?;
         self.us.push(u);
         Ok(())
+    }
+
+    /// Records that the simulator refused to step with `u` (`why`): a non-finite state ends the
+    /// run, so that it scores as a failure at this step.
+    pub fn fail_step(&mut self, u: Vec<f64>, why: String) {
+        let nx = self.info.nx();
+        self.xs.push(vec![f64::NAN; nx]);
+        self.terminated.push(true);
+        self.us.push(u);
+        self.sim_failure = Some(why);
     }
 
     /// The report of the finished loop.

@@ -101,6 +101,7 @@ pub fn control_phase(
                     position_loop: p.position_loop.as_ref(),
                     steps: ctrl.steps,
                     publish,
+                    replay: None,
                 },
             ));
         }

@@ -10,6 +10,8 @@
 //! - [`control_settings`]: a `[control]` entry's simulator, MPC settings and position loop;
 //! - [`diagnose`]: why a control run missed: closed-loop vs test prediction, saturation, next step;
 //! - [`reference`]: fixed and time-varying (`reference_file`) references and their windows;
+//! - [`tracking`]: tracking tasks (`[control] references`): a closed loop per reference and
+//!   model kind beside the replay row, scored by [`survival`]; [`reference_set`] reads them;
 //! - [`commands`]: command placeholders and `[[hooks]]`;
 //! - [`program`]: the program an external command runs (`{python}`, relative paths);
 //! - [`aggregate`]: on-policy aggregation rounds (`--aggregate`);
@@ -32,8 +34,11 @@ pub mod diagnose;
 pub mod position_loop;
 pub mod program;
 pub mod reference;
+pub mod reference_set;
 pub mod reuse;
 pub mod run;
+pub mod survival;
+pub mod tracking;
 pub mod train;
 pub mod validate;
 

@@ -15,6 +15,7 @@ use super::control::{control_phase, ControlPhase};
 use super::control_loop::LoopReport;
 use super::diagnose::{self, ControlDiagnosis};
 use super::reuse;
+use super::tracking::{tracking_phase, TrackReport, TrackingPhase};
 use super::train::{job_config, train_model_as, TrainReport};
 use super::validate::validate_scenario;
 use super::{Cluster, ControlReport, Event, RunOptions};
@@ -57,6 +58,10 @@ pub struct Report {
     /// controlled simulator, the error before and after retraining on the rollouts.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub aggregation: Vec<AggregationRound>,
+    /// The tracking tasks (`[control]` entries with `references`), one per entry: the replay
+    /// row and one row per model kind, paired by reference ([`TrackReport`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub tracking: Vec<TrackReport>,
     /// Per control run, what the numbers say about a miss: the model's prediction error along
     /// the closed loop against the test set, the commands at a bound, one next step
     /// ([`diagnose::diagnose`]).
@@ -105,7 +110,7 @@ fn services_of(sc: &Scenario, extras: &RunExtras) -> Vec<Service> {
     if sc.train.is_some() {
         services.extend([Service::Trainer, Service::Models]);
     }
-    if !sc.control.is_empty() {
+    if !(sc.control.is_empty() && sc.tracks.is_empty()) {
         services.push(Service::Mpc);
     }
     if extras.aggregate > 0 {
@@ -283,6 +288,22 @@ pub fn run_scenario_with(
         }
         controls.extend(c);
     }
+    let tracking = if sc.tracks.is_empty() {
+        Vec::new()
+    } else {
+        tracking_phase(
+            sc,
+            &cluster.client,
+            &cluster.live,
+            &mut clients,
+            &ph,
+            &TrackingPhase {
+                out_dir: &opts.out_dir,
+                kinds: &kinds,
+            },
+            on,
+        )?
+    };
     warnings.extend(aggregation.iter().flat_map(aggregate::round_warnings));
     let diagnoses = diagnose_controls(sc, &opts.out_dir, &controls, &mut clients, on);
     for d in &diagnoses {
@@ -305,10 +326,20 @@ pub fn run_scenario_with(
         models,
         control_loop,
         aggregation,
+        tracking,
         diagnoses,
         warnings,
         wall_seconds: t0.elapsed().as_secs_f64(),
     };
+    if !report.tracking.is_empty() {
+        let dir = opts.out_dir.join("tracking");
+        std::fs::create_dir_all(&dir).map_err(|e| Error::Io {
+            path: dir.clone(),
+            source: e,
+        })?;
+        let table = super::tracking::table(&report.tracking);
+        crate::fsutil::write_atomic(&dir.join("table.md"), table.as_bytes())?;
+    }
     let path = opts.out_dir.join("report.json");
     let bytes = serde_json::to_vec_pretty(&report).map_err(|e| Error::Config(e.to_string()))?;
     crate::fsutil::write_atomic(&path, &bytes)?;

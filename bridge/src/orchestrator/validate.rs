@@ -167,6 +167,30 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
             load_feedforward(&p, infos[j].nu()).map_err(at)?;
         }
     }
+    for t in &sc.tracks {
+        let j = sc.tracked_index(t);
+        let (id, info) = (&sc.sims[j].id, infos[j]);
+        t.check_states(info.nx(), id)?;
+        if info.nu() == 0 {
+            return Err(Error::Config(format!(
+                "[control] for simulator '{id}': no inputs to control: {AUTONOMOUS_MPC}"
+            )));
+        }
+        mpc_config(info, &t.mpc)
+            .map_err(|e| Error::Config(format!("[control] for simulator '{id}': {e}")))?;
+        // A references file that exists already is checked now; one a hook writes, when
+        // control starts.
+        if !t.references.contains("{out}") {
+            let p = std::path::Path::new(&t.references);
+            let p = match &sc.base_dir {
+                Some(b) if p.is_relative() => b.join(p),
+                _ => p.to_path_buf(),
+            };
+            if p.is_file() {
+                super::reference_set::ReferenceSet::load(&p, info.nx(), info.nu())?;
+            }
+        }
+    }
     Ok(())
 }
 

@@ -105,6 +105,19 @@ impl Scenario {
                 )));
             }
         }
+        for t in self.tracks.iter().filter(|t| t.error_state) {
+            if let Some(k) = kinds
+                .iter()
+                .find(|k| matches!(k, ModelKind::Bilinear | ModelKind::Nndm))
+            {
+                return Err(Error::Config(format!(
+                    "[control] for '{}': model kind '{k}' in [train].model cannot do this: \
+                     `error_state` (the error-state MPC) needs a lifted-linear model (koopman or \
+                     edmd); track it in an entry without `error_state`",
+                    self.tracked_id(t)
+                )));
+            }
+        }
         Ok(())
     }
 }

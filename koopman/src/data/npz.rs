@@ -150,6 +150,24 @@ impl Dataset {
     }
 }
 
+/// Reads the named `.npy` members of an `.npz` archive (numpy's or ours), each `None` when the
+/// archive has no such member; errors name the file and the member.
+pub fn read_npz_arrays(path: &Path, names: &[&str]) -> Result<Vec<Option<npy::NpyArray>>> {
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut zip = zip::ZipArchive::new(std::io::BufReader::new(file))
+        .map_err(|e| Error::format(path, format!("not a readable .npz (zip) archive: {e}")))?;
+    names
+        .iter()
+        .map(|name| {
+            read_member(&mut zip, path, name)?
+                .map(|b| {
+                    npy::decode(&b).map_err(|m| Error::format(path, format!("member {name}: {m}")))
+                })
+                .transpose()
+        })
+        .collect()
+}
+
 /// Writes an uncompressed `.npz` (zip) archive of the given members (name, bytes; arrays made
 /// with [`npy::encode`]) to `path`, atomically.
 pub fn write_npz(path: &Path, members: &[(&str, &[u8])]) -> Result<()> {

@@ -181,6 +181,19 @@ def references(robot: LeggedRobot, n: int, steps: int, seed: int = REFERENCE_SEE
     return make_references(n, steps, seed, sim=sim, probe=robot.simulator(a, 0), policy=robot.policy(sim), skipped=skipped)
 
 
+def references_from_file(path: str, steps: int) -> list[Reference]:
+    """The references of a tracking task's file (``legged_references``: ``x`` (N, T+1, nx), ``u``
+    (N, T, nu)), cut to ``steps`` transitions; ``SetupError`` when it cannot serve."""
+    try:
+        with np.load(path) as z:
+            x, u = np.asarray(z["x"], float), np.asarray(z["u"], float)
+    except (OSError, KeyError, ValueError) as e:
+        raise SetupError(f"--references-file {path}: {e}") from e
+    if x.ndim != 3 or u.shape[:2] != (x.shape[0], x.shape[1] - 1) or x.shape[1] - 1 < steps:
+        raise SetupError(f"--references-file {path}: x {x.shape} and u {u.shape} do not hold {steps}-step references")
+    return [Reference(x=x[i, : steps + 1].copy(), u=u[i, :steps].copy(), index=i, seed=-1) for i in range(len(x))]
+
+
 class SetupError(Exception):
     """Bad input found before or while setting up (a missing model, a wrong nx): exit code 2."""
 
@@ -367,6 +380,8 @@ def run(robot: LeggedRobot, a: argparse.Namespace, refs: list[Reference] | None 
         if None not in dims and dims != (robot.nx, robot.nu):
             raise SetupError(f"model {m.path} is {dims[0]}/{dims[1]}-D (nx/nu, its config.json); the {robot.title} is {robot.nx}/{robot.nu}-D")
     skipped: list[dict[str, Any]] = []
+    if refs is None and a.references_file:
+        refs = references_from_file(a.references_file, a.steps)
     refs = refs or references(robot, a.references, a.steps, a.seed, a, skipped)
     ref_s = time.perf_counter() - t0
     sim_id, mpc_id, lay, prog = robot.sim_id, robot.mpc_id, robot.layout, robot.prog
@@ -530,6 +545,8 @@ def parser(robot: LeggedRobot, description: str) -> argparse.ArgumentParser:
     p.add_argument("--references", type=int, default=50, help="held-out references (default: %(default)s)")
     p.add_argument("--steps", type=int, default=robot.steps, help="reference length L in steps of 0.02 s, the survival cap (default: %(default)s)")
     p.add_argument("--seed", type=int, default=REFERENCE_SEED, help="seed of the references (default: %(default)s; the expert data use 42)")
+    p.add_argument("--references-file", metavar="NPZ", help="track the references of this file (legged_references' output, the "
+                   "scenario engine's `references`) instead of making --references of them")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--horizon", type=int, default=15, help="MPC horizon H (default: %(default)s)")
     p.add_argument("--threshold", type=float, default=robot.threshold, help="mean joint-position error ending survival, rad "

@@ -1,0 +1,619 @@
+//! The tracking phase of a run: each tracking task (`[control]` with `references`) runs one closed
+//! loop per reference from its first state — the same [`ControlRun`] as every closed loop — for
+//! every trained model kind, and the replay row (the references' inputs open loop); scores them
+//! with the survival metric ([`super::survival`]) and writes the closed loops as on-policy
+//! training windows.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use koopman::data::{Dataset, DatasetMeta, Normalisation, Pairing};
+use koopman::mpc::metrics::quantile;
+use koopman::mpc::MpcConfig;
+use serde::{Deserialize, Serialize};
+
+use super::closed_loop::{ControlReport, ControlRun, ControlTask};
+use super::commands::Placeholders;
+use super::control_settings::mpc_config;
+use super::reference::{reference_path, Reference};
+use super::reference_set::ReferenceSet;
+use super::survival::{fails, survival_steps, windows, RunForWindows, Summary};
+use super::{Event, SERVICES_ID};
+use crate::client::{Client, Liveliness, SimClient};
+use crate::error::{Error, ErrorCode, Result};
+use crate::scenario::{Scenario, SurvivalSpec, TrackSpec};
+use crate::services::model_kind::ModelKind;
+use crate::services::mpc::{configure, ConfigureRequest};
+
+/// The name of the replay row.
+pub const REPLAY_ROW: &str = "replay";
+
+/// One tracking task's result: its rows side by side, paired by reference.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct TrackReport {
+    /// The simulator tracked.
+    pub sim: String,
+    /// The task's label (`None`: its rows are the models' names).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub label: Option<String>,
+    /// The references file as read.
+    pub references_file: String,
+    /// How many references.
+    pub references: usize,
+    /// Steps per reference (the survival cap).
+    pub steps: usize,
+    /// The survival metric (absent: each run went to its end).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub survival: Option<SurvivalSpec>,
+    /// Whether runs went on after the threshold was crossed.
+    pub continue_after_failure: bool,
+    /// Whether the models planned about each reference with its inputs as feed-forward.
+    pub error_state: bool,
+    /// The replay row first (when run), then one row per model kind.
+    pub rows: Vec<TrackRow>,
+}
+
+/// One controller over every reference.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct TrackRow {
+    /// The row's name: [`REPLAY_ROW`], or the model's (`{model}+{label}`).
+    pub row: String,
+    /// The model (absent for the replay row).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub model: Option<String>,
+    /// Its kind (`koopman`, `edmd`, ...; absent for the replay row).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kind: Option<String>,
+    /// The MPC settings it solved with (absent for the replay row).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mpc: Option<MpcConfig>,
+    /// Survival steps per reference (empty without a survival metric).
+    pub survivals: Vec<usize>,
+    /// Their summary (`at_cap`: how many reached the cap).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub survival: Option<Summary>,
+    /// References on which this row survived longer / shorter than the replay row.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub above_replay: Option<usize>,
+    /// See `above_replay`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub below_replay: Option<usize>,
+    /// Steps run per reference (a run stops at its first failure unless `continue_after_failure`).
+    pub steps_run: Vec<usize>,
+    /// Tracking RMS over every state and step run, per reference (angles wrapped).
+    pub tracking_rms: Vec<f64>,
+    /// Runs in which the simulator reported a fall (or refused a step).
+    pub falls: usize,
+    /// Median and 99th percentile of the solve time in the service, µs (0 for the replay row).
+    pub solve_median_us: f64,
+    /// See `solve_median_us`.
+    pub solve_p99_us: f64,
+    /// Solves that were not `solved`, by status.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub not_solved_by_status: BTreeMap<String, usize>,
+    /// The simulator's refusals (the first ten), `reference i: message`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub sim_errors: Vec<String>,
+    /// The closed loops as training windows (`.npz`, the dataset layout), for aggregation.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub onpolicy: Option<OnPolicy>,
+    /// Seconds this row took.
+    pub wall_s: f64,
+}
+
+/// Where a row's on-policy windows were written.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct OnPolicy {
+    /// The `.npz` (absent when no run was long enough for a window).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub path: Option<PathBuf>,
+    /// How many windows.
+    pub windows: usize,
+    /// Transitions per window.
+    pub steps: usize,
+}
+
+/// What the tracking phase needs besides the scenario.
+pub struct TrackingPhase<'a> {
+    /// The run's output folder (`tracking/onpolicy/` is written under it; the training data are
+    /// read from `data/{sim}/train.npz` for `q_from_data`).
+    pub out_dir: &'a Path,
+    /// The model kinds trained (one row each).
+    pub kinds: &'a [ModelKind],
+}
+
+/// One run of one row on one reference, as scored.
+struct Scored {
+    report: ControlReport,
+    solve_us: Vec<f64>,
+    terminated: Vec<bool>,
+    failure: Option<String>,
+    survival: Option<usize>,
+}
+
+/// Runs every tracking task of `sc` (in order); `clients[j]` is `sc.sims[j]`'s client.
+pub fn tracking_phase(
+    sc: &Scenario,
+    client: &Client,
+    live: &Liveliness,
+    clients: &mut [SimClient],
+    ph: &Placeholders,
+    what: &TrackingPhase<'_>,
+    on: &mut dyn FnMut(Event<'_>),
+) -> Result<Vec<TrackReport>> {
+    let mut replays: BTreeMap<(usize, PathBuf), (TrackRow, Vec<Scored>)> = BTreeMap::new();
+    let mut out = Vec::new();
+    for t in &sc.tracks {
+        let j = sc.tracked_index(t);
+        let sim_id = sc.sims[j].id.clone();
+        let at = |e: Error| Error::Config(format!("[control] for simulator '{sim_id}': {e}"));
+        let info = clients[j].info.sim.clone();
+        let (nx, nu) = (info.nx(), info.nu());
+        t.check_states(nx, &sim_id)?;
+        let path = reference_path(&t.references, ph);
+        let refs = ReferenceSet::load(&path, nx, nu)?;
+        if (t.error_state || t.replay) && refs.u.is_none() {
+            return Err(at(Error::Config(format!(
+                "{} has no `u` (N, T, nu): {} needs the inputs that realised the references",
+                path.display(),
+                if t.error_state {
+                    "error_state"
+                } else {
+                    "the replay row (set replay = false to skip it)"
+                }
+            ))));
+        }
+        let steps = t.steps.map_or(refs.steps(), |s| s.min(refs.steps()));
+        let mut mpc = mpc_config(&info, &t.mpc).map_err(at)?;
+        if let Some(q) = &t.q_from_data {
+            mpc.q = Some(q_weights_from_data(
+                what.out_dir,
+                &sim_id,
+                q.states.as_deref(),
+                nx,
+            )?);
+        }
+        let window_steps = t.onpolicy_steps.unwrap_or(sc.collect.steps);
+        let mut rows = Vec::new();
+        let replay_scored: Option<Vec<usize>> = if t.replay {
+            let key = (j, path.clone());
+            if !replays.contains_key(&key) {
+                on(Event::Phase(&format!(
+                    "replaying the {} references' inputs open loop on '{sim_id}'",
+                    refs.len()
+                )));
+                let t0 = Instant::now();
+                let mut scored = Vec::new();
+                for i in 0..refs.len() {
+                    let u = &refs.u.as_ref().expect("checked above")[i];
+                    let how = How {
+                        row: Row::Replay(u),
+                        model: "",
+                        horizon: mpc.horizon,
+                        steps,
+                    };
+                    scored.push(run_one(client, live, &mut clients[j], t, &refs, i, how)?);
+                    on(Event::Control(i + 1, refs.len()));
+                }
+                let row = row_of(
+                    REPLAY_ROW,
+                    None,
+                    None,
+                    None,
+                    &scored,
+                    steps,
+                    t0.elapsed().as_secs_f64(),
+                );
+                replays.insert(key.clone(), (row, scored));
+            }
+            let (row, scored) = &replays[&key];
+            rows.push(row.clone());
+            t.survival
+                .as_ref()
+                .map(|_| scored.iter().map(|s| s.survival.unwrap_or(0)).collect())
+        } else {
+            None
+        };
+        for &kind in what.kinds {
+            let model = sc.model_name(&sim_id, kind);
+            let name = t.row(&model);
+            on(Event::Phase(&format!(
+                "tracking {} references on '{sim_id}' with {name} ({kind}{})",
+                refs.len(),
+                if t.error_state {
+                    ", error-state MPC"
+                } else {
+                    ""
+                }
+            )));
+            configure(
+                client,
+                SERVICES_ID,
+                &ConfigureRequest {
+                    model: model.clone(),
+                    mpc: Some(mpc.clone()),
+                    offset_free: None,
+                },
+                Duration::from_secs(60),
+            )?;
+            let t0 = Instant::now();
+            let mut scored = Vec::new();
+            for i in 0..refs.len() {
+                let row = if t.error_state {
+                    Row::ErrorState
+                } else {
+                    Row::Spec
+                };
+                let how = How {
+                    row,
+                    model: &model,
+                    horizon: mpc.horizon,
+                    steps,
+                };
+                scored.push(run_one(client, live, &mut clients[j], t, &refs, i, how)?);
+                on(Event::Control(i + 1, refs.len()));
+            }
+            let mut row = row_of(
+                &name,
+                Some(&model),
+                Some(kind.name()),
+                Some(&mpc),
+                &scored,
+                steps,
+                t0.elapsed().as_secs_f64(),
+            );
+            if let (Some(floor), Some(_)) = (&replay_scored, &t.survival) {
+                let pairs = row.survivals.iter().zip(floor);
+                row.above_replay = Some(pairs.clone().filter(|(a, b)| a > b).count());
+                row.below_replay = Some(pairs.filter(|(a, b)| a < b).count());
+            }
+            row.onpolicy = Some(write_onpolicy(
+                what.out_dir,
+                &name,
+                &scored,
+                window_steps,
+                &info,
+                t,
+            )?);
+            rows.push(row);
+        }
+        out.push(TrackReport {
+            sim: sim_id.clone(),
+            label: t.label.clone(),
+            references_file: path.display().to_string(),
+            references: refs.len(),
+            steps,
+            survival: t.survival.clone(),
+            continue_after_failure: t.continue_after_failure,
+            error_state: t.error_state,
+            rows,
+        });
+    }
+    Ok(out)
+}
+
+/// What decides a run's inputs.
+#[derive(Clone, Copy)]
+enum Row<'a> {
+    /// The references' inputs, open loop.
+    Replay(&'a [Vec<f64>]),
+    /// The MPC service with SPEC's reference window.
+    Spec,
+    /// The MPC service about the reference as a plan (its inputs as feed-forward).
+    ErrorState,
+}
+
+/// How one run is driven: its row, the model served, the MPC horizon, the steps at most.
+#[derive(Clone, Copy)]
+struct How<'a> {
+    row: Row<'a>,
+    model: &'a str,
+    horizon: usize,
+    steps: usize,
+}
+
+/// One closed loop (or replay) of reference `i`, scored: stops at a fall or a refused step (with
+/// a survival metric), at the first failing step (unless `continue_after_failure`; the replay
+/// row always goes on, so that its whole run can be compared), or at the end.
+fn run_one(
+    client: &Client,
+    live: &Liveliness,
+    sim: &mut SimClient,
+    t: &TrackSpec,
+    refs: &ReferenceSet,
+    i: usize,
+    how: How<'_>,
+) -> Result<Scored> {
+    let x = &refs.x[i];
+    let reference = match how.row {
+        Row::ErrorState => Reference::Plan {
+            states: x.clone(),
+            inputs: refs.u.as_ref().expect("checked by the caller")[i].clone(),
+        },
+        _ => Reference::Trajectory(x.clone()),
+    };
+    let task = ControlTask {
+        mpc_id: SERVICES_ID,
+        model: how.model,
+        x0: &x[0],
+        reference: &reference,
+        horizon: how.horizon,
+        position_loop: None,
+        steps: how.steps,
+        publish: false,
+        replay: match how.row {
+            Row::Replay(u) => Some(u),
+            _ => None,
+        },
+    };
+    run_task(client, live, sim, task, t, x)
+}
+
+/// Runs `task` under the stop rules of tracking task `t` against reference states `x`.
+fn run_task(
+    client: &Client,
+    live: &Liveliness,
+    sim: &mut SimClient,
+    task: ControlTask<'_>,
+    t: &TrackSpec,
+    x: &[Vec<f64>],
+) -> Result<Scored> {
+    let (steps, replay) = (task.steps, task.replay.is_some());
+    let mut run = ControlRun::start(client, sim, task)?;
+    for k in 0..steps {
+        let u = run.decide(client, live)?;
+        match run.apply(u.clone(), live) {
+            Ok(()) => {}
+            Err(Error::Remote { reply, .. }) if reply.code == ErrorCode::SimFailure => {
+                run.fail_step(u, format!("step {}: {}", k + 1, reply.message));
+                break;
+            }
+            Err(e) => return Err(e),
+        }
+        let Some(spec) = &t.survival else { continue };
+        let state = &run.states()[k + 1];
+        let fell = run.terminated()[k + 1];
+        if fell || (!replay && !t.continue_after_failure && fails(state, &x[k + 1], fell, spec)) {
+            break;
+        }
+    }
+    let terminated = run.terminated().to_vec();
+    let failure = run.sim_failure().map(str::to_string);
+    let solve_us = run.solve_times_us().to_vec();
+    let report = run.finish();
+    let survival = match &t.survival {
+        Some(spec) => {
+            let failed: Vec<bool> = report
+                .x
+                .iter()
+                .zip(&terminated)
+                .enumerate()
+                .map(|(k, (s, &fell))| fails(s, &x[k.min(x.len() - 1)], fell, spec))
+                .collect();
+            Some(survival_steps(&failed, steps).map_err(Error::Config)?)
+        }
+        None => None,
+    };
+    Ok(Scored {
+        report,
+        solve_us,
+        terminated,
+        failure,
+        survival,
+    })
+}
+
+/// A row's figures from its scored runs.
+fn row_of(
+    name: &str,
+    model: Option<&str>,
+    kind: Option<&str>,
+    mpc: Option<&MpcConfig>,
+    scored: &[Scored],
+    cap: usize,
+    wall_s: f64,
+) -> TrackRow {
+    let survivals: Vec<usize> = scored.iter().filter_map(|s| s.survival).collect();
+    let solve_us: Vec<f64> = scored
+        .iter()
+        .flat_map(|s| s.solve_us.iter().copied())
+        .collect();
+    let mut not_solved = BTreeMap::new();
+    for s in scored {
+        for (k, v) in &s.report.not_solved_by_status {
+            *not_solved.entry(k.clone()).or_default() += v;
+        }
+    }
+    TrackRow {
+        row: name.to_string(),
+        model: model.map(str::to_string),
+        kind: kind.map(str::to_string),
+        mpc: mpc.cloned(),
+        survival: (!survivals.is_empty()).then(|| {
+            let v: Vec<f64> = survivals.iter().map(|&s| s as f64).collect();
+            Summary::of(&v, Some(cap as f64))
+        }),
+        survivals,
+        above_replay: None,
+        below_replay: None,
+        steps_run: scored.iter().map(|s| s.report.u.len()).collect(),
+        tracking_rms: scored.iter().map(|s| s.report.tracking_rms_total).collect(),
+        falls: scored
+            .iter()
+            .filter(|s| s.terminated.iter().skip(1).any(|&f| f))
+            .count(),
+        solve_median_us: quantile(&solve_us, 0.5),
+        solve_p99_us: quantile(&solve_us, 0.99),
+        not_solved_by_status: not_solved,
+        sim_errors: scored
+            .iter()
+            .enumerate()
+            .filter_map(|(i, s)| s.failure.as_ref().map(|f| format!("reference {i}: {f}")))
+            .take(10)
+            .collect(),
+        onpolicy: None,
+        wall_s,
+    }
+}
+
+/// Q's diagonal from the spread of simulator `sim`'s training split (`1/σ²` on `states`, 0
+/// elsewhere; every state when `None`): the z-score a normalised model was trained in.
+pub fn q_weights_from_data(
+    out_dir: &Path,
+    sim: &str,
+    states: Option<&[usize]>,
+    nx: usize,
+) -> Result<Vec<f64>> {
+    let path = out_dir.join("data").join(sim).join("train.npz");
+    let data = Dataset::load_npz(&path)?;
+    let norm = Normalisation::fit(&data)?;
+    Ok((0..nx)
+        .map(|i| {
+            let s = norm.x_std[i];
+            if states.is_none_or(|w| w.contains(&i)) {
+                1.0 / (s * s)
+            } else {
+                0.0
+            }
+        })
+        .collect())
+}
+
+/// Writes row `name`'s closed loops as windows of `steps` transitions to
+/// `{out}/tracking/onpolicy/{name}.npz` (each run up to its first fallen or non-finite state).
+fn write_onpolicy(
+    out_dir: &Path,
+    name: &str,
+    scored: &[Scored],
+    steps: usize,
+    info: &crate::messages::SimInfo,
+    t: &TrackSpec,
+) -> Result<OnPolicy> {
+    let good: Vec<Vec<bool>> = scored
+        .iter()
+        .map(|s| {
+            s.report
+                .x
+                .iter()
+                .zip(&s.terminated)
+                .map(|(x, &fell)| !fell && x.iter().all(|v| v.is_finite()))
+                .collect()
+        })
+        .collect();
+    let runs: Vec<RunForWindows<'_>> = scored
+        .iter()
+        .zip(&good)
+        .map(|(s, g)| RunForWindows {
+            x: &s.report.x,
+            u: &s.report.u,
+            good: g,
+        })
+        .collect();
+    let w = windows(&runs, steps);
+    let mut rec = OnPolicy {
+        path: None,
+        windows: w.len(),
+        steps,
+    };
+    if w.is_empty() {
+        return Ok(rec);
+    }
+    let (nx, nu) = (info.nx(), info.nu());
+    let data = Dataset {
+        n: w.len(),
+        steps,
+        nx,
+        nu,
+        x: w.iter()
+            .flat_map(|(x, _)| x.iter().flatten().copied())
+            .collect(),
+        u: w.iter()
+            .flat_map(|(_, u)| u.iter().flatten().copied())
+            .collect(),
+        meta: DatasetMeta {
+            env: info.env.clone(),
+            dt: info.dt,
+            state_names: info.state_names.clone(),
+            input_names: info.input_names.clone(),
+            pairing: Pairing::Aligned,
+            seed: 0,
+            source: format!("koopbridge tracking task ({})", t.references),
+            policy: format!(
+                "MPC ({name}) tracking the references; windows of {steps} cut back to back from \
+                 each run up to its end, failure or fall"
+            ),
+            region: None,
+        },
+    };
+    let path = out_dir
+        .join("tracking")
+        .join("onpolicy")
+        .join(format!("{name}.npz"));
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(|e| Error::Io {
+            path: dir.to_path_buf(),
+            source: e,
+        })?;
+    }
+    data.save_npz(&path)?;
+    rec.path = Some(path);
+    Ok(rec)
+}
+
+/// The tracking tasks' rows as a Markdown table (one per task; the replay row first).
+pub fn table(reports: &[TrackReport]) -> String {
+    let mut s = String::new();
+    for r in reports {
+        let metric = match &r.survival {
+            Some(m) => format!(
+                "survival = steps until the mean |x − r| over states {:?} exceeds {} or a fall, capped at {}",
+                m.states, m.threshold, r.steps
+            ),
+            None => format!("tracking RMS over {} steps", r.steps),
+        };
+        s += &format!(
+            "Tracking '{}'{}: {} references from {} ({metric}{})\n\n",
+            r.sim,
+            r.label
+                .as_ref()
+                .map_or(String::new(), |l| format!(" [{l}]")),
+            r.references,
+            r.references_file,
+            if r.error_state {
+                "; error-state MPC"
+            } else {
+                ""
+            }
+        );
+        s += "| row | mean | sem | median | q25-q75 | min-max | at cap | above / below replay | falls | tracking RMS (mean) | solve median (p99) µs |\n";
+        s += "|---|---|---|---|---|---|---|---|---|---|---|\n";
+        for row in &r.rows {
+            let sv = row.survival.clone().unwrap_or_default();
+            let rms = row.tracking_rms.iter().sum::<f64>() / row.tracking_rms.len().max(1) as f64;
+            let vs = match (row.above_replay, row.below_replay) {
+                (Some(a), Some(b)) => format!("{a} / {b}"),
+                _ => "-".into(),
+            };
+            let solve = if row.model.is_some() {
+                format!("{:.0} ({:.0})", row.solve_median_us, row.solve_p99_us)
+            } else {
+                "-".into()
+            };
+            if row.survival.is_some() {
+                s += &format!(
+                    "| {} | {:.1} | {:.1} | {} | {}-{} | {}-{} | {} | {vs} | {} | {rms:.4} | {solve} |\n",
+                    row.row, sv.mean, sv.sem, sv.median, sv.q25, sv.q75, sv.min, sv.max,
+                    sv.at_cap.unwrap_or(0), row.falls
+                );
+            } else {
+                s += &format!(
+                    "| {} | - | - | - | - | - | - | - | {} | {rms:.4} | {solve} |\n",
+                    row.row, row.falls
+                );
+            }
+        }
+        s += "\n";
+    }
+    s
+}

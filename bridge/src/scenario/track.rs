@@ -1,0 +1,214 @@
+//! Tracking tasks: a `[control]` / `[[control]]` entry with `references = "FILE.npz"` is one
+//! ([`TrackSpec`]) — a closed loop per reference, scored by a survival metric, beside the
+//! references' own inputs replayed open loop; this module reads and checks those keys.
+
+use serde::{Deserialize, Serialize};
+
+use super::ControlSpec;
+use crate::error::{Error, Result};
+use crate::keyexpr::validate_chunk;
+
+/// When a tracked run fails: the mean absolute error over `states` above `threshold`, or a fall
+/// the simulator reports (a step flagged `terminated`, PROTOCOL.md §4), or a non-finite state.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SurvivalSpec {
+    /// The largest mean absolute error that still counts as tracking (> 0, in the states' units).
+    pub threshold: f64,
+    /// The state indices the error is taken over (at least one; checked against `nx`).
+    pub states: Vec<usize>,
+}
+
+/// Q's diagonal from the training data: `1/σ²` of each state's standard deviation over the
+/// simulator's training split (the z-score a `normalise = true` model is trained in) on
+/// `states`, 0 on every other state (all states when `states` is absent).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QFromData {
+    /// The weighted states (default: all).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub states: Option<Vec<usize>>,
+}
+
+/// A tracking task: every reference of `references` tracked from its own first state by the MPC
+/// service (one row per trained model kind), scored by `survival`; beside them the replay row.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrackSpec {
+    /// Which simulator (default: the first).
+    pub sim: Option<String>,
+    /// The row's suffix: a model's row is `{model}+{label}` (`{model}` without one); distinct
+    /// among a simulator's tracking entries.
+    pub label: Option<String>,
+    /// The references: an `.npz` with `x` (N, T+1, nx) and `u` (N, T, nu) as a dataset (`{out}`
+    /// expanded; a relative path in the scenario's repository); read when control starts, so
+    /// that a hook may write it.
+    pub references: String,
+    /// The survival metric; absent: no survival, runs to each reference's end (tracking errors).
+    pub survival: Option<SurvivalSpec>,
+    /// Run each reference to its end (or a fall) after the survival threshold is crossed.
+    pub continue_after_failure: bool,
+    /// Plan the deviation from each reference with its inputs as feed-forward (error-state MPC;
+    /// a lifted-linear model only) instead of SPEC's reference window.
+    pub error_state: bool,
+    /// Also run the replay row (the references' inputs open loop).
+    pub replay: bool,
+    /// At most this many steps per reference (default: the references' T).
+    pub steps: Option<usize>,
+    /// `koopman::mpc::MpcConfig` fields to override.
+    pub mpc: serde_json::Map<String, serde_json::Value>,
+    /// Q from the training data's spread (overrides `mpc.q`).
+    pub q_from_data: Option<QFromData>,
+    /// Transitions per on-policy window written from the closed loops (default: `[collect]`'s T).
+    pub onpolicy_steps: Option<usize>,
+}
+
+impl TrackSpec {
+    /// The tracking task of a control entry with `references`, `None` without; an error names
+    /// a key that does not belong to a tracking task (or only to one) or a bad value.
+    pub fn of(c: &ControlSpec, sim: &str) -> Result<Option<TrackSpec>> {
+        let bad = |m: String| Err(Error::Config(format!("[control] for '{sim}': {m}")));
+        let Some(references) = &c.references else {
+            let only = [
+                ("survival", c.survival.is_some()),
+                ("label", c.label.is_some()),
+                ("continue_after_failure", c.continue_after_failure),
+                ("error_state", c.error_state),
+                ("replay", c.replay.is_some()),
+                ("q_from_data", c.q_from_data.is_some()),
+                ("onpolicy_steps", c.onpolicy_steps.is_some()),
+            ];
+            if let Some((k, _)) = only.iter().find(|(_, set)| *set) {
+                return bad(format!(
+                    "`{k}` belongs to a tracking task and needs `references = \"FILE.npz\"`"
+                ));
+            }
+            if c.x0.is_empty() || c.steps == 0 {
+                return bad(
+                    "needs `x0` and `steps` ≥ 1 (or `references` for a tracking task)".into(),
+                );
+            }
+            return Ok(None);
+        };
+        let not_here = [
+            ("x0", !c.x0.is_empty()),
+            ("reference", c.reference.is_some()),
+            ("reference_file", c.reference_file.is_some()),
+            ("feedforward_file", c.feedforward_file.is_some()),
+            ("position_loop", c.position_loop.is_some()),
+            ("offset_free", c.offset_free.is_some()),
+        ];
+        if let Some((k, _)) = not_here.iter().find(|(_, set)| *set) {
+            return bad(format!(
+                "`{k}` is not a key of a tracking task (`references`): each reference starts \
+                 from its own first state; use `error_state = true` to plan about the \
+                 references' inputs"
+            ));
+        }
+        if references.trim().is_empty() {
+            return bad("`references` is empty".into());
+        }
+        if let Some(l) = &c.label {
+            validate_chunk("[control].label", l)?;
+        }
+        if let Some(s) = &c.survival {
+            if !(s.threshold.is_finite() && s.threshold > 0.0) {
+                return bad(format!(
+                    "survival.threshold must be a finite number > 0, got {}",
+                    s.threshold
+                ));
+            }
+            if s.states.is_empty() {
+                return bad("survival.states must name at least one state index".into());
+            }
+        }
+        if c.onpolicy_steps == Some(0) {
+            return bad("onpolicy_steps must be ≥ 1".into());
+        }
+        Ok(Some(TrackSpec {
+            sim: c.sim.clone(),
+            label: c.label.clone(),
+            references: references.clone(),
+            survival: c.survival.clone(),
+            continue_after_failure: c.continue_after_failure,
+            error_state: c.error_state,
+            replay: c.replay.unwrap_or(true),
+            steps: (c.steps > 0).then_some(c.steps),
+            mpc: c.mpc.clone(),
+            q_from_data: c.q_from_data.clone(),
+            onpolicy_steps: c.onpolicy_steps,
+        }))
+    }
+
+    /// The row name of model `model` in this task.
+    pub fn row(&self, model: &str) -> String {
+        match &self.label {
+            Some(l) => format!("{model}+{l}"),
+            None => model.to_string(),
+        }
+    }
+
+    /// Checks the state indices against the simulator's `nx` (survival and `q_from_data`).
+    pub fn check_states(&self, nx: usize, sim: &str) -> Result<()> {
+        let lists = [
+            ("survival.states", self.survival.as_ref().map(|s| &s.states)),
+            (
+                "q_from_data.states",
+                self.q_from_data.as_ref().and_then(|q| q.states.as_ref()),
+            ),
+        ];
+        for (key, list) in lists {
+            if let Some(&i) = list.into_iter().flatten().find(|&&i| i >= nx) {
+                return Err(Error::Config(format!(
+                    "[control] for '{sim}': {key} names state {i}, the simulator has {nx} \
+                     states (0..{})",
+                    nx.saturating_sub(1)
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec(extra: &str) -> ControlSpec {
+        toml::from_str(&format!("references = \"r.npz\"\n{extra}")).unwrap()
+    }
+
+    #[test]
+    fn a_tracking_entry_is_read_and_its_bad_keys_are_named() {
+        let t = TrackSpec::of(
+            &spec("survival = { threshold = 0.16, states = [1, 2] }\nlabel = \"es\""),
+            "go2",
+        )
+        .unwrap()
+        .unwrap();
+        assert!(t.replay && !t.error_state && t.steps.is_none());
+        assert_eq!(t.row("m"), "m+es");
+        let err = |extra: &str| TrackSpec::of(&spec(extra), "go2").unwrap_err().to_string();
+        assert!(err("x0 = [0.0]\nsteps = 3").contains("`x0` is not a key"));
+        assert!(err("survival = { threshold = 0.0, states = [1] }").contains("threshold"));
+        assert!(err("survival = { threshold = 0.1, states = [] }").contains("at least one"));
+        assert!(err("onpolicy_steps = 0").contains("onpolicy_steps"));
+        assert!(err("label = \"A B\"").contains("label"));
+        assert!(t
+            .check_states(2, "go2")
+            .unwrap_err()
+            .to_string()
+            .contains("state 2"));
+        t.check_states(3, "go2").unwrap();
+        // The tracking keys without `references` are refused, naming the key.
+        let plain: ControlSpec =
+            toml::from_str("x0 = [0.0]\nsteps = 3\nreference = [0.0]\nerror_state = true").unwrap();
+        let e = TrackSpec::of(&plain, "p").unwrap_err().to_string();
+        assert!(
+            e.contains("`error_state` belongs to a tracking task"),
+            "{e}"
+        );
+        let plain: ControlSpec = toml::from_str("reference = [0.0]").unwrap();
+        let e = TrackSpec::of(&plain, "p").unwrap_err().to_string();
+        assert!(e.contains("needs `x0` and `steps`"), "{e}");
+    }
+}

@@ -1,0 +1,166 @@
+//! `koopbridge run` with a tracking task (`[control] references = ...`, issue 47) on the built-in
+//! damped pendulum, in several processes over Zenoh: the run's own test windows are the
+//! references (each with the inputs that realised it), so the replay row must reproduce every one
+//! exactly (survival at the cap, tracking error 0: an independent check of the loop, the stop
+//! rule and the scoring); the model's rows are scored beside it and leave on-policy windows; bad
+//! references are refused naming the key.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+fn json(p: &Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap()
+}
+
+const BASE: &str = r#"
+[[sims]]
+id = "pend"
+env = "damped-pendulum"
+[collect]
+policy = { kind = "uniform" }
+train_windows = 40
+val_windows = 10
+test_windows = 6
+steps = 15
+seed = 7
+[train]
+config = { iterations = 30, hidden = [16], n_mult = 2, batch = 16, validate_every = 15 }
+"#;
+
+fn run(dir: &Path, name: &str, text: &str) -> (std::process::Output, std::path::PathBuf) {
+    let sc = dir.join(format!("{name}.toml"));
+    std::fs::write(&sc, text).unwrap();
+    let out = dir.join(format!("out-{name}"));
+    let o = Command::new(common::exe())
+        .args(["run", sc.to_str().unwrap(), "--out", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    (o, out)
+}
+
+#[test]
+fn a_tracking_task_scores_every_reference_beside_an_exact_replay() {
+    let dir = common::scratch("tracking");
+    let text = format!(
+        r#"name = "tracking"
+{BASE}
+[[control]]
+references = "{{out}}/data/pend/test.npz"
+survival = {{ threshold = 0.5, states = [0] }}
+q_from_data = {{}}
+[[control]]
+label = "es"
+references = "{{out}}/data/pend/test.npz"
+survival = {{ threshold = 0.5, states = [0] }}
+error_state = true
+replay = false
+onpolicy_steps = 5
+mpc = {{ horizon = 10, r = [0.1] }}
+"#
+    );
+    let (o, out) = run(&dir, "ok", &text);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{}\n{stdout}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let report = json(&out.join("report.json"));
+    let tasks = report["tracking"].as_array().unwrap();
+    assert_eq!(tasks.len(), 2);
+    let (spec, es) = (&tasks[0], &tasks[1]);
+    assert_eq!(
+        (spec["references"].as_u64(), spec["steps"].as_u64()),
+        (Some(6), Some(15))
+    );
+    let replay = &spec["rows"][0];
+    assert_eq!(replay["row"], "replay");
+    // The simulator is deterministic and the state is all of it: replaying a window's inputs
+    // from its first state is the window.
+    assert_eq!(
+        replay["survivals"],
+        serde_json::json!([15, 15, 15, 15, 15, 15])
+    );
+    assert_eq!(replay["survival"]["at_cap"], 6);
+    for e in replay["tracking_rms"].as_array().unwrap() {
+        assert!(e.as_f64().unwrap() < 1e-9, "replay error {e}");
+    }
+    let model = &spec["rows"][1];
+    assert_eq!(model["row"], "tracking-pend");
+    let s = model["survivals"].as_array().unwrap();
+    assert_eq!(s.len(), 6);
+    assert!(s.iter().all(|v| v.as_u64().unwrap() <= 15));
+    let (above, below) = (
+        model["above_replay"].as_u64().unwrap(),
+        model["below_replay"].as_u64().unwrap(),
+    );
+    let short = s.iter().filter(|v| v.as_u64().unwrap() < 15).count() as u64;
+    assert_eq!(
+        (above, below),
+        (0, short),
+        "nothing beats a replay at the cap"
+    );
+    // Q from the training split's spread on every state (1/σ² > 0), R = 0 (SPEC).
+    let q = model["mpc"]["q"].as_array().unwrap();
+    assert!(
+        q.len() == 2 && q.iter().all(|v| v.as_f64().unwrap() > 0.0),
+        "{q:?}"
+    );
+    // A run stops at its first failing step: steps run = survival + 1 below the cap.
+    for (run, sv) in model["steps_run"].as_array().unwrap().iter().zip(s) {
+        let (run, sv) = (run.as_u64().unwrap(), sv.as_u64().unwrap());
+        assert!(run == 15 || run == sv + 1, "ran {run} steps, survived {sv}");
+    }
+    // The error-state task: no replay row, its own row name, windows of 5 transitions.
+    let rows = es["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 1);
+    assert_eq!(rows[0]["row"], "tracking-pend+es");
+    assert!(es["error_state"].as_bool().unwrap());
+    let onp = &rows[0]["onpolicy"];
+    assert_eq!(onp["steps"], 5);
+    let ran: u64 = rows[0]["steps_run"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap() / 5)
+        .sum();
+    assert_eq!(
+        onp["windows"].as_u64().unwrap(),
+        ran,
+        "back-to-back windows of 5 per run"
+    );
+    if ran > 0 {
+        let d = koopman::data::Dataset::load_npz(Path::new(onp["path"].as_str().unwrap())).unwrap();
+        assert_eq!((d.n as u64, d.steps, d.nx, d.nu), (ran, 5, 2, 1));
+    }
+    assert!(std::fs::metadata(out.join("tracking/survival.png")).is_ok_and(|m| m.len() > 0));
+    let table = std::fs::read_to_string(out.join("tracking/table.md")).unwrap();
+    assert!(
+        table.contains("| replay |") && table.contains("| tracking-pend+es |"),
+        "{table}"
+    );
+    assert!(stdout.contains("| tracking-pend |"), "{stdout}");
+
+    // References of the wrong width are refused before collection, naming the key and the file.
+    let bad = dir.join("bad.npz");
+    let x = koopman::data::npy::encode(&[1, 3, 3], &[0.0; 9]);
+    koopman::data::npz::write_npz(&bad, &[("x.npy", &x)]).unwrap();
+    let text = format!(
+        "name = \"tracking-bad\"\n{BASE}\n[control]\nreferences = \"{}\"\nreplay = false\n",
+        bad.display()
+    );
+    let (o, out) = run(&dir, "bad", &text);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        stderr.contains("[control].references") && stderr.contains("nx = 2"),
+        "{stderr}"
+    );
+    assert!(
+        !out.join("data/pend/train.npz").exists(),
+        "nothing was collected"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
