@@ -112,7 +112,8 @@ def test_the_g1_scenario_at_the_smoke_budget(tmp_path):
 
 def test_the_g1_survival_toml_through_koopbridge_run(tmp_path):
     """scenarios/g1-survival.toml shrunk to a smoke budget: the locked G1's expert collects
-    through the collect request, the trainer service trains, the hook tracks with g1_survival."""
+    through the collect request, the trainer service trains, the hook writes references and the
+    scenario engine tracks them (issue 47)."""
     exe = koopbridge_binary_or_skip()
     text = (ROOT / "scenarios" / "g1-survival.toml").read_text()
     for old, new in [("block = 250", "block = 40"), ("train_windows = 3000\n", "train_windows = 120\n"),
@@ -132,15 +133,18 @@ def test_the_g1_survival_toml_through_koopbridge_run(tmp_path):
     finally:
         toml.unlink()
     assert r.returncode == 0, r.stderr[-3000:]
-    rep = json.loads((out / "survival" / "report.json").read_text())
-    rows = {row["controller"]: row for row in rep["table"]}
-    assert set(rows) == {"open-loop replay (floor)", "g1-survival-g1 (koopman)", "g1-survival-g1+error-state (koopman)"}
+    rep = json.loads((out / "report.json").read_text())
+    spec, es = rep["tracking"]
+    rows = {row["row"]: row for task in (spec, es) for row in task["rows"]}
+    assert set(rows) == {"replay", "g1-survival-g1", "g1-survival-g1+error-state"}
     for row in rows.values():
-        assert row["n"] == 2 and np.isfinite(row["mean"]) and 0 <= row["min"] <= row["mean"] <= row["max"] <= 40, row
-    assert rep["task"]["held"] == "locked" and rep["task"]["steps"] == 40
+        s = row["survival"]
+        assert s["n"] == 2 and np.isfinite(s["mean"]) and 0 <= s["min"] <= s["mean"] <= s["max"] <= 40, row
+    assert spec["steps"] == 40 and spec["survival"]["threshold"] == 0.1
     # The recommended controller (docs/decisions/0017): Q on the 21 joint positions only, R = I.
-    q = rep["models"]["g1-survival-g1+error-state"]["weights"]["q"]
-    assert [i for i, w in enumerate(q) if w > 0] == list(range(10, 31)) and rep["task"]["error_state"]["r"] == 1.0
+    mpc = rows["g1-survival-g1+error-state"]["mpc"]
+    assert [i for i, w in enumerate(mpc["q"]) if w > 0] == list(range(10, 31)) and mpc["r"] == [1.0] * 23
+    assert (out / "tracking" / "table.md").stat().st_size > 0
     assert json.loads((out / "report.json").read_text())["train"][0]["model"] == "g1-survival-g1"
     assert (out / "models" / "g1-survival-g1" / "config.json").is_file()
     shutil.rmtree(out, ignore_errors=True)
