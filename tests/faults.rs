@@ -39,6 +39,7 @@ fn a_killed_lockstep_adapter_is_named_within_1s_and_a_restarted_one_steps_again(
         s.reset(&ResetRequest {
             seed: None,
             x0: Some(vec![0.5, 0.0]),
+            perturbation: None,
         })
         .unwrap();
     }
@@ -94,6 +95,7 @@ fn a_killed_lockstep_adapter_is_named_within_1s_and_a_restarted_one_steps_again(
         .reset(&ResetRequest {
             seed: None,
             x0: Some(vec![0.5, 0.0]),
+            perturbation: None,
         })
         .unwrap();
     let expect = local_states(&[0.5, 0.0], &[0.1; 3]);
@@ -174,6 +176,7 @@ fn a_slow_adapter_is_retried_without_being_stepped_twice() {
     sim.reset(&ResetRequest {
         seed: None,
         x0: Some(vec![0.3, 0.0]),
+        perturbation: None,
     })
     .unwrap();
     sim.timeout = timeout;

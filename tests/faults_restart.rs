@@ -39,6 +39,7 @@ fn a_killed_router_between_client_peers_is_detected_within_1s_and_they_reconnect
     sim.reset(&ResetRequest {
         seed: None,
         x0: Some(vec![0.2, 0.0]),
+        perturbation: None,
     })
     .unwrap();
     let expect = local_states(&[0.2, 0.0], &[0.3; 6]);

@@ -79,6 +79,7 @@ fn a_late_joining_peer_is_found_and_stepped() {
     sim.reset(&ResetRequest {
         seed: Some(3),
         x0: None,
+        perturbation: None,
     })
     .unwrap();
     let r = sim.step(&[], Some(&c.live)).unwrap();

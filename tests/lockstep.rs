@@ -30,6 +30,7 @@ fn steps_match_a_local_integration_and_retries_hit_the_cache() {
         .reset(&ResetRequest {
             seed: None,
             x0: Some(vec![0.3, -0.2]),
+            perturbation: None,
         })
         .unwrap();
     assert_eq!((x0.k, x0.x.clone()), (0, vec![0.3, -0.2]));

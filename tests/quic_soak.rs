@@ -213,6 +213,7 @@ fn quic_router_holds_lockstep_training_and_model_transfers() {
                 .reset(&ResetRequest {
                     seed: Some(resets),
                     x0: None,
+                    perturbation: None,
                 })
                 .unwrap();
             resets += 1;

@@ -129,6 +129,7 @@ fn step_through(client: &Client, live: &Liveliness, id: &str, seed: u64, u: f64,
     sim.reset(&ResetRequest {
         seed: Some(seed),
         x0: None,
+        perturbation: None,
     })
     .unwrap();
     for k in 0..n {

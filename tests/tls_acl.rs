@@ -24,6 +24,7 @@ fn step_timing(sim: &mut SimClient, n: usize) -> (f64, f64) {
     sim.reset(&ResetRequest {
         seed: Some(1),
         x0: None,
+        perturbation: None,
     })
     .unwrap();
     let mut us = Vec::with_capacity(n);
@@ -154,6 +155,7 @@ fn steps_exactly(sim: &mut SimClient, n: u64) {
     sim.reset(&ResetRequest {
         seed: Some(1),
         x0: None,
+        perturbation: None,
     })
     .unwrap();
     for k in 1..=n {
@@ -245,6 +247,7 @@ fn acl_lets_only_the_operator_act(link: Link) {
         .reset(&ResetRequest {
             seed: Some(3),
             x0: None,
+            perturbation: None,
         })
         .unwrap();
     assert_eq!(op_sim.step(&[0.5], None).unwrap().k, 1);

@@ -335,11 +335,13 @@ pub fn collect_regions(
                     .reset(&ResetRequest {
                         seed: None,
                         x0: Some(window_x0(ws, xb)),
+                        perturbation: None,
                     })
                     .map_err(|e| x0_unsupported(&s.id, e))?,
                 None => s.reset(&ResetRequest {
                     seed: Some(ws),
                     x0: None,
+                    perturbation: None,
                 })?,
             };
             out[j].x.extend_from_slice(&first.x);

@@ -159,7 +159,8 @@ pub struct InfoReply {
 }
 
 /// The JSON query of `…/sim/{id}/reset`: a seed (initial state drawn by the simulator) or an
-/// explicit initial state. Both absent: the simulator's default initial state.
+/// explicit initial state. Both absent: the simulator's default initial state. A perturbation,
+/// when given, holds for the episode the reset starts (until the next reset).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ResetRequest {
@@ -169,6 +170,63 @@ pub struct ResetRequest {
     /// Explicit initial state (`nx` values).
     #[serde(default)]
     pub x0: Option<Vec<f64>>,
+    /// A perturbation of the episode (PROTOCOL.md "reset"); absent = the nominal simulator. A
+    /// simulator that cannot apply it answers `unsupported`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub perturbation: Option<Perturbation>,
+}
+
+/// A perturbation of one episode, applied by the simulator (the legged adapters: the base body's
+/// mass, the feet's friction, a push); every field absent = nominal.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Perturbation {
+    /// Scale of the base body's mass (Go2: trunk, G1: torso), > 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mass_scale: Option<f64>,
+    /// Scale of the feet's sliding friction, > 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub friction_scale: Option<f64>,
+    /// A push during the episode.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub push: Option<Push>,
+}
+
+/// A push: right before the simulator integrates step `step` (from state `step` to `step + 1`,
+/// counted from the reset), the base's horizontal velocity changes by `velocity` (m/s, world x
+/// and y).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Push {
+    /// The step it is applied at.
+    pub step: u64,
+    /// The change of the base's world-frame horizontal velocity, m/s.
+    pub velocity: [f64; 2],
+}
+
+impl Perturbation {
+    /// Checks the values: scales finite and > 0, the push's velocity finite.
+    pub fn check(&self) -> Result<(), String> {
+        for (k, v) in [
+            ("mass_scale", self.mass_scale),
+            ("friction_scale", self.friction_scale),
+        ] {
+            if let Some(v) = v.filter(|v| !(v.is_finite() && *v > 0.0)) {
+                return Err(format!(
+                    "perturbation.{k} must be a finite number > 0, got {v}"
+                ));
+            }
+        }
+        if let Some(p) = &self.push {
+            if !p.velocity.iter().all(|v| v.is_finite()) {
+                return Err(format!(
+                    "perturbation.push.velocity must be finite, got {:?}",
+                    p.velocity
+                ));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// A bound of a [`CollectPolicy`]: one value for every input, or one per input.

@@ -28,7 +28,7 @@ mod train_names;
 
 pub use collect::{CollectSpec, Policy};
 pub use extras::{CommandLine, HookPhase, HookSpec, ParticipantRole, ParticipantSpec};
-pub use track::{QFromData, SurvivalSpec, TrackSpec};
+pub use track::{PerturbationSpec, QFromData, SurvivalSpec, TrackSpec};
 pub use train::TrainSpec;
 
 use data_region::with_x0_box;
@@ -229,6 +229,9 @@ pub struct ControlSpec {
     /// Transitions per on-policy window of a tracking task (default: `[collect]`'s T).
     #[serde(default)]
     pub onpolicy_steps: Option<usize>,
+    /// A tracking task's perturbation of every episode ([`PerturbationSpec`]).
+    #[serde(default)]
+    pub perturbation: Option<PerturbationSpec>,
     /// `koopman::mpc::MpcConfig` fields to override (JSON object).
     #[serde(default)]
     pub mpc: serde_json::Map<String, serde_json::Value>,

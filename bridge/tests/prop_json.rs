@@ -36,7 +36,12 @@ fn valid_json() -> impl Strategy<Value = String> {
             any::<Option<u64>>(),
             prop::option::of(prop::collection::vec(f, 0..6))
         )
-            .prop_map(|(seed, x0)| serde_json::to_string(&ResetRequest { seed, x0 }).unwrap()),
+            .prop_map(|(seed, x0)| serde_json::to_string(&ResetRequest {
+                seed,
+                x0,
+                perturbation: None
+            })
+            .unwrap()),
         ("[a-z0-9_-]{1,12}", "[ -~]{0,30}", "[a-z0-9_-]{1,12}").prop_map(|(m, p, r)| {
             serde_json::json!({"model": m, "train": {"path": p}, "val": {"recording": r},
                                "config": {"iterations": 10}})
@@ -87,7 +92,7 @@ proptest! {
     #[test]
     fn reset_requests_round_trip(seed in any::<Option<u64>>(),
                                  x0 in prop::option::of(prop::collection::vec(-1e300f64..1e300, 0..6))) {
-        let r = ResetRequest { seed, x0 };
+        let r = ResetRequest { seed, x0, perturbation: None };
         let back: ResetRequest = parse_json("reset", serde_json::to_string(&r).unwrap().as_bytes()).unwrap();
         prop_assert_eq!(back, r);
     }

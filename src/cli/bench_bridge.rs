@@ -162,6 +162,7 @@ pub fn run(args: BenchBridgeArgs) -> anyhow::Result<()> {
     sim.reset(&ResetRequest {
         seed: Some(1),
         x0: None,
+        perturbation: None,
     })?;
     let payload = bridge::codec::StepRequest { k: 0, u: vec![0.5] }.encode();
     let mut i = 0;
@@ -181,6 +182,7 @@ pub fn run(args: BenchBridgeArgs) -> anyhow::Result<()> {
                 sim.reset(&ResetRequest {
                     seed: Some(i as u64),
                     x0: None,
+                    perturbation: None,
                 })?;
             }
             let t = Instant::now();

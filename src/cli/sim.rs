@@ -72,6 +72,7 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
             reset: ResetRequest {
                 seed: Some(args.seed),
                 x0: None,
+                perturbation: None,
             },
         });
         opts.wait_subscriber = args.wait_subscriber.map(std::time::Duration::from_secs_f64);

@@ -38,6 +38,7 @@ pub fn local_states(x0: &[f64], inputs: &[f64]) -> Vec<Vec<f64>> {
         .reset(&ResetRequest {
             seed: None,
             x0: Some(x0.to_vec()),
+            perturbation: None,
         })
         .unwrap()];
     for u in inputs {

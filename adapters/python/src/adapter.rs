@@ -154,7 +154,11 @@ impl Adapter {
             opts.free_run = Some(FreeRunOptions {
                 rate_hz,
                 steps,
-                reset: ResetRequest { seed, x0 },
+                reset: ResetRequest {
+                    seed,
+                    x0,
+                    perturbation: None,
+                },
             });
             opts.wait_subscriber = match wait_subscriber {
                 Some(w) if !(w.is_finite() && w >= 0.0) => {
@@ -304,10 +308,30 @@ impl SimBackend for PyBackend {
                     Some(x0) => set("x0", array1(py, x0).into_any())?,
                     None => set("x0", py.None().into_bound(py))?,
                 }
+                // Only when given: a simulator whose reset() has no `perturbation` serves as before.
+                if let Some(p) = &req.perturbation {
+                    let json = serde_json::to_string(p)
+                        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+                    let obj = py.import("json")?.call_method1("loads", (json,))?;
+                    set("perturbation", obj)?;
+                }
                 let x = self.obj.bind(py).call_method("reset", (), Some(&kwargs))?;
                 vec_f64(&x, "the state returned by reset()")
             })();
-            r.map_err(|e| sim_error(py, e, "reset"))
+            r.map_err(|e| {
+                let no_keyword = req.perturbation.is_some()
+                    && e.is_instance_of::<pyo3::exceptions::PyTypeError>(py)
+                    && e.value(py).to_string().contains("perturbation");
+                if no_keyword {
+                    SimError::Unsupported(
+                        "this simulator's reset() takes no `perturbation` (the legged adapters' \
+                         does)"
+                            .into(),
+                    )
+                } else {
+                    sim_error(py, e, "reset")
+                }
+            })
         })
     }
 

@@ -95,7 +95,11 @@ impl Client {
             Some(x) => Some(vec_f64(x, "x0")?),
             None => None,
         };
-        let req = ResetRequest { seed, x0 };
+        let req = ResetRequest {
+            seed,
+            x0,
+            perturbation: None,
+        };
         let r = self.with_sim(py, id, |s| s.reset(&req))?;
         Ok(array1(py, &r.x))
     }

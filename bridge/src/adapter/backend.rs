@@ -115,10 +115,12 @@ pub fn run_windows<B: SimBackend + ?Sized>(
                         .map(|(l, h)| rng.uniform(*l, *h))
                         .collect(),
                 ),
+                perturbation: None,
             },
             None => ResetRequest {
                 seed: Some(seed),
                 x0: None,
+                perturbation: None,
             },
         };
         w.x.extend_from_slice(&backend.reset(&reset)?);
@@ -156,6 +158,12 @@ impl SimBackend for SystemBackend {
     }
 
     fn reset(&mut self, req: &ResetRequest) -> std::result::Result<Vec<f64>, SimError> {
+        if req.perturbation.is_some() {
+            return Err(SimError::Unsupported(format!(
+                "the built-in system '{}' takes no perturbation (the legged adapters do)",
+                self.system.name()
+            )));
+        }
         self.x = match (&req.x0, req.seed) {
             (Some(x0), _) => x0.clone(),
             (None, seed) => {

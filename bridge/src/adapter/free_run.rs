@@ -168,6 +168,7 @@ mod tests {
             reset: ResetRequest {
                 seed: None,
                 x0: Some(vec![0.0, 1.0]),
+                perturbation: None,
             },
         }
     }
@@ -284,6 +285,7 @@ mod tests {
             reset: ResetRequest {
                 seed: None,
                 x0: Some(vec![1.0]),
+                perturbation: None,
             },
             ..opts(1)
         };

@@ -50,6 +50,7 @@ pub fn measure_sim_gain(
         sim.reset(&ResetRequest {
             seed: None,
             x0: Some(x.to_vec()),
+            perturbation: None,
         })?;
         Ok(sim.step(&u, None)?.x)
     };

@@ -141,6 +141,8 @@ pub struct ControlTask<'a> {
     /// Apply these inputs open loop (row k at step k, the last past the end) instead of asking
     /// the MPC service: the replay row of a tracking task.
     pub replay: Option<&'a [Vec<f64>]>,
+    /// The perturbation of the episode, sent with the reset (the simulator applies it).
+    pub perturbation: Option<&'a crate::messages::Perturbation>,
 }
 
 /// One simulator's closed loop in progress.
@@ -169,6 +171,7 @@ impl<'a> ControlRun<'a> {
         let first = sim.reset(&ResetRequest {
             seed: None,
             x0: Some(task.x0.to_vec()),
+            perturbation: task.perturbation.cloned(),
         })?;
         let publisher = if task.publish {
             use zenoh::Wait;

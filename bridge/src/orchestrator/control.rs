@@ -102,6 +102,7 @@ pub fn control_phase(
                     steps: ctrl.steps,
                     publish,
                     replay: None,
+                    perturbation: None,
                 },
             ));
         }

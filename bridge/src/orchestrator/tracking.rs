@@ -22,7 +22,8 @@ use super::survival::{fails, survival_steps, windows, RunForWindows, Summary};
 use super::{Event, SERVICES_ID};
 use crate::client::{Client, Liveliness, SimClient};
 use crate::error::{Error, ErrorCode, Result};
-use crate::scenario::{Scenario, SurvivalSpec, TrackSpec};
+use crate::messages::Perturbation;
+use crate::scenario::{PerturbationSpec, Scenario, SurvivalSpec, TrackSpec};
 use crate::services::model_kind::ModelKind;
 use crate::services::mpc::{configure, ConfigureRequest};
 
@@ -50,6 +51,12 @@ pub struct TrackReport {
     pub continue_after_failure: bool,
     /// Whether the models planned about each reference with its inputs as feed-forward.
     pub error_state: bool,
+    /// The perturbation of every episode, as the task gave it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub perturbation: Option<PerturbationSpec>,
+    /// Each reference's perturbation as sent with its reset (the push drawn for it).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub perturbations: Vec<Perturbation>,
     /// The replay row first (when run), then one row per model kind.
     pub rows: Vec<TrackRow>,
 }
@@ -142,7 +149,8 @@ pub fn tracking_phase(
     what: &TrackingPhase<'_>,
     on: &mut dyn FnMut(Event<'_>),
 ) -> Result<Vec<TrackReport>> {
-    let mut replays: BTreeMap<(usize, PathBuf), (TrackRow, Vec<Scored>)> = BTreeMap::new();
+    // The replay row of a simulator, file and perturbation is run once.
+    let mut replays: BTreeMap<(usize, PathBuf, String), (TrackRow, Vec<Scored>)> = BTreeMap::new();
     let mut out = Vec::new();
     for t in &sc.tracks {
         let j = sc.tracked_index(t);
@@ -175,9 +183,17 @@ pub fn tracking_phase(
             )?);
         }
         let window_steps = t.onpolicy_steps.unwrap_or(sc.collect.steps);
+        let perturbations: Vec<Perturbation> = match &t.perturbation {
+            Some(p) => (0..refs.len()).map(|i| p.for_reference(i)).collect(),
+            None => Vec::new(),
+        };
         let mut rows = Vec::new();
         let replay_scored: Option<Vec<usize>> = if t.replay {
-            let key = (j, path.clone());
+            let key = (
+                j,
+                path.clone(),
+                serde_json::to_string(&t.perturbation).unwrap_or_default(),
+            );
             if !replays.contains_key(&key) {
                 on(Event::Phase(&format!(
                     "replaying the {} references' inputs open loop on '{sim_id}'",
@@ -192,6 +208,7 @@ pub fn tracking_phase(
                         model: "",
                         horizon: mpc.horizon,
                         steps,
+                        perturbation: perturbations.get(i),
                     };
                     scored.push(run_one(client, live, &mut clients[j], t, &refs, i, how)?);
                     on(Event::Control(i + 1, refs.len()));
@@ -250,6 +267,7 @@ pub fn tracking_phase(
                     model: &model,
                     horizon: mpc.horizon,
                     steps,
+                    perturbation: perturbations.get(i),
                 };
                 scored.push(run_one(client, live, &mut clients[j], t, &refs, i, how)?);
                 on(Event::Control(i + 1, refs.len()));
@@ -287,6 +305,8 @@ pub fn tracking_phase(
             survival: t.survival.clone(),
             continue_after_failure: t.continue_after_failure,
             error_state: t.error_state,
+            perturbation: t.perturbation.clone(),
+            perturbations,
             rows,
         });
     }
@@ -311,6 +331,7 @@ struct How<'a> {
     model: &'a str,
     horizon: usize,
     steps: usize,
+    perturbation: Option<&'a Perturbation>,
 }
 
 /// One closed loop (or replay) of reference `i`, scored: stops at a fall or a refused step (with
@@ -346,6 +367,7 @@ fn run_one(
             Row::Replay(u) => Some(u),
             _ => None,
         },
+        perturbation: how.perturbation,
     };
     run_task(client, live, sim, task, t, x)
 }

@@ -30,6 +30,70 @@ pub struct QFromData {
     pub states: Option<Vec<usize>>,
 }
 
+/// A perturbation of every tracked episode (the simulator applies it; PROTOCOL.md "reset"): the
+/// same for every reference except the push, whose step and direction are drawn per reference
+/// from `seed` (deterministic: reference i's push is the same in every row and every run).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PerturbationSpec {
+    /// Scale of the base body's mass (Go2: trunk, G1: torso), > 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mass_scale: Option<f64>,
+    /// Scale of the feet's sliding friction, > 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub friction_scale: Option<f64>,
+    /// A push of this size (m/s, a change of the base's horizontal velocity) in a uniformly
+    /// random direction at a uniformly random step of `push_steps`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub push: Option<f64>,
+    /// The steps `[first, end)` a push is drawn from (default [20, 80)).
+    #[serde(default = "default_push_steps")]
+    pub push_steps: [u64; 2],
+    /// The seed of the pushes' draws.
+    #[serde(default)]
+    pub seed: u64,
+}
+
+fn default_push_steps() -> [u64; 2] {
+    [20, 80]
+}
+
+impl PerturbationSpec {
+    /// Reference `i`'s perturbation.
+    pub fn for_reference(&self, i: usize) -> crate::messages::Perturbation {
+        let push = self.push.map(|size| {
+            let mut rng = koopman::rng::Rng::derive(self.seed, i as u64);
+            let [lo, hi] = self.push_steps;
+            let step = lo + rng.below((hi - lo) as usize) as u64;
+            let angle = rng.uniform(0.0, std::f64::consts::TAU);
+            crate::messages::Push {
+                step,
+                velocity: [size * angle.cos(), size * angle.sin()],
+            }
+        });
+        crate::messages::Perturbation {
+            mass_scale: self.mass_scale,
+            friction_scale: self.friction_scale,
+            push,
+        }
+    }
+
+    /// Checks the values (scales > 0, a push ≥ 0 m/s, `push_steps` a non-empty range).
+    pub fn check(&self) -> std::result::Result<(), String> {
+        self.for_reference(0).check()?;
+        if let Some(p) = self.push.filter(|p| !(p.is_finite() && *p >= 0.0)) {
+            return Err(format!(
+                "perturbation.push must be a finite speed ≥ 0 (m/s), got {p}"
+            ));
+        }
+        let [lo, hi] = self.push_steps;
+        if hi <= lo {
+            return Err(format!("perturbation.push_steps [{lo}, {hi}) is empty"));
+        }
+        Ok(())
+    }
+}
+
 /// A tracking task: every reference of `references` tracked from its own first state by the MPC
 /// service (one row per trained model kind), scored by `survival`; beside them the replay row.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -60,6 +124,8 @@ pub struct TrackSpec {
     pub q_from_data: Option<QFromData>,
     /// Transitions per on-policy window written from the closed loops (default: `[collect]`'s T).
     pub onpolicy_steps: Option<usize>,
+    /// The perturbation of every episode (replay and model rows alike).
+    pub perturbation: Option<PerturbationSpec>,
 }
 
 impl TrackSpec {
@@ -76,6 +142,7 @@ impl TrackSpec {
                 ("replay", c.replay.is_some()),
                 ("q_from_data", c.q_from_data.is_some()),
                 ("onpolicy_steps", c.onpolicy_steps.is_some()),
+                ("perturbation", c.perturbation.is_some()),
             ];
             if let Some((k, _)) = only.iter().find(|(_, set)| *set) {
                 return bad(format!(
@@ -124,6 +191,11 @@ impl TrackSpec {
         if c.onpolicy_steps == Some(0) {
             return bad("onpolicy_steps must be ≥ 1".into());
         }
+        if let Some(p) = &c.perturbation {
+            if let Err(m) = p.check() {
+                return bad(m);
+            }
+        }
         Ok(Some(TrackSpec {
             sim: c.sim.clone(),
             label: c.label.clone(),
@@ -136,6 +208,7 @@ impl TrackSpec {
             mpc: c.mpc.clone(),
             q_from_data: c.q_from_data.clone(),
             onpolicy_steps: c.onpolicy_steps,
+            perturbation: c.perturbation.clone(),
         }))
     }
 
@@ -173,6 +246,43 @@ impl TrackSpec {
 mod tests {
     use super::*;
 
+    #[test]
+    fn pushes_are_drawn_per_reference_in_the_window_and_of_the_given_size() {
+        let p: PerturbationSpec = toml::from_str("push = 0.8\nmass_scale = 1.2\nseed = 3").unwrap();
+        let draws: Vec<_> = (0..50).map(|i| p.for_reference(i)).collect();
+        for d in &draws {
+            let push = d.push.as_ref().unwrap();
+            assert!((20..80).contains(&push.step), "{push:?}");
+            assert!((push.velocity[0].hypot(push.velocity[1]) - 0.8).abs() < 1e-12);
+            assert_eq!(d.mass_scale, Some(1.2));
+        }
+        assert_eq!(
+            draws[7],
+            p.for_reference(7),
+            "deterministic by seed and reference"
+        );
+        assert_ne!(draws[7], draws[8], "each reference its own push");
+        let steps: std::collections::BTreeSet<u64> = draws
+            .iter()
+            .map(|d| d.push.as_ref().unwrap().step)
+            .collect();
+        assert!(
+            steps.len() > 20,
+            "the steps spread over the window: {steps:?}"
+        );
+        let other = PerturbationSpec {
+            seed: 4,
+            ..p.clone()
+        };
+        assert_ne!(
+            other.for_reference(7),
+            draws[7],
+            "another seed, other pushes"
+        );
+        let none: PerturbationSpec = toml::from_str("friction_scale = 0.6").unwrap();
+        assert!(none.for_reference(0).push.is_none());
+    }
+
     fn spec(extra: &str) -> ControlSpec {
         toml::from_str(&format!("references = \"r.npz\"\n{extra}")).unwrap()
     }
@@ -193,6 +303,8 @@ mod tests {
         assert!(err("survival = { threshold = 0.1, states = [] }").contains("at least one"));
         assert!(err("onpolicy_steps = 0").contains("onpolicy_steps"));
         assert!(err("label = \"A B\"").contains("label"));
+        assert!(err("perturbation = { mass_scale = 0.0 }").contains("mass_scale"));
+        assert!(err("perturbation = { push = 1.0, push_steps = [5, 5] }").contains("empty"));
         assert!(t
             .check_states(2, "go2")
             .unwrap_err()

@@ -5,6 +5,7 @@ simulator, with the shared input checks) and ``run_main``, the body of every
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import signal
 import sys
@@ -15,7 +16,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from ._native import Adapter, KoopbridgeError
+from ._native import Adapter, KoopbridgeError, Unsupported
 from .collect import Collector, Policy, Windows, collect_windows, policy_from_json
 from .serve_args import add_serve_arguments, serve_from_args
 from .simulator import Closable, SimInfo, Simulator, as_input, as_state
@@ -42,11 +43,16 @@ class SimulatorAdapter(Adapter):
         """The simulator's ``SimInfo`` as the flat dict the Rust side reads."""
         return self.sim_info.to_dict()
 
-    def reset(self, seed: int | None = None, x0: npt.ArrayLike | None = None) -> np.ndarray:
-        """Checks ``x0`` and resets the simulator."""
+    def reset(self, seed: int | None = None, x0: npt.ArrayLike | None = None, perturbation: Mapping[str, Any] | None = None) -> np.ndarray:
+        """Checks ``x0`` and resets the simulator; a ``perturbation`` (PROTOCOL.md "reset") goes
+        to a simulator whose ``reset`` takes one, else it is ``Unsupported``."""
         if x0 is not None:
             x0 = as_state(x0, self.sim_info.nx, "x0")
-        return np.asarray(self.sim.reset(seed=seed, x0=x0), dtype=np.float64)
+        if perturbation is None:
+            return np.asarray(self.sim.reset(seed=seed, x0=x0), dtype=np.float64)
+        if "perturbation" not in inspect.signature(self.sim.reset).parameters:
+            raise Unsupported(f"{type(self.sim).__name__}.reset() takes no perturbation (the legged adapters' does)")
+        return np.asarray(self.sim.reset(seed=seed, x0=x0, perturbation=dict(perturbation)), dtype=np.float64)
 
     def step(self, u: npt.ArrayLike) -> np.ndarray:
         """Checks ``u`` and steps the simulator."""

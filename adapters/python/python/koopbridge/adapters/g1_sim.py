@@ -72,6 +72,7 @@ class G1Simulator(LeggedSimulator):
 
     ROBOT = "G1"
     BASE_BODY = "pelvis"
+    MASS_BODY = "torso_link"
     FALL = g.FALL
     START_HEIGHT = 1.0
     MAX_FOOT_PENETRATION = 0.03

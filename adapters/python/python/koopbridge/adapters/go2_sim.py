@@ -53,6 +53,7 @@ class Go2Simulator(LeggedSimulator):
 
     ROBOT = "Go2"
     BASE_BODY = "base"
+    MASS_BODY = "base"
     FALL = g.FALL
     START_HEIGHT = 0.5
     #: A foot may go 6 cm into the floor (soft contacts, solimp width 22 mm: the expert's own

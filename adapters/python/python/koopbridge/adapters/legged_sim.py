@@ -19,6 +19,7 @@ from ..collect import PlannedPolicy, Policy, SimulatorPolicy, UniformPolicy, Win
 from ..simulator import as_input, as_state
 from .legged import FallRule, LeggedLayout, body_from_world, clip_targets, finish_physics_step, legged_state, quat_to_matrix
 from .legged_collect import ExpertPolicy, collect_expert
+from .legged_perturbation import Perturbation, Perturber
 from .legged_policy import OnnxExpert
 from .state_memory import StateMemory
 
@@ -41,6 +42,8 @@ class LeggedSimulator:
     #: The robot's name in messages, and its base body's.
     ROBOT: ClassVar[str]
     BASE_BODY: ClassVar[str]
+    #: The body a perturbation's ``mass_scale`` scales (the Go2's trunk, the G1's torso).
+    MASS_BODY: ClassVar[str]
     #: The fall thresholds.
     FALL: ClassVar[FallRule]
     #: The base height (m) a seeded reset places the robot at before lowering it onto its feet.
@@ -96,6 +99,15 @@ class LeggedSimulator:
         self.ready = False
         self.fallen = self.last_clipped = False
         self.k = self.steps = self.falls = self.clipped_targets = 0
+        self._perturber = Perturber(self.model, self._body_id(self.MASS_BODY), self.feet)
+
+    def _body_id(self, name: str) -> int:
+        """The id of body ``name`` (or of the one named ``{prefix}/{name}``)."""
+        m = self.model
+        for b in range(m.nbody):
+            if m.body(b).name == name or m.body(b).name.endswith("/" + name):
+                return b
+        raise self.MODEL_ERROR(f"the {self.ROBOT} model has no body {name!r}")
 
     # ---- robot-specific hooks ----
     def _lowest_foot(self, d: Any) -> float:
@@ -143,12 +155,15 @@ class LeggedSimulator:
         return x
 
     # ---- reset ----
-    def reset(self, seed: int | None = None, x0: npt.ArrayLike | None = None) -> np.ndarray:
+    def reset(self, seed: int | None = None, x0: npt.ArrayLike | None = None, perturbation: dict[str, Any] | None = None) -> np.ndarray:
         """Starts at ``x0`` (see the robot's module docstring), else standing in the default pose
         with the lowest foot on the floor, at rest: with ``seed``, the ``reset_joints`` + U(±
         reset_range) (clipped to their limits) and a heading U(±π); without, exactly the default
-        pose facing +x. Returns x_0."""
+        pose facing +x. ``perturbation`` (``legged_perturbation``: ``mass_scale``,
+        ``friction_scale``, ``push``) holds for this episode; without it the robot is nominal.
+        Returns x_0."""
         mj, m, d, lay = self._mj, self.model, self.data, self.layout
+        self._perturber.apply(Perturbation.from_json(perturbation))
         if x0 is not None:
             return self._reset_to(as_state(x0, self.nx, "x0"))
         q = self.default_pose.copy()
@@ -243,6 +258,9 @@ class LeggedSimulator:
         targets, n = clip_targets(as_input(u, self.nu, "u"), self.u_lo, self.u_hi)
         self.clipped_targets += n
         self.last_clipped = n > 0
+        dv = self._perturber.push_now(self.k)
+        if dv is not None:
+            self.push(np.asarray(dv))
         x = self.advance(targets)
         self.remember(x)
         return x
