@@ -91,6 +91,7 @@ fn every_setting_has_a_row() {
         "replay",
         "q_from_data",
         "onpolicy_steps",
+        "perturbation",
     ] {
         assert!(row(key), "scenarios/README.md has no row for `{key}`");
     }

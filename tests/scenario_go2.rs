@@ -49,6 +49,16 @@ fn go2_survival_scenario_tracks_in_the_engine_as_the_python_loop_did() {
             ),
         ],
     );
+    // A perturbed task beside them (issue 44 §3): a push per reference in steps [5, 30), a heavier
+    // trunk and slipperier feet, for the replay and the recommended controller alike.
+    let joints = "[10, 11, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21]";
+    let text = format!(
+        "{text}\n[[control]]\nlabel = \"perturbed\"\nreferences = \"{{out}}/references/go2.npz\"\n\
+         survival = {{ threshold = 0.16, states = {joints} }}\nerror_state = true\n\
+         q_from_data = {{ states = {joints} }}\nmpc = {{ horizon = 15, r = [{}] }}\n\
+         perturbation = {{ push = 1.0, push_steps = [5, 30], mass_scale = 1.2, friction_scale = 0.6, seed = 1 }}\n",
+        ["1.0"; 12].join(", ")
+    );
     let tag = format!(
         "{}-{}",
         std::process::id(),
@@ -73,7 +83,11 @@ fn go2_survival_scenario_tracks_in_the_engine_as_the_python_loop_did() {
     let tasks = report["tracking"]
         .as_array()
         .expect("report.json has `tracking`");
-    assert_eq!(tasks.len(), 2, "SPEC's task and the error-state one");
+    assert_eq!(
+        tasks.len(),
+        3,
+        "SPEC's task, the error-state one and the perturbed one"
+    );
     let row = |task: usize, name: &str| {
         let rows = tasks[task]["rows"].as_array().unwrap();
         rows.iter()
@@ -115,6 +129,23 @@ fn go2_survival_scenario_tracks_in_the_engine_as_the_python_loop_did() {
         let len = std::fs::metadata(out.join(f)).map(|m| m.len());
         assert!(len.is_ok_and(|n| n > 0), "{f} missing or empty");
     }
+
+    // The perturbed task: each reference's push drawn in its window and sent with the resets; the
+    // perturbed replay is not the nominal one.
+    let perturbed = &tasks[2];
+    let pushes = perturbed["perturbations"].as_array().unwrap();
+    assert_eq!(pushes.len(), 2);
+    for p in pushes {
+        let step = p["push"]["step"].as_u64().unwrap();
+        assert!((5..30).contains(&step) && p["mass_scale"] == 1.2, "{p}");
+    }
+    let replay_p = &perturbed["rows"][0];
+    assert_eq!(replay_p["row"], "replay");
+    assert_ne!(
+        replay_p["tracking_rms"], rows[0]["tracking_rms"],
+        "the perturbation changed the replay"
+    );
+    assert_eq!(perturbed["rows"][1]["row"], "go2-survival-go2+perturbed");
 
     // Before and after the loop moved into the engine: the Python loop (`legged_survival`, the
     // scenario's hook until issue 47) on the same references and models gives the same survival

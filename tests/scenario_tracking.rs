@@ -162,5 +162,15 @@ mpc = {{ horizon = 10, r = [0.1] }}
         !out.join("data/pend/train.npz").exists(),
         "nothing was collected"
     );
+
+    // A perturbation the built-in system cannot apply is refused by it, naming why.
+    let text = format!(
+        "name = \"tracking-perturbed\"\n{BASE}\n[control]\nreferences = \"{{out}}/data/pend/test.npz\"\n\
+         perturbation = {{ mass_scale = 1.2 }}\n"
+    );
+    let (o, _) = run(&dir, "perturbed", &text);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(stderr.contains("takes no perturbation"), "{stderr}");
     std::fs::remove_dir_all(&dir).ok();
 }

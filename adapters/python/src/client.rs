@@ -81,24 +81,36 @@ impl Client {
         Ok(info)
     }
 
-    /// Resets simulator ``id`` (``seed`` for a random initial state, ``x0`` for a given one);
-    /// returns the first state.
-    #[pyo3(signature = (id, seed=None, x0=None))]
+    /// Resets simulator ``id`` (``seed`` for a random initial state, ``x0`` for a given one;
+    /// ``perturbation``: a dict of ``mass_scale``, ``friction_scale``, ``push`` = ``{"step": k,
+    /// "velocity": [vx, vy]}`` for the episode, PROTOCOL.md "reset"); returns the first state.
+    #[pyo3(signature = (id, seed=None, x0=None, perturbation=None))]
     fn reset<'py>(
         &self,
         py: Python<'py>,
         id: &str,
         seed: Option<u64>,
         x0: Option<&Bound<'py, PyAny>>,
+        perturbation: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray1<f64>>> {
         let x0 = match x0 {
             Some(x) => Some(vec_f64(x, "x0")?),
             None => None,
         };
+        let perturbation = match perturbation {
+            Some(p) => {
+                let v = crate::convert::from_py_json(p, "perturbation")?;
+                let p: bridge::messages::Perturbation = serde_json::from_value(v)
+                    .map_err(|e| PyValueError::new_err(format!("perturbation: {e}")))?;
+                p.check().map_err(PyValueError::new_err)?;
+                Some(p)
+            }
+            None => None,
+        };
         let req = ResetRequest {
             seed,
             x0,
-            perturbation: None,
+            perturbation,
         };
         let r = self.with_sim(py, id, |s| s.reset(&req))?;
         Ok(array1(py, &r.x))
