@@ -5,22 +5,14 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 fn run(dir: &Path, name: &str, text: &str, extra: &[&str]) -> (Output, PathBuf) {
-    let sc = dir.join(format!("{name}.toml"));
-    std::fs::write(&sc, text).unwrap();
-    let out = dir.join(format!("out-{name}"));
-    let mut args = vec!["run", sc.to_str().unwrap(), "--out", out.to_str().unwrap()];
-    args.extend_from_slice(extra);
-    (
-        Command::new(common::exe()).args(&args).output().unwrap(),
-        out,
-    )
+    common::run_scenario_text(dir, name, text, extra)
 }
 
 fn json(p: &Path) -> serde_json::Value {
-    serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap()
+    common::json_file(p)
 }
 
 const BASE: &str = r#"

@@ -49,16 +49,6 @@ fn go2_survival_scenario_tracks_in_the_engine_as_the_python_loop_did() {
             ),
         ],
     );
-    // A perturbed task beside them (issue 44 §3): a push per reference in steps [5, 30), a heavier
-    // trunk and slipperier feet, for the replay and the recommended controller alike.
-    let joints = "[10, 11, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21]";
-    let text = format!(
-        "{text}\n[[control]]\nlabel = \"perturbed\"\nreferences = \"{{out}}/references/go2.npz\"\n\
-         survival = {{ threshold = 0.16, states = {joints} }}\nerror_state = true\n\
-         q_from_data = {{ states = {joints} }}\nmpc = {{ horizon = 15, r = [{}] }}\n\
-         perturbation = {{ push = 1.0, push_steps = [5, 30], mass_scale = 1.2, friction_scale = 0.6, seed = 1 }}\n",
-        ["1.0"; 12].join(", ")
-    );
     let tag = format!(
         "{}-{}",
         std::process::id(),
@@ -83,10 +73,21 @@ fn go2_survival_scenario_tracks_in_the_engine_as_the_python_loop_did() {
     let tasks = report["tracking"]
         .as_array()
         .expect("report.json has `tracking`");
+    let labels: Vec<&str> = tasks
+        .iter()
+        .map(|t| t["label"].as_str().unwrap_or(""))
+        .collect();
     assert_eq!(
-        tasks.len(),
-        3,
-        "SPEC's task, the error-state one and the perturbed one"
+        labels,
+        [
+            "",
+            "error-state",
+            "push",
+            "mass",
+            "friction",
+            "mass-friction"
+        ],
+        "SPEC's task, the recommended controller's and the perturbation suite"
     );
     let row = |task: usize, name: &str| {
         let rows = tasks[task]["rows"].as_array().unwrap();
@@ -130,22 +131,28 @@ fn go2_survival_scenario_tracks_in_the_engine_as_the_python_loop_did() {
         assert!(len.is_ok_and(|n| n > 0), "{f} missing or empty");
     }
 
-    // The perturbed task: each reference's push drawn in its window and sent with the resets; the
-    // perturbed replay is not the nominal one.
-    let perturbed = &tasks[2];
-    let pushes = perturbed["perturbations"].as_array().unwrap();
+    // The perturbation suite: each reference's push drawn in its window and sent with the
+    // resets; every perturbed task has its own replay row, and a heavier trunk changes it.
+    let pushes = tasks[2]["perturbations"].as_array().unwrap();
     assert_eq!(pushes.len(), 2);
     for p in pushes {
-        let step = p["push"]["step"].as_u64().unwrap();
-        assert!((5..30).contains(&step) && p["mass_scale"] == 1.2, "{p}");
+        let (step, v) = (&p["push"]["step"], &p["push"]["velocity"]);
+        let speed = v[0].as_f64().unwrap().hypot(v[1].as_f64().unwrap());
+        assert!(
+            (20..80).contains(&step.as_u64().unwrap()) && (speed - 1.0).abs() < 1e-9,
+            "{p}"
+        );
     }
-    let replay_p = &perturbed["rows"][0];
-    assert_eq!(replay_p["row"], "replay");
+    for t in &tasks[2..] {
+        assert_eq!(t["rows"][0]["row"], "replay");
+        let name = format!("go2-survival-go2+{}", t["label"].as_str().unwrap());
+        assert_eq!(t["rows"][1]["row"], name.as_str());
+    }
+    assert_eq!(tasks[3]["perturbations"][0]["mass_scale"], 1.2);
     assert_ne!(
-        replay_p["tracking_rms"], rows[0]["tracking_rms"],
-        "the perturbation changed the replay"
+        tasks[3]["rows"][0]["tracking_rms"], rows[0]["tracking_rms"],
+        "the heavier trunk changed the replay"
     );
-    assert_eq!(perturbed["rows"][1]["row"], "go2-survival-go2+perturbed");
 
     // Before and after the loop moved into the engine: the Python loop (`legged_survival`, the
     // scenario's hook until issue 47) on the same references and models gives the same survival

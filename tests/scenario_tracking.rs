@@ -8,11 +8,8 @@
 mod common;
 
 use std::path::Path;
-use std::process::Command;
 
-fn json(p: &Path) -> serde_json::Value {
-    serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap()
-}
+use common::json_file as json;
 
 const BASE: &str = r#"
 [[sims]]
@@ -30,14 +27,7 @@ config = { iterations = 30, hidden = [16], n_mult = 2, batch = 16, validate_ever
 "#;
 
 fn run(dir: &Path, name: &str, text: &str) -> (std::process::Output, std::path::PathBuf) {
-    let sc = dir.join(format!("{name}.toml"));
-    std::fs::write(&sc, text).unwrap();
-    let out = dir.join(format!("out-{name}"));
-    let o = Command::new(common::exe())
-        .args(["run", sc.to_str().unwrap(), "--out", out.to_str().unwrap()])
-        .output()
-        .unwrap();
-    (o, out)
+    common::run_scenario_text(dir, name, text, &[])
 }
 
 #[test]

@@ -339,3 +339,30 @@ fn koopbridge_run(
         .output()
         .unwrap()
 }
+
+/// `koopbridge run` of scenario `text` written to `dir/{name}.toml`, into `dir/out-{name}` (with
+/// the extra arguments `extra`): its output and the output folder.
+pub fn run_scenario_text(
+    dir: &std::path::Path,
+    name: &str,
+    text: &str,
+    extra: &[&str],
+) -> (std::process::Output, PathBuf) {
+    let sc = dir.join(format!("{name}.toml"));
+    std::fs::write(&sc, text).unwrap();
+    let out = dir.join(format!("out-{name}"));
+    let mut args = vec!["run", sc.to_str().unwrap(), "--out", out.to_str().unwrap()];
+    args.extend_from_slice(extra);
+    (
+        std::process::Command::new(exe())
+            .args(&args)
+            .output()
+            .unwrap(),
+        out,
+    )
+}
+
+/// A JSON file, parsed.
+pub fn json_file(p: &std::path::Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap()
+}

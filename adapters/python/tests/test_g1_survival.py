@@ -134,9 +134,14 @@ def test_the_g1_survival_toml_through_koopbridge_run(tmp_path):
         toml.unlink()
     assert r.returncode == 0, r.stderr[-3000:]
     rep = json.loads((out / "report.json").read_text())
-    spec, es = rep["tracking"]
+    assert [t.get("label") for t in rep["tracking"]] == [None, "error-state", "push", "mass", "friction", "mass-friction"]
+    spec, es = rep["tracking"][:2]
     rows = {row["row"]: row for task in (spec, es) for row in task["rows"]}
     assert set(rows) == {"replay", "g1-survival-g1", "g1-survival-g1+error-state"}
+    # The perturbation suite: the G1's push is 0.5 m/s, each task with its own replay row.
+    push = rep["tracking"][2]
+    assert all(abs(np.hypot(*p["push"]["velocity"]) - 0.5) < 1e-9 for p in push["perturbations"])
+    assert [r["row"] for r in push["rows"]] == ["replay", "g1-survival-g1+push"]
     for row in rows.values():
         s = row["survival"]
         assert s["n"] == 2 and np.isfinite(s["mean"]) and 0 <= s["min"] <= s["mean"] <= s["max"] <= 40, row

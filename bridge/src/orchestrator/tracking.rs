@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use koopman::data::{Dataset, DatasetMeta, Normalisation, Pairing};
+use koopman::data::{Dataset, Normalisation};
 use koopman::mpc::metrics::quantile;
 use koopman::mpc::MpcConfig;
 use serde::{Deserialize, Serialize};
@@ -541,33 +541,21 @@ fn write_onpolicy(
     if w.is_empty() {
         return Ok(rec);
     }
-    let (nx, nu) = (info.nx(), info.nu());
-    let data = Dataset {
-        n: w.len(),
+    let mut data = crate::collect::empty_dataset(
+        info,
+        w.len(),
         steps,
-        nx,
-        nu,
-        x: w.iter()
-            .flat_map(|(x, _)| x.iter().flatten().copied())
-            .collect(),
-        u: w.iter()
-            .flat_map(|(_, u)| u.iter().flatten().copied())
-            .collect(),
-        meta: DatasetMeta {
-            env: info.env.clone(),
-            dt: info.dt,
-            state_names: info.state_names.clone(),
-            input_names: info.input_names.clone(),
-            pairing: Pairing::Aligned,
-            seed: 0,
-            source: format!("koopbridge tracking task ({})", t.references),
-            policy: format!(
-                "MPC ({name}) tracking the references; windows of {steps} cut back to back from \
-                 each run up to its end, failure or fall"
-            ),
-            region: None,
-        },
-    };
+        0,
+        format!("koopbridge tracking task ({})", t.references),
+        &format!(
+            "MPC ({name}) tracking the references; windows of {steps} cut back to back from \
+             each run up to its end, failure or fall"
+        ),
+    );
+    for (x, u) in &w {
+        data.x.extend(x.iter().flatten());
+        data.u.extend(u.iter().flatten());
+    }
     let path = out_dir
         .join("tracking")
         .join("onpolicy")
