@@ -92,6 +92,7 @@ fn every_setting_has_a_row() {
         "q_from_data",
         "onpolicy_steps",
         "perturbation",
+        "aggregate",
     ] {
         assert!(row(key), "scenarios/README.md has no row for `{key}`");
     }

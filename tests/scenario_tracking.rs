@@ -164,3 +164,88 @@ mpc = {{ horizon = 10, r = [0.1] }}
     assert!(stderr.contains("takes no perturbation"), "{stderr}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn aggregation_retrains_on_the_aggregation_tasks_windows_and_tracks_again() {
+    let dir = common::scratch("tracking-agg");
+    let text = format!(
+        r#"name = "agg"
+{BASE}
+# The data: the run's own test windows, tracked to their end (one window of T = 15 each).
+[[control]]
+label = "data"
+references = "{{out}}/data/pend/test.npz"
+continue_after_failure = true
+survival = {{ threshold = 0.5, states = [0] }}
+aggregate = true
+replay = false
+[[control]]
+references = "{{out}}/data/pend/test.npz"
+survival = {{ threshold = 0.5, states = [0] }}
+"#
+    );
+    let (o, out) = common::run_scenario_text(&dir, "ok", &text, &["--aggregate", "1"]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{}\n{stdout}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let report = json(&out.join("report.json"));
+    let first = &report["tracking"][0]["rows"][0];
+    assert_eq!(first["row"], "agg-pend+data");
+    let windows = first["onpolicy"]["windows"].as_u64().unwrap();
+    assert_eq!(
+        windows, 6,
+        "six references run to their end: a window of 15 each"
+    );
+    let round = &report["tracking_aggregation"][0];
+    assert_eq!(round["round"], 1);
+    let sim = &round["sims"][0];
+    assert_eq!(
+        (sim["added_windows"].as_u64(), sim["train_windows"].as_u64()),
+        (Some(windows), Some(40 + windows))
+    );
+    assert_eq!(sim["train"]["model"], "agg-pend-agg1");
+    let agg = koopman::data::Dataset::load_npz(&out.join("data/pend/train-agg1.npz")).unwrap();
+    let train = koopman::data::Dataset::load_npz(&out.join("data/pend/train.npz")).unwrap();
+    assert_eq!(agg.n as u64, 40 + windows);
+    assert_eq!(
+        &agg.x[..train.x.len()],
+        &train.x[..],
+        "the collected windows first"
+    );
+    // Every task again with the retrained model, the replay row unchanged.
+    let again = round["tracking"].as_array().unwrap();
+    assert_eq!(again.len(), 2);
+    assert_eq!(again[0]["rows"][0]["row"], "agg-pend-agg1+data");
+    assert_eq!(again[1]["rows"][1]["row"], "agg-pend-agg1");
+    assert_eq!(
+        again[1]["rows"][0]["survivals"],
+        report["tracking"][1]["rows"][0]["survivals"]
+    );
+    assert!(stdout.contains("-> round 1:"), "{stdout}");
+
+    // Windows of another length than the training data's cannot be aggregated: refused when the
+    // file is read.
+    let bad = text.replace(
+        "aggregate = true\n",
+        "aggregate = true\nonpolicy_steps = 5\n",
+    );
+    let (o, _) = common::run_scenario_text(&dir, "steps", &bad, &["--aggregate", "1"]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && stderr.contains("onpolicy_steps"),
+        "{stderr}"
+    );
+    // Without a task marked `aggregate`, --aggregate is refused before anything starts.
+    let text = text.replace("aggregate = true\n", "");
+    let (o, out) = common::run_scenario_text(&dir, "none", &text, &["--aggregate", "1"]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && stderr.contains("aggregate = true"),
+        "{stderr}"
+    );
+    assert!(!out.join("data/pend/train.npz").exists());
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -232,6 +232,9 @@ pub struct ControlSpec {
     /// A tracking task's perturbation of every episode ([`PerturbationSpec`]).
     #[serde(default)]
     pub perturbation: Option<PerturbationSpec>,
+    /// A tracking task whose closed loops are the training data of `koopbridge run --aggregate`.
+    #[serde(default)]
+    pub aggregate: bool,
     /// `koopman::mpc::MpcConfig` fields to override (JSON object).
     #[serde(default)]
     pub mpc: serde_json::Map<String, serde_json::Value>,
@@ -366,6 +369,15 @@ impl Scenario {
             self.sim_region(j)?;
         }
         for t in &self.tracks {
+            if t.aggregate && t.onpolicy_steps.is_some_and(|n| n != self.collect.steps) {
+                return Err(Error::Config(format!(
+                    "[control] for '{}': `aggregate = true` adds its windows to the training \
+                     data, whose windows have [collect].steps = {} transitions: onpolicy_steps \
+                     must be that (or absent)",
+                    self.tracked_id(t),
+                    self.collect.steps
+                )));
+            }
             if let Some(id) = &t.sim {
                 if !self.sims.iter().any(|s| &s.id == id) {
                     return Err(Error::Config(format!(

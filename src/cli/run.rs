@@ -59,7 +59,9 @@ pub struct RunArgs {
     /// recorder recorded so far, and control again (`aggregation` in report.json, plot
     /// aggregation.png). Each round's control result is printed beside the previous round's,
     /// and a round that made it worse (final error or tracking RMS up by more than 10% and
-    /// 0.001, the goal lost, more unsolved MPC steps) is a warning.
+    /// 0.001, the goal lost, more unsolved MPC steps) is a warning. With tracking tasks marked
+    /// `aggregate = true` (scenarios/README.md), their closed loops' windows are the added data
+    /// and every tracking task runs again each round (`tracking_aggregation` in report.json).
     #[arg(long, value_name = "ROUNDS", default_value_t = 0)]
     pub aggregate: usize,
     /// Exit with an error (code 1) when the run ends with warnings (an MPC that did not solve
@@ -277,6 +279,18 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     if !report.tracking.is_empty() {
         for line in bridge::orchestrator::tracking::table(&report.tracking).lines() {
             println!("  {line}");
+        }
+        if !report.tracking_aggregation.is_empty() {
+            println!(
+                "  aggregation rounds of the tracking tasks (mean survival of each model row):"
+            );
+            let table = bridge::orchestrator::track_aggregate::rounds_table(
+                &report.tracking,
+                &report.tracking_aggregation,
+            );
+            for line in table.lines() {
+                println!("    {line}");
+            }
         }
         let png = out_dir.join("tracking").join("survival.png");
         if report.tracking.iter().any(|t| t.survival.is_some()) {

@@ -12,6 +12,7 @@
 //! - [`reference`]: fixed and time-varying (`reference_file`) references and their windows;
 //! - [`tracking`]: tracking tasks (`[control] references`): a closed loop per reference and
 //!   model kind beside the replay row, scored by [`survival`]; [`reference_set`] reads them;
+//!   [`track_aggregate`]: their on-policy aggregation rounds;
 //! - [`commands`]: command placeholders and `[[hooks]]`;
 //! - [`program`]: the program an external command runs (`{python}`, relative paths);
 //! - [`aggregate`]: on-policy aggregation rounds (`--aggregate`);
@@ -38,6 +39,7 @@ pub mod reference_set;
 pub mod reuse;
 pub mod run;
 pub mod survival;
+pub mod track_aggregate;
 pub mod tracking;
 pub mod train;
 pub mod validate;

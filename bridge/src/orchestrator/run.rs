@@ -15,6 +15,7 @@ use super::control::{control_phase, ControlPhase};
 use super::control_loop::LoopReport;
 use super::diagnose::{self, ControlDiagnosis};
 use super::reuse;
+use super::track_aggregate::{aggregate_tracking, TrackingRound};
 use super::tracking::{tracking_phase, TrackReport, TrackingPhase};
 use super::train::{job_config, train_model_as, TrainReport};
 use super::validate::validate_scenario;
@@ -62,6 +63,11 @@ pub struct Report {
     /// row and one row per model kind, paired by reference ([`TrackReport`]).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub tracking: Vec<TrackReport>,
+    /// On-policy aggregation rounds of the tracking tasks (`--aggregate` with a task marked
+    /// `aggregate = true`): per round the retrained models and every task again
+    /// ([`TrackingRound`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub tracking_aggregation: Vec<TrackingRound>,
     /// Per control run, what the numbers say about a miss: the model's prediction error along
     /// the closed loop against the test set, the commands at a bound, one next step
     /// ([`diagnose::diagnose`]).
@@ -173,9 +179,12 @@ pub fn run_scenario_with(
     on: &mut dyn FnMut(Event<'_>),
 ) -> Result<Report> {
     let t0 = Instant::now();
-    if extras.aggregate > 0 && sc.control.is_empty() {
+    let aggregate_tracks = sc.tracks.iter().any(|t| t.aggregate);
+    if extras.aggregate > 0 && sc.control.is_empty() && !aggregate_tracks {
         return Err(Error::Config(
-            "--aggregate needs [train] and [control] (it retrains on closed-loop rollouts)".into(),
+            "--aggregate needs [train] and [control] (it retrains on closed-loop rollouts): a \
+             `[control]` loop, or a tracking task marked `aggregate = true`"
+                .into(),
         ));
     }
     let kinds = sc.train.as_ref().map(|t| t.kinds()).unwrap_or_default();
@@ -300,9 +309,24 @@ pub fn run_scenario_with(
             &TrackingPhase {
                 out_dir: &opts.out_dir,
                 kinds: &kinds,
+                model_of: &|id, kind| sc.model_name(id, kind),
             },
             on,
         )?
+    };
+    let tracking_aggregation = match kinds.first() {
+        Some(&kind) if extras.aggregate > 0 && aggregate_tracks => aggregate_tracking(
+            sc,
+            opts,
+            &cluster,
+            &mut clients,
+            &ph,
+            &tracking,
+            kind,
+            extras.aggregate,
+            on,
+        )?,
+        _ => Vec::new(),
     };
     warnings.extend(aggregation.iter().flat_map(aggregate::round_warnings));
     let diagnoses = diagnose_controls(sc, &opts.out_dir, &controls, &mut clients, on);
@@ -327,6 +351,7 @@ pub fn run_scenario_with(
         control_loop,
         aggregation,
         tracking,
+        tracking_aggregation,
         diagnoses,
         warnings,
         wall_seconds: t0.elapsed().as_secs_f64(),

@@ -51,6 +51,9 @@ pub struct TrackReport {
     pub continue_after_failure: bool,
     /// Whether the models planned about each reference with its inputs as feed-forward.
     pub error_state: bool,
+    /// Whether its closed loops are the training data of `--aggregate`.
+    #[serde(default)]
+    pub aggregate: bool,
     /// The perturbation of every episode, as the task gave it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub perturbation: Option<PerturbationSpec>,
@@ -128,6 +131,9 @@ pub struct TrackingPhase<'a> {
     pub out_dir: &'a Path,
     /// The model kinds trained (one row each).
     pub kinds: &'a [ModelKind],
+    /// The model of simulator `sim` and kind `kind` ([`Scenario::model_name`], or an
+    /// aggregation round's).
+    pub model_of: &'a dyn Fn(&str, ModelKind) -> String,
 }
 
 /// One run of one row on one reference, as scored.
@@ -233,7 +239,7 @@ pub fn tracking_phase(
             None
         };
         for &kind in what.kinds {
-            let model = sc.model_name(&sim_id, kind);
+            let model = (what.model_of)(&sim_id, kind);
             let name = t.row(&model);
             on(Event::Phase(&format!(
                 "tracking {} references on '{sim_id}' with {name} ({kind}{})",
@@ -305,6 +311,7 @@ pub fn tracking_phase(
             survival: t.survival.clone(),
             continue_after_failure: t.continue_after_failure,
             error_state: t.error_state,
+            aggregate: t.aggregate,
             perturbation: t.perturbation.clone(),
             perturbations,
             rows,

@@ -126,6 +126,8 @@ pub struct TrackSpec {
     pub onpolicy_steps: Option<usize>,
     /// The perturbation of every episode (replay and model rows alike).
     pub perturbation: Option<PerturbationSpec>,
+    /// Its closed loops' windows are what `koopbridge run --aggregate` retrains on.
+    pub aggregate: bool,
 }
 
 impl TrackSpec {
@@ -143,6 +145,7 @@ impl TrackSpec {
                 ("q_from_data", c.q_from_data.is_some()),
                 ("onpolicy_steps", c.onpolicy_steps.is_some()),
                 ("perturbation", c.perturbation.is_some()),
+                ("aggregate", c.aggregate),
             ];
             if let Some((k, _)) = only.iter().find(|(_, set)| *set) {
                 return bad(format!(
@@ -209,6 +212,7 @@ impl TrackSpec {
             q_from_data: c.q_from_data.clone(),
             onpolicy_steps: c.onpolicy_steps,
             perturbation: c.perturbation.clone(),
+            aggregate: c.aggregate,
         }))
     }
 
