@@ -568,6 +568,17 @@ mod tests {
         std::fs::remove_dir_all(&root).ok();
     }
 
+    #[test]
+    fn a_collect_table_without_a_policy_is_specs_uniform_one() {
+        let text = GOOD.replace(
+            "policy = { kind = \"scripted\", inputs = [[1.0], [-1.0]] }\n",
+            "",
+        );
+        assert_ne!(text, GOOD, "the example names a policy");
+        let s = Scenario::parse(&text).unwrap();
+        assert_eq!(s.collect.policy, Policy::uniform());
+    }
+
     const GOOD: &str = r#"
 name = "demo"
 [[sims]]

@@ -58,7 +58,9 @@ super::data_region::with_x0_box! {
     #[derive(Clone, Debug, Serialize, Deserialize)]
     #[serde(deny_unknown_fields)]
     pub struct CollectSpec {
-        /// Input policy.
+        /// Input policy (default: SPEC's, a fresh uniform random input within the simulator's
+        /// bounds every step, [`Policy::uniform`]).
+        #[serde(default = "Policy::uniform")]
         pub policy: Policy,
         /// Training windows (per simulator).
         pub train_windows: usize,

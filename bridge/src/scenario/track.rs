@@ -80,7 +80,6 @@ impl PerturbationSpec {
 
     /// Checks the values (scales > 0, a push ≥ 0 m/s, `push_steps` a non-empty range).
     pub fn check(&self) -> std::result::Result<(), String> {
-        self.for_reference(0).check()?;
         if let Some(p) = self.push.filter(|p| !(p.is_finite() && *p >= 0.0)) {
             return Err(format!(
                 "perturbation.push must be a finite speed ≥ 0 (m/s), got {p}"
@@ -90,7 +89,8 @@ impl PerturbationSpec {
         if hi <= lo {
             return Err(format!("perturbation.push_steps [{lo}, {hi}) is empty"));
         }
-        Ok(())
+        // The draws need the non-empty window checked above.
+        self.for_reference(0).check()
     }
 }
 
