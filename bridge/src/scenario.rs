@@ -19,6 +19,7 @@ use crate::error::{Error, Result};
 use crate::keyexpr::validate_chunk;
 
 pub mod collect;
+pub mod control;
 mod data_region;
 pub mod extras;
 mod region;
@@ -27,8 +28,9 @@ pub mod train;
 mod train_names;
 
 pub use collect::{CollectSpec, Policy};
+pub use control::{ControlSpec, PerturbationSpec, PositionLoopSpec, QFromData, SurvivalSpec};
 pub use extras::{CommandLine, HookPhase, HookSpec, ParticipantRole, ParticipantSpec};
-pub use track::{PerturbationSpec, QFromData, SurvivalSpec, TrackSpec};
+pub use track::TrackSpec;
 pub use train::TrainSpec;
 
 use data_region::with_x0_box;
@@ -167,99 +169,6 @@ impl SimSpec {
             train_config: serde_json::Map::new(),
         }
     }
-}
-
-/// Closed-loop control of one simulator with the MPC service.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ControlSpec {
-    /// Initial state (`nx` values) of the controlled simulator (not with `references`: each
-    /// reference starts from its own first state).
-    #[serde(default)]
-    pub x0: Vec<f64>,
-    /// Reference state (`nx` values, or `horizon·nx`: the stacked x_1..x_H); exactly one of
-    /// `reference` and `reference_file`.
-    #[serde(default)]
-    pub reference: Option<Vec<f64>>,
-    /// A time-varying reference: a float64 `.npy` of shape (T, nx), row k the reference state
-    /// at step k (rows past the end repeat the last). May hold `{out}` (the run's output
-    /// folder); a relative path resolves in the scenario's repository.
-    #[serde(default)]
-    pub reference_file: Option<String>,
-    /// The inputs that realise `reference_file` (a plan): a float64 `.npy` of shape (T, nu), row
-    /// k the input planned at step k (rows past the end repeat the last); placeholders and paths
-    /// as `reference_file`. With it the MPC service plans the deviation from the plan
-    /// (error-state MPC: the model's own rollout of the plan is the reference, so its bias along
-    /// the plan cancels; a lifted-linear model only).
-    #[serde(default)]
-    pub feedforward_file: Option<String>,
-    /// A position loop on the plan (arms commanded in joint velocities; needs
-    /// `feedforward_file`): at every step the orchestrator corrects the planned velocities — in
-    /// the feed-forward window and in the planned state alike — by `−gain · (q − q_plan)`, and
-    /// the error-state MPC plans about the corrected plan. What corrects an actuator mismatch
-    /// that no MPC weighting of the model does (docs/log/2026-12.md, session 8).
-    #[serde(default)]
-    pub position_loop: Option<PositionLoopSpec>,
-    /// Closed-loop steps (with `references`: at most this many per reference, default all).
-    #[serde(default)]
-    pub steps: usize,
-    /// A tracking task ([`TrackSpec`]): an `.npz` of references, `x` (N, T+1, nx) and `u`
-    /// (N, T, nu) (the inputs that realised them), the layout of a collected dataset; one
-    /// closed loop per reference from its first state, and the replay row.
-    #[serde(default)]
-    pub references: Option<String>,
-    /// The survival metric of a tracking task ([`SurvivalSpec`]).
-    #[serde(default)]
-    pub survival: Option<SurvivalSpec>,
-    /// A tracking task runs each reference to its end (or a fall) after the threshold is crossed.
-    #[serde(default)]
-    pub continue_after_failure: bool,
-    /// A tracking task plans about each reference with its inputs as feed-forward.
-    #[serde(default)]
-    pub error_state: bool,
-    /// A tracking task's row suffix (`{model}+{label}`).
-    #[serde(default)]
-    pub label: Option<String>,
-    /// Whether a tracking task runs the replay row (default true).
-    #[serde(default)]
-    pub replay: Option<bool>,
-    /// A tracking task's Q from the training data's spread ([`QFromData`]).
-    #[serde(default)]
-    pub q_from_data: Option<QFromData>,
-    /// Transitions per on-policy window of a tracking task (default: `[collect]`'s T).
-    #[serde(default)]
-    pub onpolicy_steps: Option<usize>,
-    /// A tracking task's perturbation of every episode ([`PerturbationSpec`]).
-    #[serde(default)]
-    pub perturbation: Option<PerturbationSpec>,
-    /// A tracking task whose closed loops are the training data of `koopbridge run --aggregate`.
-    #[serde(default)]
-    pub aggregate: bool,
-    /// `koopman::mpc::MpcConfig` fields to override (JSON object).
-    #[serde(default)]
-    pub mpc: serde_json::Map<String, serde_json::Value>,
-    /// Which simulator to control (default: the first).
-    #[serde(default)]
-    pub sim: Option<String>,
-    /// Offset-free correction of the MPC (a bilinear or a lifted-linear model; not with
-    /// `feedforward_file`), `koopman::mpc::OffsetFreeConfig` fields: `mode` (`trajectory`,
-    /// `disturbance` or `integral`), `radius`, `gain` (nx values), `angles`.
-    #[serde(default)]
-    pub offset_free: Option<koopman::mpc::OffsetFreeConfig>,
-}
-
-/// A position loop on a plan: which state components are the joint positions and which their
-/// velocities (input `i` commands velocity `velocity[i]` and corrects position `position[i]`),
-/// and the loop's gain.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PositionLoopSpec {
-    /// State indices of the joint positions (`nu` of them, input order).
-    pub position: Vec<usize>,
-    /// State indices of the joint velocities (`nu` of them, input order).
-    pub velocity: Vec<usize>,
-    /// Gain in 1/s: the velocity correction per unit of position error (≥ 0).
-    pub gain: f64,
 }
 
 /// Overrides for `--full`.

@@ -4,95 +4,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::ControlSpec;
+use super::control::{ControlSpec, PerturbationSpec, QFromData, SurvivalSpec};
 use crate::error::{Error, Result};
 use crate::keyexpr::validate_chunk;
-
-/// When a tracked run fails: the mean absolute error over `states` above `threshold`, or a fall
-/// the simulator reports (a step flagged `terminated`, PROTOCOL.md §4), or a non-finite state.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SurvivalSpec {
-    /// The largest mean absolute error that still counts as tracking (> 0, in the states' units).
-    pub threshold: f64,
-    /// The state indices the error is taken over (at least one; checked against `nx`).
-    pub states: Vec<usize>,
-}
-
-/// Q's diagonal from the training data: `1/σ²` of each state's standard deviation over the
-/// simulator's training split (the z-score a `normalise = true` model is trained in) on
-/// `states`, 0 on every other state (all states when `states` is absent).
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct QFromData {
-    /// The weighted states (default: all).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub states: Option<Vec<usize>>,
-}
-
-/// A perturbation of every tracked episode (the simulator applies it; PROTOCOL.md "reset"): the
-/// same for every reference except the push, whose step and direction are drawn per reference
-/// from `seed` (deterministic: reference i's push is the same in every row and every run).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PerturbationSpec {
-    /// Scale of the base body's mass (Go2: trunk, G1: torso), > 0.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub mass_scale: Option<f64>,
-    /// Scale of the feet's sliding friction, > 0.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub friction_scale: Option<f64>,
-    /// A push of this size (m/s, a change of the base's horizontal velocity) in a uniformly
-    /// random direction at a uniformly random step of `push_steps`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub push: Option<f64>,
-    /// The steps `[first, end)` a push is drawn from (default [20, 80)).
-    #[serde(default = "default_push_steps")]
-    pub push_steps: [u64; 2],
-    /// The seed of the pushes' draws.
-    #[serde(default)]
-    pub seed: u64,
-}
-
-fn default_push_steps() -> [u64; 2] {
-    [20, 80]
-}
-
-impl PerturbationSpec {
-    /// Reference `i`'s perturbation.
-    pub fn for_reference(&self, i: usize) -> crate::messages::Perturbation {
-        let push = self.push.map(|size| {
-            let mut rng = koopman::rng::Rng::derive(self.seed, i as u64);
-            let [lo, hi] = self.push_steps;
-            let step = lo + rng.below((hi - lo) as usize) as u64;
-            let angle = rng.uniform(0.0, std::f64::consts::TAU);
-            crate::messages::Push {
-                step,
-                velocity: [size * angle.cos(), size * angle.sin()],
-            }
-        });
-        crate::messages::Perturbation {
-            mass_scale: self.mass_scale,
-            friction_scale: self.friction_scale,
-            push,
-        }
-    }
-
-    /// Checks the values (scales > 0, a push ≥ 0 m/s, `push_steps` a non-empty range).
-    pub fn check(&self) -> std::result::Result<(), String> {
-        if let Some(p) = self.push.filter(|p| !(p.is_finite() && *p >= 0.0)) {
-            return Err(format!(
-                "perturbation.push must be a finite speed ≥ 0 (m/s), got {p}"
-            ));
-        }
-        let [lo, hi] = self.push_steps;
-        if hi <= lo {
-            return Err(format!("perturbation.push_steps [{lo}, {hi}) is empty"));
-        }
-        // The draws need the non-empty window checked above.
-        self.for_reference(0).check()
-    }
-}
 
 /// A tracking task: every reference of `references` tracked from its own first state by the MPC
 /// service (one row per trained model kind), scored by `survival`; beside them the replay row.

@@ -1,0 +1,184 @@
+//! The keys of a `[control]` / `[[control]]` entry: one closed loop ([`ControlSpec`]'s `x0`,
+//! `reference`, ...), or a tracking task with `references` (its survival metric, Q from the data,
+//! perturbation: the types here; [`super::track`] reads them into a `TrackSpec`).
+
+use serde::{Deserialize, Serialize};
+
+/// Closed-loop control of one simulator with the MPC service.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ControlSpec {
+    /// Initial state (`nx` values) of the controlled simulator (not with `references`: each
+    /// reference starts from its own first state).
+    #[serde(default)]
+    pub x0: Vec<f64>,
+    /// Reference state (`nx` values, or `horizon·nx`: the stacked x_1..x_H); exactly one of
+    /// `reference` and `reference_file`.
+    #[serde(default)]
+    pub reference: Option<Vec<f64>>,
+    /// A time-varying reference: a float64 `.npy` of shape (T, nx), row k the reference state
+    /// at step k (rows past the end repeat the last). May hold `{out}` (the run's output
+    /// folder); a relative path resolves in the scenario's repository.
+    #[serde(default)]
+    pub reference_file: Option<String>,
+    /// The inputs that realise `reference_file` (a plan): a float64 `.npy` of shape (T, nu), row
+    /// k the input planned at step k (rows past the end repeat the last); placeholders and paths
+    /// as `reference_file`. With it the MPC service plans the deviation from the plan
+    /// (error-state MPC: the model's own rollout of the plan is the reference, so its bias along
+    /// the plan cancels; a lifted-linear model only).
+    #[serde(default)]
+    pub feedforward_file: Option<String>,
+    /// A position loop on the plan (arms commanded in joint velocities; needs
+    /// `feedforward_file`): at every step the orchestrator corrects the planned velocities — in
+    /// the feed-forward window and in the planned state alike — by `−gain · (q − q_plan)`, and
+    /// the error-state MPC plans about the corrected plan. What corrects an actuator mismatch
+    /// that no MPC weighting of the model does (docs/log/2026-12.md, session 8).
+    #[serde(default)]
+    pub position_loop: Option<PositionLoopSpec>,
+    /// Closed-loop steps (with `references`: at most this many per reference, default all).
+    #[serde(default)]
+    pub steps: usize,
+    /// A tracking task ([`TrackSpec`]): an `.npz` of references, `x` (N, T+1, nx) and `u`
+    /// (N, T, nu) (the inputs that realised them), the layout of a collected dataset; one
+    /// closed loop per reference from its first state, and the replay row.
+    #[serde(default)]
+    pub references: Option<String>,
+    /// The survival metric of a tracking task ([`SurvivalSpec`]).
+    #[serde(default)]
+    pub survival: Option<SurvivalSpec>,
+    /// A tracking task runs each reference to its end (or a fall) after the threshold is crossed.
+    #[serde(default)]
+    pub continue_after_failure: bool,
+    /// A tracking task plans about each reference with its inputs as feed-forward.
+    #[serde(default)]
+    pub error_state: bool,
+    /// A tracking task's row suffix (`{model}+{label}`).
+    #[serde(default)]
+    pub label: Option<String>,
+    /// Whether a tracking task runs the replay row (default true).
+    #[serde(default)]
+    pub replay: Option<bool>,
+    /// A tracking task's Q from the training data's spread ([`QFromData`]).
+    #[serde(default)]
+    pub q_from_data: Option<QFromData>,
+    /// Transitions per on-policy window of a tracking task (default: `[collect]`'s T).
+    #[serde(default)]
+    pub onpolicy_steps: Option<usize>,
+    /// A tracking task's perturbation of every episode ([`PerturbationSpec`]).
+    #[serde(default)]
+    pub perturbation: Option<PerturbationSpec>,
+    /// A tracking task whose closed loops are the training data of `koopbridge run --aggregate`.
+    #[serde(default)]
+    pub aggregate: bool,
+    /// `koopman::mpc::MpcConfig` fields to override (JSON object).
+    #[serde(default)]
+    pub mpc: serde_json::Map<String, serde_json::Value>,
+    /// Which simulator to control (default: the first).
+    #[serde(default)]
+    pub sim: Option<String>,
+    /// Offset-free correction of the MPC (a bilinear or a lifted-linear model; not with
+    /// `feedforward_file`), `koopman::mpc::OffsetFreeConfig` fields: `mode` (`trajectory`,
+    /// `disturbance` or `integral`), `radius`, `gain` (nx values), `angles`.
+    #[serde(default)]
+    pub offset_free: Option<koopman::mpc::OffsetFreeConfig>,
+}
+
+/// A position loop on a plan: which state components are the joint positions and which their
+/// velocities (input `i` commands velocity `velocity[i]` and corrects position `position[i]`),
+/// and the loop's gain.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PositionLoopSpec {
+    /// State indices of the joint positions (`nu` of them, input order).
+    pub position: Vec<usize>,
+    /// State indices of the joint velocities (`nu` of them, input order).
+    pub velocity: Vec<usize>,
+    /// Gain in 1/s: the velocity correction per unit of position error (≥ 0).
+    pub gain: f64,
+}
+
+/// When a tracked run fails: the mean absolute error over `states` above `threshold`, or a fall
+/// the simulator reports (a step flagged `terminated`, PROTOCOL.md §4), or a non-finite state.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SurvivalSpec {
+    /// The largest mean absolute error that still counts as tracking (> 0, in the states' units).
+    pub threshold: f64,
+    /// The state indices the error is taken over (at least one; checked against `nx`).
+    pub states: Vec<usize>,
+}
+
+/// Q's diagonal from the training data: `1/σ²` of each state's standard deviation over the
+/// simulator's training split (the z-score a `normalise = true` model is trained in) on
+/// `states`, 0 on every other state (all states when `states` is absent).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QFromData {
+    /// The weighted states (default: all).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub states: Option<Vec<usize>>,
+}
+
+/// A perturbation of every tracked episode (the simulator applies it; PROTOCOL.md "reset"): the
+/// same for every reference except the push, whose step and direction are drawn per reference
+/// from `seed` (deterministic: reference i's push is the same in every row and every run).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PerturbationSpec {
+    /// Scale of the base body's mass (Go2: trunk, G1: torso), > 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mass_scale: Option<f64>,
+    /// Scale of the feet's sliding friction, > 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub friction_scale: Option<f64>,
+    /// A push of this size (m/s, a change of the base's horizontal velocity) in a uniformly
+    /// random direction at a uniformly random step of `push_steps`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub push: Option<f64>,
+    /// The steps `[first, end)` a push is drawn from (default [20, 80)).
+    #[serde(default = "default_push_steps")]
+    pub push_steps: [u64; 2],
+    /// The seed of the pushes' draws.
+    #[serde(default)]
+    pub seed: u64,
+}
+
+fn default_push_steps() -> [u64; 2] {
+    [20, 80]
+}
+
+impl PerturbationSpec {
+    /// Reference `i`'s perturbation.
+    pub fn for_reference(&self, i: usize) -> crate::messages::Perturbation {
+        let push = self.push.map(|size| {
+            let mut rng = koopman::rng::Rng::derive(self.seed, i as u64);
+            let [lo, hi] = self.push_steps;
+            let step = lo + rng.below((hi - lo) as usize) as u64;
+            let angle = rng.uniform(0.0, std::f64::consts::TAU);
+            crate::messages::Push {
+                step,
+                velocity: [size * angle.cos(), size * angle.sin()],
+            }
+        });
+        crate::messages::Perturbation {
+            mass_scale: self.mass_scale,
+            friction_scale: self.friction_scale,
+            push,
+        }
+    }
+
+    /// Checks the values (scales > 0, a push ≥ 0 m/s, `push_steps` a non-empty range).
+    pub fn check(&self) -> std::result::Result<(), String> {
+        if let Some(p) = self.push.filter(|p| !(p.is_finite() && *p >= 0.0)) {
+            return Err(format!(
+                "perturbation.push must be a finite speed ≥ 0 (m/s), got {p}"
+            ));
+        }
+        let [lo, hi] = self.push_steps;
+        if hi <= lo {
+            return Err(format!("perturbation.push_steps [{lo}, {hi}) is empty"));
+        }
+        // The draws need the non-empty window checked above.
+        self.for_reference(0).check()
+    }
+}
