@@ -155,7 +155,7 @@ pub fn tracking_phase(
     what: &TrackingPhase<'_>,
     on: &mut dyn FnMut(Event<'_>),
 ) -> Result<Vec<TrackReport>> {
-    // The replay row of a simulator, file and perturbation is run once.
+    // The replay row of a simulator, file, perturbation, metric and length is run once.
     let mut replays: BTreeMap<(usize, PathBuf, String), (TrackRow, Vec<Scored>)> = BTreeMap::new();
     let mut out = Vec::new();
     for t in &sc.tracks {
@@ -198,7 +198,7 @@ pub fn tracking_phase(
             let key = (
                 j,
                 path.clone(),
-                serde_json::to_string(&t.perturbation).unwrap_or_default(),
+                serde_json::to_string(&(&t.perturbation, &t.survival, steps)).unwrap_or_default(),
             );
             if !replays.contains_key(&key) {
                 on(Event::Phase(&format!(
