@@ -82,6 +82,35 @@ pub struct Scenario {
     pub full_applied: bool,
 }
 
+/// Merges `[control_defaults]` (a table of `[control]` keys) into every `[control]` /
+/// `[[control]]` entry that does not set the key itself, and removes it: what several entries
+/// share (a survival metric, the references, the MPC settings) is written once.
+fn apply_control_defaults(doc: &mut toml::Table) -> Result<()> {
+    let Some(defaults) = doc.remove("control_defaults") else {
+        return Ok(());
+    };
+    let toml::Value::Table(defaults) = defaults else {
+        return Err(Error::Config(
+            "[control_defaults] must be a table of [control] keys".into(),
+        ));
+    };
+    let entries: Vec<&mut toml::Table> = match doc.get_mut("control") {
+        Some(toml::Value::Table(t)) => vec![t],
+        Some(toml::Value::Array(a)) => a.iter_mut().filter_map(|v| v.as_table_mut()).collect(),
+        _ => {
+            return Err(Error::Config(
+                "[control_defaults] needs [control] or [[control]] entries to apply to".into(),
+            ))
+        }
+    };
+    for entry in entries {
+        for (k, v) in &defaults {
+            entry.entry(k.clone()).or_insert_with(|| v.clone());
+        }
+    }
+    Ok(())
+}
+
 /// `[control]` (one table) or `[[control]]` (an array of tables).
 fn one_or_many<'de, D: serde::Deserializer<'de>>(
     d: D,
@@ -201,7 +230,12 @@ impl Scenario {
 
     /// Parses and validates scenario text.
     pub fn parse(text: &str) -> Result<Self> {
-        let mut s: Scenario = toml::from_str(text).map_err(|e| Error::Config(e.to_string()))?;
+        let mut doc: toml::Table =
+            toml::from_str(text).map_err(|e| Error::Config(e.to_string()))?;
+        apply_control_defaults(&mut doc)?;
+        let mut s: Scenario = toml::Value::Table(doc)
+            .try_into()
+            .map_err(|e: toml::de::Error| Error::Config(e.to_string()))?;
         s.split_tracks()?;
         s.validate()?;
         s.check_settings()?;
@@ -475,6 +509,31 @@ mod tests {
         std::fs::remove_dir_all(root.join(".git")).unwrap();
         assert_eq!(repository_of(&file), std::fs::canonicalize(&sc).unwrap());
         std::fs::remove_dir_all(&root).ok();
+    }
+
+    #[test]
+    fn control_defaults_fill_every_entry_that_does_not_set_the_key() {
+        let base = GOOD.split("[control]").next().unwrap().to_string();
+        let text = format!(
+            "{base}[control_defaults]\nreferences = \"r.npz\"\n\
+             survival = {{ threshold = 0.2, states = [0] }}\n\
+             [[control]]\n\
+             [[control]]\nlabel = \"tight\"\nsurvival = {{ threshold = 0.1, states = [0, 1] }}\n"
+        );
+        let s = Scenario::parse(&text).unwrap();
+        assert_eq!(s.tracks.len(), 2);
+        assert_eq!(s.tracks[0].references, "r.npz");
+        assert_eq!(s.tracks[0].survival.as_ref().unwrap().threshold, 0.2);
+        assert_eq!(
+            s.tracks[1].survival.as_ref().unwrap().states,
+            vec![0, 1],
+            "its own wins"
+        );
+        assert_eq!(s.tracks[1].references, "r.npz");
+        let bad =
+            format!("{base}[control_defaults]\nwind = 1\n[[control]]\nreferences = \"r.npz\"\n");
+        let e = Scenario::parse(&bad).unwrap_err().to_string();
+        assert!(e.contains("wind"), "an unknown default is named: {e}");
     }
 
     #[test]
