@@ -126,6 +126,13 @@ mpc = {{ horizon = 10, r = [0.1] }}
         assert_eq!((d.n as u64, d.steps, d.nx, d.nu), (ran, 5, 2, 1));
     }
     assert!(std::fs::metadata(out.join("tracking/survival.png")).is_ok_and(|m| m.len() > 0));
+    assert!(std::fs::metadata(out.join("tracking/error.png")).is_ok_and(|m| m.len() > 0));
+    // The first reference's error, step by step: the replay's is 0, the model's as long as its run.
+    let first = replay["first_errors"].as_array().unwrap();
+    assert_eq!(first.len(), 16);
+    assert!(first.iter().all(|e| e.as_f64().unwrap() < 1e-9));
+    let ran = model["steps_run"][0].as_u64().unwrap() as usize;
+    assert_eq!(model["first_errors"].as_array().unwrap().len(), ran + 1);
     let table = std::fs::read_to_string(out.join("tracking/table.md")).unwrap();
     assert!(
         table.contains("| replay |") && table.contains("| tracking-pend+es |"),

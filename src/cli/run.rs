@@ -299,6 +299,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                 Err(e) => eprintln!("warning: could not draw {}: {e:#}", png.display()),
             }
         }
+        let png = out_dir.join("tracking").join("error.png");
+        match plot_first_errors(&report.tracking, &png) {
+            Ok(()) => println!("  plot: {}", png.display()),
+            Err(e) => eprintln!("warning: could not draw {}: {e:#}", png.display()),
+        }
     }
     println!("  report: {}", path.display());
     // Repeated at the end, where they are not lost among the progress lines.
@@ -454,6 +459,58 @@ fn plot_survival(
         });
     }
     time_series_png(path, "survival", "step", &panels, 900)
+}
+
+/// Per tracking task, every row's error on the first reference step by step (the error the
+/// survival metric scores, its threshold dashed): where a run leaves the reference.
+fn plot_first_errors(
+    tasks: &[bridge::orchestrator::tracking::TrackReport],
+    path: &std::path::Path,
+) -> anyhow::Result<()> {
+    use crate::plot::{time_series_png, Panel, Series};
+    let mut panels = Vec::new();
+    for task in tasks {
+        let mut series: Vec<Series> = task
+            .rows
+            .iter()
+            .enumerate()
+            .map(|(i, row)| {
+                let t: Vec<f64> = (0..row.first_errors.len()).map(|k| k as f64).collect();
+                let s = Series::new(&row.row, &t, &row.first_errors).colored(i);
+                if row.model.is_none() {
+                    s.dashed()
+                } else {
+                    s
+                }
+            })
+            .collect();
+        if let Some(m) = &task.survival {
+            let ends = [0.0, task.steps as f64];
+            series.push(Series::new("threshold", &ends, &[m.threshold; 2]).dashed());
+        }
+        panels.push(Panel {
+            title: format!(
+                "{}{}: reference 0, error against the step",
+                task.sim,
+                task.label
+                    .as_ref()
+                    .map_or(String::new(), |l| format!(" [{l}]"))
+            ),
+            y_label: if task.survival.is_some() {
+                "mean |x - r| (scored states)".into()
+            } else {
+                "‖x - r‖".into()
+            },
+            series,
+        });
+    }
+    time_series_png(
+        path,
+        "tracking error, first reference",
+        "step",
+        &panels,
+        900,
+    )
 }
 
 #[cfg(test)]

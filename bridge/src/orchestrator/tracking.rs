@@ -18,7 +18,7 @@ use super::commands::Placeholders;
 use super::control_settings::mpc_config;
 use super::reference::{reference_path, Reference};
 use super::reference_set::ReferenceSet;
-use super::survival::{fails, survival_steps, windows, RunForWindows, Summary};
+use super::survival::{fails, mean_abs_error, survival_steps, windows, RunForWindows, Summary};
 use super::{Event, SERVICES_ID};
 use crate::client::{Client, Liveliness, SimClient};
 use crate::error::{Error, ErrorCode, Result};
@@ -93,6 +93,10 @@ pub struct TrackRow {
     pub steps_run: Vec<usize>,
     /// Tracking RMS over every state and step run, per reference (angles wrapped).
     pub tracking_rms: Vec<f64>,
+    /// The first reference's run, step by step: the error the survival metric scores (the mean
+    /// |x − r| over its states; without a metric the error norm), for the plot.
+    #[serde(default)]
+    pub first_errors: Vec<f64>,
     /// Runs in which the simulator reported a fall (or refused a step).
     pub falls: usize,
     /// Median and 99th percentile of the solve time in the service, µs (0 for the replay row).
@@ -143,6 +147,7 @@ struct Scored {
     terminated: Vec<bool>,
     failure: Option<String>,
     survival: Option<usize>,
+    errors: Vec<f64>,
 }
 
 /// Runs every tracking task of `sc` (in order); `clients[j]` is `sc.sims[j]`'s client.
@@ -411,6 +416,16 @@ fn run_task(
     let failure = run.sim_failure().map(str::to_string);
     let solve_us = run.solve_times_us().to_vec();
     let report = run.finish();
+    // The error the metric scores, at every step run (the error norm without a metric).
+    let errors: Vec<f64> = match &t.survival {
+        Some(spec) => report
+            .x
+            .iter()
+            .enumerate()
+            .map(|(k, s)| mean_abs_error(s, &x[k.min(x.len() - 1)], &spec.states))
+            .collect(),
+        None => report.error.clone(),
+    };
     let survival = match &t.survival {
         Some(spec) => {
             let failed: Vec<bool> = report
@@ -430,6 +445,7 @@ fn run_task(
         terminated,
         failure,
         survival,
+        errors,
     })
 }
 
@@ -468,6 +484,7 @@ fn row_of(
         below_replay: None,
         steps_run: scored.iter().map(|s| s.report.u.len()).collect(),
         tracking_rms: scored.iter().map(|s| s.report.tracking_rms_total).collect(),
+        first_errors: scored.first().map(|s| s.errors.clone()).unwrap_or_default(),
         falls: scored
             .iter()
             .filter(|s| s.terminated.iter().skip(1).any(|&f| f))
