@@ -11,20 +11,7 @@ use std::path::Path;
 
 use common::json_file as json;
 
-const BASE: &str = r#"
-[[sims]]
-id = "pend"
-env = "damped-pendulum"
-[collect]
-policy = { kind = "uniform" }
-train_windows = 40
-val_windows = 10
-test_windows = 6
-steps = 15
-seed = 7
-[train]
-config = { iterations = 30, hidden = [16], n_mult = 2, batch = 16, validate_every = 15 }
-"#;
+use common::PENDULUM_BASE as BASE;
 
 fn run(dir: &Path, name: &str, text: &str) -> (std::process::Output, std::path::PathBuf) {
     common::run_scenario_text(dir, name, text, &[])
@@ -63,24 +50,21 @@ mpc = {{ horizon = 10, r = [0.1] }}
     let (spec, es) = (&tasks[0], &tasks[1]);
     assert_eq!(
         (spec["references"].as_u64(), spec["steps"].as_u64()),
-        (Some(6), Some(15))
+        (Some(10), Some(15))
     );
     let replay = &spec["rows"][0];
     assert_eq!(replay["row"], "replay");
     // The simulator is deterministic and the state is all of it: replaying a window's inputs
     // from its first state is the window.
-    assert_eq!(
-        replay["survivals"],
-        serde_json::json!([15, 15, 15, 15, 15, 15])
-    );
-    assert_eq!(replay["survival"]["at_cap"], 6);
+    assert_eq!(replay["survivals"], serde_json::json!(vec![15; 10]));
+    assert_eq!(replay["survival"]["at_cap"], 10);
     for e in replay["tracking_rms"].as_array().unwrap() {
         assert!(e.as_f64().unwrap() < 1e-9, "replay error {e}");
     }
     let model = &spec["rows"][1];
     assert_eq!(model["row"], "tracking-pend");
     let s = model["survivals"].as_array().unwrap();
-    assert_eq!(s.len(), 6);
+    assert_eq!(s.len(), 10);
     assert!(s.iter().all(|v| v.as_u64().unwrap() <= 15));
     let (above, below) = (
         model["above_replay"].as_u64().unwrap(),
@@ -203,8 +187,8 @@ survival = {{ threshold = 0.5, states = [0] }}
     assert_eq!(first["row"], "agg-pend+data");
     let windows = first["onpolicy"]["windows"].as_u64().unwrap();
     assert_eq!(
-        windows, 6,
-        "six references run to their end: a window of 15 each"
+        windows, 10,
+        "ten references run to their end: a window of 15 each"
     );
     let round = &report["tracking_aggregation"][0];
     assert_eq!(round["round"], 1);

@@ -366,3 +366,20 @@ pub fn run_scenario_text(
 pub fn json_file(p: &std::path::Path) -> serde_json::Value {
     serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap()
 }
+
+/// The small damped-pendulum scenario of many tests, without a name or `[control]`: uniform
+/// inputs, 40 / 10 / 10 windows of 15 steps (seed 7), a tiny Koopman model.
+pub const PENDULUM_BASE: &str = r#"
+[[sims]]
+id = "pend"
+env = "damped-pendulum"
+[collect]
+policy = { kind = "uniform" }
+train_windows = 40
+val_windows = 10
+test_windows = 10
+steps = 15
+seed = 7
+[train]
+config = { iterations = 30, hidden = [16], n_mult = 2, batch = 16, validate_every = 15 }
+"#;
