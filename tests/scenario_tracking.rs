@@ -198,7 +198,9 @@ survival = {{ threshold = 0.5, states = [0] }}
         (Some(windows), Some(40 + windows))
     );
     assert_eq!(sim["train"]["model"], "agg-pend-agg1");
-    let agg = koopman::data::Dataset::load_npz(&out.join("data/pend/train-agg1.npz")).unwrap();
+    assert_eq!(sim["kind"], "koopman");
+    let agg =
+        koopman::data::Dataset::load_npz(&out.join("data/pend/train-agg-pend-agg1.npz")).unwrap();
     let train = koopman::data::Dataset::load_npz(&out.join("data/pend/train.npz")).unwrap();
     assert_eq!(agg.n as u64, 40 + windows);
     assert_eq!(
@@ -217,6 +219,12 @@ survival = {{ threshold = 0.5, states = [0] }}
     );
     assert!(stdout.contains("-> round 1:"), "{stdout}");
 
+    // Without --aggregate the aggregation task (there only for its windows) does not run.
+    let (o, out) = common::run_scenario_text(&dir, "plain", &text, &[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let plain = json(&out.join("report.json"));
+    assert_eq!(plain["tracking"].as_array().unwrap().len(), 1);
+    assert!(plain.get("tracking_aggregation").is_none());
     // Windows of another length than the training data's cannot be aggregated: refused when the
     // file is read.
     let bad = text.replace(

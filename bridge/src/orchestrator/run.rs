@@ -188,10 +188,11 @@ pub fn run_scenario_with(
         ));
     }
     let kinds = sc.train.as_ref().map(|t| t.kinds()).unwrap_or_default();
-    if extras.aggregate > 0 && kinds.len() > 1 {
+    if extras.aggregate > 0 && !sc.control.is_empty() && kinds.len() > 1 {
         return Err(Error::Config(format!(
-            "--aggregate retrains one model per simulator; [train].model lists {} kinds ({}): \
-             list one",
+            "--aggregate retrains one model per simulator from its [control] loop; \
+             [train].model lists {} kinds ({}): list one (tracking tasks marked `aggregate` \
+             retrain every kind)",
             kinds.len(),
             kinds
                 .iter()
@@ -310,23 +311,25 @@ pub fn run_scenario_with(
                 out_dir: &opts.out_dir,
                 kinds: &kinds,
                 model_of: &|id, kind| sc.model_name(id, kind),
+                aggregating: extras.aggregate > 0,
             },
             on,
         )?
     };
-    let tracking_aggregation = match kinds.first() {
-        Some(&kind) if extras.aggregate > 0 && aggregate_tracks => aggregate_tracking(
+    let tracking_aggregation = if extras.aggregate > 0 && aggregate_tracks {
+        aggregate_tracking(
             sc,
             opts,
             &cluster,
             &mut clients,
             &ph,
             &tracking,
-            kind,
+            &kinds,
             extras.aggregate,
             on,
-        )?,
-        _ => Vec::new(),
+        )?
+    } else {
+        Vec::new()
     };
     warnings.extend(aggregation.iter().flat_map(aggregate::round_warnings));
     let diagnoses = diagnose_controls(sc, &opts.out_dir, &controls, &mut clients, on);

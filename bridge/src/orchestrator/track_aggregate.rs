@@ -10,21 +10,23 @@ use std::path::PathBuf;
 use koopman::data::Dataset;
 use serde::{Deserialize, Serialize};
 
-use super::aggregate::{model_name, union};
+use super::aggregate::union;
 use super::commands::Placeholders;
 use super::tracking::{tracking_phase, TrackReport, TrackingPhase};
-use super::train::{train_model, TrainReport};
+use super::train::{train_model_as, TrainReport};
 use super::{Cluster, Event, RunOptions};
 use crate::client::SimClient;
 use crate::error::{Error, Result};
 use crate::scenario::Scenario;
 use crate::services::model_kind::ModelKind;
 
-/// One simulator's retraining in one round.
+/// One simulator's model of one kind, retrained in one round.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct RetrainedSim {
     /// Simulator id.
     pub sim: String,
+    /// The model kind.
+    pub kind: String,
     /// On-policy windows added in this round (from the previous pass's aggregation tasks).
     pub added_windows: usize,
     /// Training windows of the retrained model (collected + every on-policy window so far).
@@ -44,22 +46,35 @@ pub struct TrackingRound {
     pub tracking: Vec<TrackReport>,
 }
 
-/// The on-policy windows each simulator's aggregation tasks left in `pass` (the model rows'
-/// `.npz` files), by simulator.
-pub fn onpolicy_paths(pass: &[TrackReport]) -> BTreeMap<String, Vec<PathBuf>> {
-    let mut out: BTreeMap<String, Vec<PathBuf>> = BTreeMap::new();
+/// The on-policy windows the aggregation tasks' model rows left in `pass`, by simulator and
+/// model kind (each kind's model retrains on its own closed loops).
+pub fn onpolicy_paths(pass: &[TrackReport]) -> BTreeMap<(String, String), Vec<PathBuf>> {
+    let mut out: BTreeMap<(String, String), Vec<PathBuf>> = BTreeMap::new();
     for t in pass.iter().filter(|t| t.aggregate) {
-        let paths = t
-            .rows
-            .iter()
-            .filter(|r| r.model.is_some())
-            .filter_map(|r| r.onpolicy.as_ref().and_then(|o| o.path.clone()));
-        out.entry(t.sim.clone()).or_default().extend(paths);
+        for r in &t.rows {
+            let (Some(kind), Some(path)) =
+                (&r.kind, r.onpolicy.as_ref().and_then(|o| o.path.clone()))
+            else {
+                continue;
+            };
+            out.entry((t.sim.clone(), kind.clone()))
+                .or_default()
+                .push(path);
+        }
     }
     out
 }
 
-/// Runs `rounds` aggregation rounds after the first tracking pass `first` (one model `kind`).
+/// The model of simulator `sim` and kind `kind` after round `round` (round 0: the scenario's).
+pub fn round_model(sc: &Scenario, sim: &str, kind: ModelKind, round: usize) -> String {
+    match round {
+        0 => sc.model_name(sim, kind),
+        r => format!("{}-agg{r}", sc.model_name(sim, kind)),
+    }
+}
+
+/// Runs `rounds` aggregation rounds after the first tracking pass `first`: every model kind of
+/// `kinds` whose aggregation rows left windows is retrained on its own.
 #[allow(clippy::too_many_arguments)]
 pub fn aggregate_tracking(
     sc: &Scenario,
@@ -68,11 +83,13 @@ pub fn aggregate_tracking(
     clients: &mut [SimClient],
     ph: &Placeholders,
     first: &[TrackReport],
-    kind: ModelKind,
+    kinds: &[ModelKind],
     rounds: usize,
     on: &mut dyn FnMut(Event<'_>),
 ) -> Result<Vec<TrackingRound>> {
-    let mut pools: BTreeMap<String, Vec<Dataset>> = BTreeMap::new();
+    let mut pools: BTreeMap<(String, String), Vec<Dataset>> = BTreeMap::new();
+    // The round of each (simulator, kind)'s newest model.
+    let mut latest: BTreeMap<(String, String), usize> = BTreeMap::new();
     let mut pass = first.to_vec();
     let mut out = Vec::new();
     for round in 1..=rounds {
@@ -81,9 +98,12 @@ pub fn aggregate_tracking(
              aggregation tasks' closed loops"
         )));
         let mut sims = Vec::new();
-        for (sim, paths) in onpolicy_paths(&pass) {
+        for ((sim, kind_name), paths) in onpolicy_paths(&pass) {
+            let Some(&kind) = kinds.iter().find(|k| k.name() == kind_name) else {
+                continue;
+            };
             let dir = opts.out_dir.join("data").join(&sim);
-            let pool = match pools.entry(sim.clone()) {
+            let pool = match pools.entry((sim.clone(), kind_name.clone())) {
                 std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
                 std::collections::btree_map::Entry::Vacant(e) => {
                     e.insert(vec![Dataset::load_npz(&dir.join("train.npz"))?])
@@ -96,12 +116,13 @@ pub fn aggregate_tracking(
                 pool.push(d);
             }
             let all = union(pool)?;
-            let path = dir.join(format!("train-agg{round}.npz"));
+            let model = round_model(sc, &sim, kind, round);
+            let path = dir.join(format!("train-{model}.npz"));
             all.save_npz(&path)?;
-            let model = model_name(sc, &sim, round);
-            let train = train_model(sc, opts, cluster, &sim, &model, &path, on)?;
+            let train = train_model_as(sc, opts, cluster, &sim, kind, &model, &path, on)?;
             sims.push(RetrainedSim {
                 sim,
+                kind: kind_name,
                 added_windows: added,
                 train_windows: all.n,
                 train,
@@ -114,13 +135,12 @@ pub fn aggregate_tracking(
                     .into(),
             ));
         }
-        let retrained: Vec<String> = sims.iter().map(|s| s.sim.clone()).collect();
+        for s in &sims {
+            latest.insert((s.sim.clone(), s.kind.clone()), round);
+        }
         let model_of = |id: &str, k: ModelKind| {
-            if retrained.iter().any(|s| s == id) {
-                model_name(sc, id, round)
-            } else {
-                sc.model_name(id, k)
-            }
+            let r = latest.get(&(id.to_string(), k.name().to_string()));
+            round_model(sc, id, k, r.copied().unwrap_or(0))
         };
         let tracking = tracking_phase(
             sc,
@@ -130,8 +150,9 @@ pub fn aggregate_tracking(
             ph,
             &TrackingPhase {
                 out_dir: &opts.out_dir,
-                kinds: &[kind],
+                kinds,
                 model_of: &model_of,
+                aggregating: true,
             },
             on,
         )?;

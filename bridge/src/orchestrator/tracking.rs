@@ -138,6 +138,9 @@ pub struct TrackingPhase<'a> {
     /// The model of simulator `sim` and kind `kind` ([`Scenario::model_name`], or an
     /// aggregation round's).
     pub model_of: &'a dyn Fn(&str, ModelKind) -> String,
+    /// Whether aggregation rounds follow: the tasks marked `aggregate` (whose only purpose is
+    /// their on-policy windows) run only then.
+    pub aggregating: bool,
 }
 
 /// One run of one row on one reference, as scored.
@@ -163,7 +166,11 @@ pub fn tracking_phase(
     // The replay row of a simulator, file, perturbation, metric and length is run once.
     let mut replays: BTreeMap<(usize, PathBuf, String), (TrackRow, Vec<Scored>)> = BTreeMap::new();
     let mut out = Vec::new();
-    for t in &sc.tracks {
+    for t in sc
+        .tracks
+        .iter()
+        .filter(|t| what.aggregating || !t.aggregate)
+    {
         let j = sc.tracked_index(t);
         let sim_id = sc.sims[j].id.clone();
         let at = |e: Error| Error::Config(format!("[control] for simulator '{sim_id}': {e}"));
