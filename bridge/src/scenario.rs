@@ -84,10 +84,11 @@ pub struct Scenario {
 
 /// Merges `[control_defaults]` (a table of `[control]` keys) into every `[control]` /
 /// `[[control]]` entry that does not set the key itself, and removes it: what several entries
-/// share (a survival metric, the references, the MPC settings) is written once.
-fn apply_control_defaults(doc: &mut toml::Table) -> Result<()> {
+/// share (a survival metric, the references, the MPC settings) is written once. True when
+/// there was such a table.
+fn apply_control_defaults(doc: &mut toml::Table) -> Result<bool> {
     let Some(defaults) = doc.remove("control_defaults") else {
-        return Ok(());
+        return Ok(false);
     };
     let toml::Value::Table(defaults) = defaults else {
         return Err(Error::Config(
@@ -108,7 +109,7 @@ fn apply_control_defaults(doc: &mut toml::Table) -> Result<()> {
             entry.entry(k.clone()).or_insert_with(|| v.clone());
         }
     }
-    Ok(())
+    Ok(true)
 }
 
 /// `[control]` (one table) or `[[control]]` (an array of tables).
@@ -232,10 +233,15 @@ impl Scenario {
     pub fn parse(text: &str) -> Result<Self> {
         let mut doc: toml::Table =
             toml::from_str(text).map_err(|e| Error::Config(e.to_string()))?;
-        apply_control_defaults(&mut doc)?;
-        let mut s: Scenario = toml::Value::Table(doc)
-            .try_into()
-            .map_err(|e: toml::de::Error| Error::Config(e.to_string()))?;
+        // Read from the text when there are no defaults to merge: its errors name the innermost
+        // key and the line.
+        let mut s: Scenario = if apply_control_defaults(&mut doc)? {
+            toml::Value::Table(doc)
+                .try_into()
+                .map_err(|e: toml::de::Error| Error::Config(e.to_string()))?
+        } else {
+            toml::from_str(text).map_err(|e| Error::Config(e.to_string()))?
+        };
         s.split_tracks()?;
         s.validate()?;
         s.check_settings()?;
