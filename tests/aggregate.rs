@@ -7,25 +7,13 @@ mod common;
 
 use koopman::data::Dataset;
 
-const TINY: &str = r#"
-name = "agg"
-[[sims]]
-id = "pend"
-env = "damped-pendulum"
-[collect]
-policy = { kind = "uniform" }
-train_windows = 40
-val_windows = 10
-test_windows = 10
-steps = 15
-seed = 7
-[train]
-config = { iterations = 30, hidden = [16], n_mult = 2, batch = 16, validate_every = 15 }
-[control]
-x0 = [-1.0, 0.1]
-reference = [0.0, 0.0]
-steps = 45
-"#;
+/// The small pendulum scenario ([`common::PENDULUM_BASE`]) with a regulation task.
+fn tiny() -> String {
+    format!(
+        "name = \"agg\"\n{}[control]\nx0 = [-1.0, 0.1]\nreference = [0.0, 0.0]\nsteps = 45\n",
+        common::PENDULUM_BASE
+    )
+}
 
 /// Window `w` of `d` as (x rows, u rows).
 fn window(d: &Dataset, w: usize) -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
@@ -56,7 +44,7 @@ fn executed(c: &serde_json::Value, t: usize) -> Vec<Window> {
 fn aggregation_retrains_on_the_recorded_rollouts_and_controls_again() {
     let dir = common::scratch("aggregate");
     let sc = dir.join("agg.toml");
-    std::fs::write(&sc, TINY).unwrap();
+    std::fs::write(&sc, tiny()).unwrap();
     let out = dir.join("out");
     let o = common::run_scenario(&sc, &out, &["--aggregate", "2"]);
     let (stdout, stderr) = (

@@ -6,29 +6,17 @@ mod common;
 
 use std::process::Command;
 
-const TINY: &str = r#"
-name = "tiny"
-[[sims]]
-id = "pend"
-env = "damped-pendulum"
-[collect]
-policy = { kind = "uniform" }
-train_windows = 40
-val_windows = 10
-test_windows = 10
-steps = 15
-seed = 7
-[train]
-config = { iterations = 30, hidden = [16], n_mult = 2, batch = 16, validate_every = 15 }
-[control]
-x0 = [-2.5, 0.1]
-reference = [0.0, 0.0]
-steps = 20
-"#;
+/// The small pendulum scenario ([`common::PENDULUM_BASE`]) with a regulation task.
+fn tiny() -> String {
+    format!(
+        "name = \"tiny\"\n{}[control]\nx0 = [-2.5, 0.1]\nreference = [0.0, 0.0]\nsteps = 20\n",
+        common::PENDULUM_BASE
+    )
+}
 
 fn run_once(dir: &std::path::Path) -> serde_json::Value {
     let sc = dir.join("tiny.toml");
-    std::fs::write(&sc, TINY).unwrap();
+    std::fs::write(&sc, tiny()).unwrap();
     let out = dir.join("out");
     let o = common::run_scenario(&sc, &out, &[]);
     assert_quiet_logs(

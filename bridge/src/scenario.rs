@@ -56,7 +56,7 @@ pub struct Scenario {
     /// `[[control]]` entry per controlled simulator (all stepped in one lockstep loop). The
     /// entries with `references` are tracking tasks and move to [`Scenario::tracks`] when the
     /// file is parsed.
-    #[serde(default, deserialize_with = "one_or_many")]
+    #[serde(default, deserialize_with = "control::one_or_many")]
     pub control: Vec<ControlSpec>,
     /// The tracking tasks (`[control]` entries with `references`, [`TrackSpec`]), run one after
     /// another after the lockstep loop of the others. Not a TOML field of its own.
@@ -80,49 +80,6 @@ pub struct Scenario {
     /// merge). Not a TOML field.
     #[serde(skip)]
     pub full_applied: bool,
-}
-
-/// Merges `[control_defaults]` (a table of `[control]` keys) into every `[control]` /
-/// `[[control]]` entry that does not set the key itself, and removes it: what several entries
-/// share (a survival metric, the references, the MPC settings) is written once. True when
-/// there was such a table.
-fn apply_control_defaults(doc: &mut toml::Table) -> Result<bool> {
-    let Some(defaults) = doc.remove("control_defaults") else {
-        return Ok(false);
-    };
-    let toml::Value::Table(defaults) = defaults else {
-        return Err(Error::Config(
-            "[control_defaults] must be a table of [control] keys".into(),
-        ));
-    };
-    let entries: Vec<&mut toml::Table> = match doc.get_mut("control") {
-        Some(toml::Value::Table(t)) => vec![t],
-        Some(toml::Value::Array(a)) => a.iter_mut().filter_map(|v| v.as_table_mut()).collect(),
-        _ => {
-            return Err(Error::Config(
-                "[control_defaults] needs [control] or [[control]] entries to apply to".into(),
-            ))
-        }
-    };
-    for entry in entries {
-        for (k, v) in &defaults {
-            entry.entry(k.clone()).or_insert_with(|| v.clone());
-        }
-    }
-    Ok(true)
-}
-
-/// `[control]` (one table) or `[[control]]` (an array of tables).
-fn one_or_many<'de, D: serde::Deserializer<'de>>(
-    d: D,
-) -> std::result::Result<Vec<ControlSpec>, D::Error> {
-    // Read as a value first, then as the one or the other, so that the error names the field.
-    let v = toml::Value::deserialize(d)?;
-    match v {
-        toml::Value::Array(_) => Vec::<ControlSpec>::deserialize(v),
-        _ => ControlSpec::deserialize(v).map(|c| vec![c]),
-    }
-    .map_err(serde::de::Error::custom)
 }
 
 /// The repository a file belongs to: the nearest folder above it that holds `.git`, else the
@@ -235,7 +192,7 @@ impl Scenario {
             toml::from_str(text).map_err(|e| Error::Config(e.to_string()))?;
         // Read from the text when there are no defaults to merge: its errors name the innermost
         // key and the line.
-        let mut s: Scenario = if apply_control_defaults(&mut doc)? {
+        let mut s: Scenario = if control::apply_control_defaults(&mut doc)? {
             toml::Value::Table(doc)
                 .try_into()
                 .map_err(|e: toml::de::Error| Error::Config(e.to_string()))?

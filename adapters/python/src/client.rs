@@ -97,16 +97,7 @@ impl Client {
             Some(x) => Some(vec_f64(x, "x0")?),
             None => None,
         };
-        let perturbation = match perturbation {
-            Some(p) => {
-                let v = crate::convert::from_py_json(p, "perturbation")?;
-                let p: bridge::messages::Perturbation = serde_json::from_value(v)
-                    .map_err(|e| PyValueError::new_err(format!("perturbation: {e}")))?;
-                p.check().map_err(PyValueError::new_err)?;
-                Some(p)
-            }
-            None => None,
-        };
+        let perturbation = perturbation.map(crate::convert::perturbation).transpose()?;
         let req = ResetRequest {
             seed,
             x0,

@@ -122,3 +122,13 @@ pub fn from_py_json(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<serde_json::
         .extract()?;
     serde_json::from_str(&text).map_err(|e| PyValueError::new_err(format!("{what}: {e}")))
 }
+
+/// A reset's perturbation from its Python dict (PROTOCOL.md "reset"); `ValueError` naming what
+/// is wrong (an unknown key, a scale that is not finite and > 0).
+pub fn perturbation(obj: &Bound<'_, PyAny>) -> PyResult<bridge::messages::Perturbation> {
+    let v = from_py_json(obj, "perturbation")?;
+    let p: bridge::messages::Perturbation = serde_json::from_value(v)
+        .map_err(|e| PyValueError::new_err(format!("perturbation: {e}")))?;
+    p.check().map_err(PyValueError::new_err)?;
+    Ok(p)
+}

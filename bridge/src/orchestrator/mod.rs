@@ -12,7 +12,7 @@
 //! - [`reference`]: fixed and time-varying (`reference_file`) references and their windows;
 //! - [`tracking`]: tracking tasks (`[control] references`): a closed loop per reference and
 //!   model kind beside the replay row, scored by [`survival`]; [`reference_set`] reads them;
-//!   [`track_aggregate`]: their on-policy aggregation rounds;
+//!   [`track_aggregate`]: their on-policy aggregation rounds; [`tracking_report`]: their rows;
 //! - [`commands`]: command placeholders and `[[hooks]]`;
 //! - [`program`]: the program an external command runs (`{python}`, relative paths);
 //! - [`aggregate`]: on-policy aggregation rounds (`--aggregate`);
@@ -41,6 +41,7 @@ pub mod run;
 pub mod survival;
 pub mod track_aggregate;
 pub mod tracking;
+pub mod tracking_report;
 pub mod train;
 pub mod validate;
 

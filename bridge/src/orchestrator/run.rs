@@ -16,7 +16,7 @@ use super::control_loop::LoopReport;
 use super::diagnose::{self, ControlDiagnosis};
 use super::reuse;
 use super::track_aggregate::{aggregate_tracking, TrackingRound};
-use super::tracking::{tracking_phase, TrackReport, TrackingPhase};
+use super::tracking::{tracking_phase, ReplayCache, TrackReport, TrackingPhase};
 use super::train::{job_config, train_model_as, TrainReport};
 use super::validate::validate_scenario;
 use super::{Cluster, ControlReport, Event, RunOptions};
@@ -298,6 +298,7 @@ pub fn run_scenario_with(
         }
         controls.extend(c);
     }
+    let replays = std::cell::RefCell::new(ReplayCache::default());
     let tracking = if sc.tracks.is_empty() {
         Vec::new()
     } else {
@@ -312,6 +313,7 @@ pub fn run_scenario_with(
                 kinds: &kinds,
                 model_of: &|id, kind| sc.model_name(id, kind),
                 aggregating: extras.aggregate > 0,
+                replays: &replays,
             },
             on,
         )?
@@ -323,7 +325,7 @@ pub fn run_scenario_with(
             &cluster,
             &mut clients,
             &ph,
-            &tracking,
+            (&tracking, &replays),
             &kinds,
             extras.aggregate,
             on,

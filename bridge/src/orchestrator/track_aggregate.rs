@@ -4,6 +4,7 @@
 //! aggregation tasks' closed loops have left so far, then runs every tracking task again with the
 //! retrained model; each round's tables beside the previous one's.
 
+use std::cell::RefCell;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
@@ -12,7 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use super::aggregate::union;
 use super::commands::Placeholders;
-use super::tracking::{tracking_phase, TrackReport, TrackingPhase};
+use super::tracking::{tracking_phase, ReplayCache, TrackReport, TrackingPhase};
 use super::train::{train_model_as, TrainReport};
 use super::{Cluster, Event, RunOptions};
 use crate::client::SimClient;
@@ -73,8 +74,9 @@ pub fn round_model(sc: &Scenario, sim: &str, kind: ModelKind, round: usize) -> S
     }
 }
 
-/// Runs `rounds` aggregation rounds after the first tracking pass `first`: every model kind of
-/// `kinds` whose aggregation rows left windows is retrained on its own.
+/// Runs `rounds` aggregation rounds after the first tracking pass `first` (its replay rows in
+/// `replays`, reused: they do not depend on the model): every model kind of `kinds` whose
+/// aggregation rows left windows is retrained on its own.
 #[allow(clippy::too_many_arguments)]
 pub fn aggregate_tracking(
     sc: &Scenario,
@@ -82,7 +84,7 @@ pub fn aggregate_tracking(
     cluster: &Cluster,
     clients: &mut [SimClient],
     ph: &Placeholders,
-    first: &[TrackReport],
+    (first, replays): (&[TrackReport], &RefCell<ReplayCache>),
     kinds: &[ModelKind],
     rounds: usize,
     on: &mut dyn FnMut(Event<'_>),
@@ -153,6 +155,7 @@ pub fn aggregate_tracking(
                 kinds,
                 model_of: &model_of,
                 aggregating: true,
+                replays,
             },
             on,
         )?;

@@ -4,14 +4,17 @@
 //! with the survival metric ([`super::survival`]) and writes the closed loops as on-policy
 //! training windows.
 
+use std::cell::RefCell;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::rc::Rc;
 use std::time::{Duration, Instant};
 
 use koopman::data::{Dataset, Normalisation};
 use koopman::mpc::metrics::quantile;
 use koopman::mpc::MpcConfig;
-use serde::{Deserialize, Serialize};
+
+pub use super::tracking_report::{table, OnPolicy, TrackReport, TrackRow, REPLAY_ROW};
 
 use super::closed_loop::{ControlReport, ControlRun, ControlTask};
 use super::commands::Placeholders;
@@ -23,110 +26,15 @@ use super::{Event, SERVICES_ID};
 use crate::client::{Client, Liveliness, SimClient};
 use crate::error::{Error, ErrorCode, Result};
 use crate::messages::Perturbation;
-use crate::scenario::{PerturbationSpec, Scenario, SurvivalSpec, TrackSpec};
+use crate::scenario::{Scenario, TrackSpec};
 use crate::services::model_kind::ModelKind;
 use crate::services::mpc::{configure, ConfigureRequest};
 
-/// The name of the replay row.
-pub const REPLAY_ROW: &str = "replay";
-
-/// One tracking task's result: its rows side by side, paired by reference.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct TrackReport {
-    /// The simulator tracked.
-    pub sim: String,
-    /// The task's label (`None`: its rows are the models' names).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub label: Option<String>,
-    /// The references file as read.
-    pub references_file: String,
-    /// How many references.
-    pub references: usize,
-    /// Steps per reference (the survival cap).
-    pub steps: usize,
-    /// The survival metric (absent: each run went to its end).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub survival: Option<SurvivalSpec>,
-    /// Whether runs went on after the threshold was crossed.
-    pub continue_after_failure: bool,
-    /// Whether the models planned about each reference with its inputs as feed-forward.
-    pub error_state: bool,
-    /// Whether its closed loops are the training data of `--aggregate`.
-    #[serde(default)]
-    pub aggregate: bool,
-    /// The perturbation of every episode, as the task gave it.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub perturbation: Option<PerturbationSpec>,
-    /// Each reference's perturbation as sent with its reset (the push drawn for it).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub perturbations: Vec<Perturbation>,
-    /// The replay row first (when run), then one row per model kind.
-    pub rows: Vec<TrackRow>,
-}
-
-/// One controller over every reference.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct TrackRow {
-    /// The row's name: [`REPLAY_ROW`], or the model's (`{model}+{label}`).
-    pub row: String,
-    /// The model (absent for the replay row).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub model: Option<String>,
-    /// Its kind (`koopman`, `edmd`, ...; absent for the replay row).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub kind: Option<String>,
-    /// The MPC settings it solved with (absent for the replay row).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub mpc: Option<MpcConfig>,
-    /// Survival steps per reference (empty without a survival metric).
-    pub survivals: Vec<usize>,
-    /// Their summary (`at_cap`: how many reached the cap).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub survival: Option<Summary>,
-    /// References on which this row survived longer / shorter than the replay row.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub above_replay: Option<usize>,
-    /// See `above_replay`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub below_replay: Option<usize>,
-    /// Steps run per reference (a run stops at its first failure unless `continue_after_failure`).
-    pub steps_run: Vec<usize>,
-    /// Tracking RMS over every state and step run, per reference (angles wrapped).
-    pub tracking_rms: Vec<f64>,
-    /// The first reference's run, step by step: the error the survival metric scores (the mean
-    /// |x − r| over its states; without a metric the error norm), for the plot.
-    #[serde(default)]
-    pub first_errors: Vec<f64>,
-    /// Runs in which the simulator reported a fall (or refused a step).
-    pub falls: usize,
-    /// Median and 99th percentile of the solve time in the service, µs (0 for the replay row).
-    pub solve_median_us: f64,
-    /// See `solve_median_us`.
-    pub solve_p99_us: f64,
-    /// Solves that were not `solved`, by status.
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub not_solved_by_status: BTreeMap<String, usize>,
-    /// The simulator's refusals (the first ten), `reference i: message`.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub sim_errors: Vec<String>,
-    /// The closed loops as training windows (`.npz`, the dataset layout), for aggregation.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub onpolicy: Option<OnPolicy>,
-    /// Seconds this row took.
-    pub wall_s: f64,
-}
-
-/// Where a row's on-policy windows were written.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct OnPolicy {
-    /// The `.npz` (absent when no run was long enough for a window).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub path: Option<PathBuf>,
-    /// How many windows.
-    pub windows: usize,
-    /// Transitions per window.
-    pub steps: usize,
-}
+/// The replay rows run so far, by simulator, references file, perturbation, metric and length:
+/// a replay is deterministic, so a second task (or an aggregation round) with the same key
+/// reuses it. Kept by the caller across tracking passes.
+#[derive(Default)]
+pub struct ReplayCache(BTreeMap<(usize, PathBuf, String), (TrackRow, Vec<Scored>)>);
 
 /// What the tracking phase needs besides the scenario.
 pub struct TrackingPhase<'a> {
@@ -141,6 +49,8 @@ pub struct TrackingPhase<'a> {
     /// Whether aggregation rounds follow: the tasks marked `aggregate` (whose only purpose is
     /// their on-policy windows) run only then.
     pub aggregating: bool,
+    /// The replay rows of earlier tasks and passes.
+    pub replays: &'a RefCell<ReplayCache>,
 }
 
 /// One run of one row on one reference, as scored.
@@ -164,7 +74,10 @@ pub fn tracking_phase(
     on: &mut dyn FnMut(Event<'_>),
 ) -> Result<Vec<TrackReport>> {
     // The replay row of a simulator, file, perturbation, metric and length is run once.
-    let mut replays: BTreeMap<(usize, PathBuf, String), (TrackRow, Vec<Scored>)> = BTreeMap::new();
+    let mut replays = what.replays.borrow_mut();
+    // Each references file and each simulator's training spread is read once.
+    let mut loaded: BTreeMap<PathBuf, Rc<ReferenceSet>> = BTreeMap::new();
+    let mut spreads: BTreeMap<String, Normalisation> = BTreeMap::new();
     let mut out = Vec::new();
     for t in sc
         .tracks
@@ -178,7 +91,14 @@ pub fn tracking_phase(
         let (nx, nu) = (info.nx(), info.nu());
         t.check_states(nx, &sim_id)?;
         let path = reference_path(&t.references, ph);
-        let refs = ReferenceSet::load(&path, nx, nu)?;
+        let refs = match loaded.get(&path) {
+            Some(r) => Rc::clone(r),
+            None => {
+                let r = Rc::new(ReferenceSet::load(&path, nx, nu)?);
+                loaded.insert(path.clone(), Rc::clone(&r));
+                r
+            }
+        };
         if (t.error_state || t.replay) && refs.u.is_none() {
             return Err(at(Error::Config(format!(
                 "{} has no `u` (N, T, nu): {} needs the inputs that realised the references",
@@ -193,12 +113,14 @@ pub fn tracking_phase(
         let steps = t.steps.map_or(refs.steps(), |s| s.min(refs.steps()));
         let mut mpc = mpc_config(&info, &t.mpc).map_err(at)?;
         if let Some(q) = &t.q_from_data {
-            mpc.q = Some(q_weights_from_data(
-                what.out_dir,
-                &sim_id,
-                q.states.as_deref(),
-                nx,
-            )?);
+            let norm = match spreads.get(&sim_id) {
+                Some(n) => n,
+                None => {
+                    let n = training_spread(what.out_dir, &sim_id)?;
+                    spreads.entry(sim_id.clone()).or_insert(n)
+                }
+            };
+            mpc.q = Some(q_weights(norm, q.states.as_deref(), nx));
         }
         let window_steps = t.onpolicy_steps.unwrap_or(sc.collect.steps);
         let perturbations: Vec<Perturbation> = match &t.perturbation {
@@ -212,7 +134,7 @@ pub fn tracking_phase(
                 path.clone(),
                 serde_json::to_string(&(&t.perturbation, &t.survival, steps)).unwrap_or_default(),
             );
-            if !replays.contains_key(&key) {
+            if !replays.0.contains_key(&key) {
                 on(Event::Phase(&format!(
                     "replaying the {} references' inputs open loop on '{sim_id}'",
                     refs.len()
@@ -240,9 +162,9 @@ pub fn tracking_phase(
                     steps,
                     t0.elapsed().as_secs_f64(),
                 );
-                replays.insert(key.clone(), (row, scored));
+                replays.0.insert(key.clone(), (row, scored));
             }
-            let (row, scored) = &replays[&key];
+            let (row, scored) = &replays.0[&key];
             rows.push(row.clone());
             t.survival
                 .as_ref()
@@ -510,18 +432,10 @@ fn row_of(
     }
 }
 
-/// Q's diagonal from the spread of simulator `sim`'s training split (`1/σ²` on `states`, 0
-/// elsewhere; every state when `None`): the z-score a normalised model was trained in.
-pub fn q_weights_from_data(
-    out_dir: &Path,
-    sim: &str,
-    states: Option<&[usize]>,
-    nx: usize,
-) -> Result<Vec<f64>> {
-    let path = out_dir.join("data").join(sim).join("train.npz");
-    let data = Dataset::load_npz(&path)?;
-    let norm = Normalisation::fit(&data)?;
-    Ok((0..nx)
+/// Q's diagonal from a training split's spread `norm` ([`training_spread`]): `1/σ²` on `states`,
+/// 0 elsewhere (every state when `None`), the z-score a normalised model was trained in.
+pub fn q_weights(norm: &Normalisation, states: Option<&[usize]>, nx: usize) -> Vec<f64> {
+    (0..nx)
         .map(|i| {
             let s = norm.x_std[i];
             if states.is_none_or(|w| w.contains(&i)) {
@@ -530,7 +444,14 @@ pub fn q_weights_from_data(
                 0.0
             }
         })
-        .collect())
+        .collect()
+}
+
+/// The spread of simulator `sim`'s training split (`{out}/data/{sim}/train.npz`), as a
+/// normalised model is fitted to it.
+pub fn training_spread(out_dir: &Path, sim: &str) -> Result<Normalisation> {
+    let path = out_dir.join("data").join(sim).join("train.npz");
+    Ok(Normalisation::fit(&Dataset::load_npz(&path)?)?)
 }
 
 /// Writes row `name`'s closed loops as windows of `steps` transitions to
@@ -600,61 +521,4 @@ fn write_onpolicy(
     data.save_npz(&path)?;
     rec.path = Some(path);
     Ok(rec)
-}
-
-/// The tracking tasks' rows as a Markdown table (one per task; the replay row first).
-pub fn table(reports: &[TrackReport]) -> String {
-    let mut s = String::new();
-    for r in reports {
-        let metric = match &r.survival {
-            Some(m) => format!(
-                "survival = steps until the mean |x − r| over states {:?} exceeds {} or a fall, capped at {}",
-                m.states, m.threshold, r.steps
-            ),
-            None => format!("tracking RMS over {} steps", r.steps),
-        };
-        s += &format!(
-            "Tracking '{}'{}: {} references from {} ({metric}{})\n\n",
-            r.sim,
-            r.label
-                .as_ref()
-                .map_or(String::new(), |l| format!(" [{l}]")),
-            r.references,
-            r.references_file,
-            if r.error_state {
-                "; error-state MPC"
-            } else {
-                ""
-            }
-        );
-        s += "| row | mean | sem | median | q25-q75 | min-max | at cap | above / below replay | falls | tracking RMS (mean) | solve median (p99) µs |\n";
-        s += "|---|---|---|---|---|---|---|---|---|---|---|\n";
-        for row in &r.rows {
-            let sv = row.survival.clone().unwrap_or_default();
-            let rms = row.tracking_rms.iter().sum::<f64>() / row.tracking_rms.len().max(1) as f64;
-            let vs = match (row.above_replay, row.below_replay) {
-                (Some(a), Some(b)) => format!("{a} / {b}"),
-                _ => "-".into(),
-            };
-            let solve = if row.model.is_some() {
-                format!("{:.0} ({:.0})", row.solve_median_us, row.solve_p99_us)
-            } else {
-                "-".into()
-            };
-            if row.survival.is_some() {
-                s += &format!(
-                    "| {} | {:.1} | {:.1} | {} | {}-{} | {}-{} | {} | {vs} | {} | {rms:.4} | {solve} |\n",
-                    row.row, sv.mean, sv.sem, sv.median, sv.q25, sv.q75, sv.min, sv.max,
-                    sv.at_cap.unwrap_or(0), row.falls
-                );
-            } else {
-                s += &format!(
-                    "| {} | - | - | - | - | - | - | - | {} | {rms:.4} | {solve} |\n",
-                    row.row, row.falls
-                );
-            }
-        }
-        s += "\n";
-    }
-    s
 }

@@ -1,6 +1,7 @@
 //! The keys of a `[control]` / `[[control]]` entry: one closed loop ([`ControlSpec`]'s `x0`,
 //! `reference`, ...), or a tracking task with `references` (its survival metric, Q from the data,
-//! perturbation: the types here; [`super::track`] reads them into a `TrackSpec`).
+//! perturbation: the types here; [`super::track`] reads them into a `TrackSpec`), and how the
+//! file gives them: one table or several, `[control_defaults]` merged in.
 
 use serde::{Deserialize, Serialize};
 
@@ -181,4 +182,47 @@ impl PerturbationSpec {
         // The draws need the non-empty window checked above.
         self.for_reference(0).check()
     }
+}
+
+/// Merges `[control_defaults]` (a table of `[control]` keys) into every `[control]` /
+/// `[[control]]` entry that does not set the key itself, and removes it: what several entries
+/// share (a survival metric, the references, the MPC settings) is written once. True when
+/// there was such a table.
+pub(super) fn apply_control_defaults(doc: &mut toml::Table) -> crate::error::Result<bool> {
+    let Some(defaults) = doc.remove("control_defaults") else {
+        return Ok(false);
+    };
+    let toml::Value::Table(defaults) = defaults else {
+        return Err(crate::error::Error::Config(
+            "[control_defaults] must be a table of [control] keys".into(),
+        ));
+    };
+    let entries: Vec<&mut toml::Table> = match doc.get_mut("control") {
+        Some(toml::Value::Table(t)) => vec![t],
+        Some(toml::Value::Array(a)) => a.iter_mut().filter_map(|v| v.as_table_mut()).collect(),
+        _ => {
+            return Err(crate::error::Error::Config(
+                "[control_defaults] needs [control] or [[control]] entries to apply to".into(),
+            ))
+        }
+    };
+    for entry in entries {
+        for (k, v) in &defaults {
+            entry.entry(k.clone()).or_insert_with(|| v.clone());
+        }
+    }
+    Ok(true)
+}
+
+/// `[control]` (one table) or `[[control]]` (an array of tables).
+pub(super) fn one_or_many<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> std::result::Result<Vec<ControlSpec>, D::Error> {
+    // Read as a value first, then as the one or the other, so that the error names the field.
+    let v = toml::Value::deserialize(d)?;
+    match v {
+        toml::Value::Array(_) => Vec::<ControlSpec>::deserialize(v),
+        _ => ControlSpec::deserialize(v).map(|c| vec![c]),
+    }
+    .map_err(serde::de::Error::custom)
 }
