@@ -254,9 +254,10 @@ pub fn job_settings(
     Ok((kind, train_config(&fields)?))
 }
 
-/// EDMD with control (`koopman::model::edmd`, its default dictionary) on the first
-/// `cfg.train_samples` training windows, saved into `out_dir`; the metrics are those of
-/// `koopbridge train --model edmd` (prediction errors with `cfg.gamma`).
+/// EDMD with control (`koopman::model::edmd`) on the first `cfg.train_samples` training windows,
+/// its dictionary's degree chosen by validation error (`degree_selection` in the metrics), saved
+/// into `out_dir`; the metrics are those of `koopbridge train --model edmd` (prediction errors
+/// with `cfg.gamma`).
 fn fit_edmd(
     cfg: &TrainConfig,
     tr: &Dataset,
@@ -267,7 +268,8 @@ fn fit_edmd(
     let started = std::time::Instant::now();
     let m = cfg.train_samples.unwrap_or(tr.n);
     let edmd = koopman::model::edmd::EdmdConfig::default();
-    let model = koopman::model::edmd::fit(&tr.head(m)?, &edmd)?;
+    let (model, selection) =
+        koopman::model::edmd::fit_by_validation(&tr.head(m)?, va, &edmd, cfg.gamma)?;
     let fit_seconds = started.elapsed().as_secs_f64();
     model.save(out_dir)?;
     let test = te
@@ -284,7 +286,8 @@ fn fit_edmd(
         "pairing": tr.meta.pairing,
         "env": tr.meta.env,
         "gamma": cfg.gamma,
-        "config": edmd,
+        "config": model.config,
+        "degree_selection": selection,
         "fit": model.info,
     }))
 }

@@ -1,17 +1,21 @@
 //! EDMD with control: a polynomial dictionary of the state, the input kept linear, and
 //! `[A B] = argmin (1/P) Σ ‖z⁺ − A z − B u‖² + λ ‖[A B]‖²_F` over all P transitions of a dataset.
 //!
-//! The dictionary ([`dictionary`]) starts with x itself, so `x = P z`; by default its degree is the
-//! largest with at most 250 features (degree 20 and N = 231 for the damped pendulum, degree 6 and
-//! N = 210 for the double pendulum). The normal equations are accumulated in chunks ([`gram`]),
+//! The dictionary ([`dictionary`]) starts with x itself, so `x = P z`; [`fit`] uses the degree it is
+//! given or the largest with at most 250 features (degree 20 and N = 231 for the damped pendulum,
+//! degree 6 and N = 210 for the double pendulum); [`select::fit_by_validation`], what the trainer
+//! uses unless a degree is given, tries every degree up to that and keeps the one with the lowest
+//! validation error. The normal equations are accumulated in chunks ([`gram`]),
 //! so memory does not depend on the number of pairs, and solved by Cholesky with an SVD fallback.
 
 pub mod dictionary;
 pub mod gram;
 mod io;
+pub mod select;
 
 pub use dictionary::{Basis, Dictionary};
 pub use gram::Solver;
+pub use select::{fit_by_validation, DegreeSelection, DegreeTrial};
 
 use crate::data::Dataset;
 use crate::model::LiftedModel;

@@ -363,3 +363,63 @@ fn bad_inputs_are_errors() {
         Err(Error::Dimension { .. })
     ));
 }
+
+#[test]
+fn degree_selection_keeps_the_lowest_validation_error_of_separate_fits() {
+    // The damped pendulum with few windows: the budget's degree (20) overfits, so the choice is
+    // not simply the largest; every trial must equal a separate fit's validation error.
+    let sys = by_name("damped").unwrap();
+    let train = generate(sys.as_ref(), 40, 15, 11, Pairing::Aligned).unwrap();
+    let val = generate(sys.as_ref(), 40, 15, 12, Pairing::Aligned).unwrap();
+    let cfg = EdmdConfig {
+        max_features: 45, // degrees 1..8 on a 2-D state
+        ..EdmdConfig::default()
+    };
+    let (model, sel) = fit_by_validation(&train, &val, &cfg, 0.8).unwrap();
+    assert!(sel.by_validation);
+    assert_eq!(sel.trials.len(), 8);
+    let mut best = (f64::INFINITY, 0);
+    for t in &sel.trials {
+        let alone = fit(
+            &train,
+            &EdmdConfig {
+                degree: Some(t.degree),
+                ..cfg.clone()
+            },
+        )
+        .unwrap();
+        let e = alone.prediction_error(&val, 0.8).unwrap();
+        assert_eq!(t.features, alone.latent_dim());
+        if e.is_finite() {
+            assert!((t.validation_error.unwrap() - e).abs() <= 1e-12 * e.max(1.0));
+            if e < best.0 {
+                best = (e, t.degree);
+            }
+        } else {
+            assert_eq!(t.validation_error, None);
+        }
+    }
+    assert_eq!(sel.chosen, best.1);
+    assert_eq!(model.config.degree, Some(best.1));
+    assert_eq!(model.latent_dim(), dictionary::feature_count(2, best.1));
+    // A linear system: degree 1 is exact, so nothing above it validates better.
+    let lin_train = generate(&Linear { frozen: false }, 100, 4, 1, Pairing::Aligned).unwrap();
+    let lin_val = generate(&Linear { frozen: false }, 50, 4, 2, Pairing::Aligned).unwrap();
+    let (_, lin) = fit_by_validation(&lin_train, &lin_val, &cfg, 0.8).unwrap();
+    assert_eq!(lin.chosen, 1, "{lin:?}");
+}
+
+#[test]
+fn a_given_degree_is_the_only_trial() {
+    let sys = by_name("damped").unwrap();
+    let train = generate(sys.as_ref(), 30, 15, 1, Pairing::Aligned).unwrap();
+    let val = generate(sys.as_ref(), 10, 15, 2, Pairing::Aligned).unwrap();
+    let cfg = EdmdConfig {
+        degree: Some(3),
+        ..EdmdConfig::default()
+    };
+    let (model, sel) = fit_by_validation(&train, &val, &cfg, 0.8).unwrap();
+    assert!(!sel.by_validation);
+    assert_eq!((sel.chosen, sel.trials.len()), (3, 1));
+    assert_eq!(model.latent_dim(), dictionary::feature_count(2, 3));
+}
