@@ -65,3 +65,56 @@ fn the_measured_gain_matches_the_closed_form_and_tells_a_wrong_model() {
         assert!(wrong.projection < koopman::analysis::gain::WEAK_AUTHORITY);
     }
 }
+
+/// `e^{J dt}` of the damped pendulum held at rest at `theta` (the series; see [`closed_form`]).
+fn state_transition(theta: f64) -> [[f64; 2]; 2] {
+    let (g, b, dt) = (9.8, 1.0, 0.02);
+    let j = [[0.0, 1.0], [-g / theta.cos(), -b]];
+    let mul = |a: [[f64; 2]; 2], c: [[f64; 2]; 2]| {
+        let mut m = [[0.0; 2]; 2];
+        for (i, row) in m.iter_mut().enumerate() {
+            for (k, v) in row.iter_mut().enumerate() {
+                *v = a[i][0] * c[0][k] + a[i][1] * c[1][k];
+            }
+        }
+        m
+    };
+    let mut term = [[1.0, 0.0], [0.0, 1.0]];
+    let mut sum = term;
+    for k in 1..30 {
+        term = mul(term, j);
+        let f = dt / k as f64;
+        term = [[term[0][0] * f, term[0][1] * f], [term[1][0] * f, term[1][1] * f]];
+        for i in 0..2 {
+            for c in 0..2 {
+                sum[i][c] += term[i][c];
+            }
+        }
+    }
+    sum
+}
+
+#[test]
+fn the_measured_state_jacobian_matches_the_closed_form_and_tells_an_unstable_goal() {
+    use bridge::orchestrator::growth::{measure_state_jacobian, UNSTABLE_RADIUS};
+    let (c, _opts, _s) = common::cluster("growth", &[("p", "damped-pendulum")], &[]);
+    let mut sim = SimClient::connect(&c.client, "p", common::READY).unwrap();
+    for theta in [0.3, std::f64::consts::PI] {
+        let u0 = 9.8 * f64::tan(theta);
+        let j = measure_state_jacobian(&mut sim, &[theta, 0.0], &[u0]).unwrap();
+        let want = state_transition(theta);
+        for (r, row) in want.iter().enumerate() {
+            for (k, w) in row.iter().enumerate() {
+                assert!(
+                    (j[(r, k)] - w).abs() <= 1e-5,
+                    "θ = {theta}: ∂x⁺_{r}/∂x_{k} {} vs closed form {w}",
+                    j[(r, k)]
+                );
+            }
+        }
+        // Upright (θ = π) grows e^{2.67·0.02} = 1.055× per step; hanging at 0.3 rad it decays.
+        let ev = koopman::analysis::conditioning::eigenvalues(j.as_ref()).unwrap();
+        let rho = ev.iter().map(|z| z.norm()).fold(0.0, f64::max);
+        assert_eq!(rho >= UNSTABLE_RADIUS, theta > 3.0, "θ = {theta}: ρ = {rho}");
+    }
+}

@@ -1,7 +1,8 @@
 //! What a control run that missed its goal can say about why: how well the model predicts the
 //! closed loop against how well it predicts the test set (did the loop leave the data?), how
 //! often the commands sat at a bound, the input authority at the goal (the model's input gain
-//! against the simulator's: [`super::authority`]), and one concrete next step.
+//! against the simulator's: [`super::authority`]), how fast deviations grow there in the model and
+//! in the simulator ([`super::growth`]), and one concrete next step.
 
 use std::path::Path;
 
@@ -9,6 +10,7 @@ use koopman::data::Dataset;
 use serde::{Deserialize, Serialize};
 
 use super::authority::InputAuthority;
+use super::growth::Growth;
 use super::closed_loop::ControlReport;
 use crate::error::{Error, Result};
 use koopman::analysis::gain::WEAK_AUTHORITY;
@@ -44,17 +46,22 @@ pub struct ControlDiagnosis {
     /// without a lifted form, a trajectory reference, or not measured).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub input_authority: Option<InputAuthority>,
+    /// The simulator's and the model's growth rate at the goal (`None`: as `input_authority`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub growth: Option<Growth>,
     /// One concrete next step.
     pub next_step: String,
 }
 
-/// Diagnoses `c` with the model saved in `model_dir`, the run's test windows `test` and the
-/// input authority measured at the goal ([`super::authority::input_authority`]).
+/// Diagnoses `c` with the model saved in `model_dir`, the run's test windows `test`, and the
+/// input authority and growth rates measured at the goal ([`super::authority::input_authority`],
+/// [`super::growth::growth`]).
 pub fn diagnose(
     c: &ControlReport,
     model_dir: &Path,
     test: &Dataset,
     input_authority: Option<InputAuthority>,
+    growth: Option<Growth>,
 ) -> Result<ControlDiagnosis> {
     let saturated_fraction = saturated_fraction(c);
     let errors = koopman::model::load_lifted(model_dir)
@@ -66,7 +73,13 @@ pub fn diagnose(
         (Some(cl), Some(t)) if t > 0.0 => Some(cl / t),
         _ => None,
     };
-    let next_step = next_step(c, ratio, saturated_fraction, input_authority.as_ref());
+    let next_step = next_step(
+        c,
+        ratio,
+        saturated_fraction,
+        input_authority.as_ref(),
+        growth.as_ref(),
+    );
     Ok(ControlDiagnosis {
         sim: c.sim.clone(),
         model: c.model.clone(),
@@ -77,6 +90,7 @@ pub fn diagnose(
         window_closed_loop: win_cl,
         window_test: win_test,
         input_authority,
+        growth,
         next_step,
     })
 }
@@ -182,6 +196,7 @@ fn next_step(
     off_data: Option<f64>,
     saturated: f64,
     authority: Option<&InputAuthority>,
+    growth: Option<&Growth>,
 ) -> String {
     if c.time_to_goal_steps.is_some() {
         return "none: the goal was reached".into();
@@ -204,6 +219,17 @@ fn next_step(
              around the goal where the input's effect keeps its sign ([[sims]] or [collect] \
              x0_center/x0_radius), or train a bilinear model ([train] model = \"bilinear\")",
             a.projection, a.cosine
+        );
+    }
+    if let Some(g) = growth.filter(|g| g.model_too_slow()) {
+        return format!(
+            "the goal is unstable (the simulator's deviations grow {:.2}x per step there) and the \
+             model's lifted dynamics grow at most {:.2}x: over the {}-step horizon it predicts the \
+             departure {:.0}x too slow, so the MPC pushes too late — a model whose A is right over \
+             the horizon: EDMD ([train] model = \"edmd\", its degree chosen by validation), data \
+             closer to the goal (a smaller [collect] x0 box, smaller inputs, short windows), or a \
+             shorter horizon (docs/your-own-simulator.md §8)",
+            g.sim_spectral_radius, g.model_spectral_radius, g.horizon, g.too_slow_over_horizon
         );
     }
     if let Some(r) = off_data.filter(|r| *r > OFF_DATA_RATIO) {
@@ -266,14 +292,14 @@ mod tests {
     #[test]
     fn the_next_step_follows_the_numbers() {
         let reached = report(vec![vec![0.0]], Some(0));
-        assert!(next_step(&reached, Some(10.0), 1.0, None).starts_with("none"));
+        assert!(next_step(&reached, Some(10.0), 1.0, None, None).starts_with("none"));
         let missed = report(vec![vec![0.0]], None);
-        assert!(next_step(&missed, Some(10.0), 0.0, None).contains("left the data"));
-        assert!(next_step(&missed, Some(1.2), 0.9, None).contains("90% of the commands"));
-        assert!(next_step(&missed, Some(1.2), 0.1, None).contains("tune the MPC"));
+        assert!(next_step(&missed, Some(10.0), 0.0, None, None).contains("left the data"));
+        assert!(next_step(&missed, Some(1.2), 0.9, None, None).contains("90% of the commands"));
+        assert!(next_step(&missed, Some(1.2), 0.1, None, None).contains("tune the MPC"));
         let mut unsolved = report(vec![vec![0.0]; 4], None);
         unsolved.not_solved = 3;
-        assert!(next_step(&unsolved, None, 0.0, None).contains("did not solve"));
+        assert!(next_step(&unsolved, None, 0.0, None, None).contains("did not solve"));
         let gain = |projection: f64, cosine: f64| InputAuthority {
             at: vec![0.0],
             nominal: vec![0.0],
@@ -285,12 +311,29 @@ mod tests {
             norm_ratio: projection.abs(),
         };
         let wrong = gain(-0.007, -1.0);
-        let s = next_step(&missed, Some(10.0), 0.9, Some(&wrong));
+        let s = next_step(&missed, Some(10.0), 0.9, Some(&wrong), None);
         assert!(s.contains("wrong sign") && s.contains("-0.007"), "{s}");
         let weak = gain(0.1, 1.0);
-        assert!(next_step(&missed, None, 0.0, Some(&weak)).contains("far smaller"));
+        assert!(next_step(&missed, None, 0.0, Some(&weak), None).contains("far smaller"));
         let good = gain(0.9, 1.0);
-        assert!(next_step(&missed, Some(1.2), 0.1, Some(&good)).contains("tune the MPC"));
+        assert!(next_step(&missed, Some(1.2), 0.1, Some(&good), None).contains("tune the MPC"));
+        // An unstable goal and a model that grows too slowly over the horizon: that, before the
+        // loop leaving the data (its consequence); a model fast enough, or a stable goal: not.
+        let grow = |sim: f64, model: f64| Growth {
+            at: vec![0.0],
+            input: vec![0.0],
+            sim_spectral_radius: sim,
+            model_spectral_radius: model,
+            horizon: 30,
+            too_slow_over_horizon: (sim / model).powi(30),
+        };
+        let slow = grow(1.56, 1.29);
+        let s = next_step(&missed, Some(1e5), 0.9, Some(&good), Some(&slow));
+        assert!(s.contains("unstable") && s.contains("299x too slow"), "{s}");
+        let fine = grow(1.56, 1.51);
+        assert!(next_step(&missed, Some(1e5), 0.9, Some(&good), Some(&fine)).contains("left the data"));
+        let stable = grow(0.99, 0.5);
+        assert!(next_step(&missed, Some(1e5), 0.9, Some(&good), Some(&stable)).contains("left the data"));
     }
 
     #[test]

@@ -24,6 +24,7 @@
 
 pub mod aggregate;
 pub mod authority;
+pub mod growth;
 pub mod closed_loop;
 pub mod cluster;
 pub mod commands;
