@@ -84,7 +84,10 @@ fn state_transition(theta: f64) -> [[f64; 2]; 2] {
     for k in 1..30 {
         term = mul(term, j);
         let f = dt / k as f64;
-        term = [[term[0][0] * f, term[0][1] * f], [term[1][0] * f, term[1][1] * f]];
+        term = [
+            [term[0][0] * f, term[0][1] * f],
+            [term[1][0] * f, term[1][1] * f],
+        ];
         for i in 0..2 {
             for c in 0..2 {
                 sum[i][c] += term[i][c];
@@ -115,6 +118,10 @@ fn the_measured_state_jacobian_matches_the_closed_form_and_tells_an_unstable_goa
         // Upright (θ = π) grows e^{2.67·0.02} = 1.055× per step; hanging at 0.3 rad it decays.
         let ev = koopman::analysis::conditioning::eigenvalues(j.as_ref()).unwrap();
         let rho = ev.iter().map(|z| z.norm()).fold(0.0, f64::max);
-        assert_eq!(rho >= UNSTABLE_RADIUS, theta > 3.0, "θ = {theta}: ρ = {rho}");
+        assert_eq!(
+            rho >= UNSTABLE_RADIUS,
+            theta > 3.0,
+            "θ = {theta}: ρ = {rho}"
+        );
     }
 }

@@ -326,7 +326,10 @@ pub fn collect_regions(
         out.push(ds);
         bounds.push(b);
     }
+    // Per simulator, the windows it flagged (terminated, truncated, clipped), counted once each.
+    let mut flagged = vec![koopman::data::WindowFlags::default(); sims.len()];
     for i in 0..windows {
+        let mut window_status = vec![crate::codec::StepStatus::EMPTY; sims.len()];
         let mut rngs = Vec::with_capacity(sims.len());
         for (j, s) in sims.iter_mut().enumerate() {
             let ws = window_seed(seed, split, j, i);
@@ -365,9 +368,18 @@ pub fn collect_regions(
             for (j, (r, u)) in replies.iter().zip(&inputs).enumerate() {
                 out[j].x.extend_from_slice(&r.x);
                 out[j].u.extend_from_slice(u);
+                window_status[j] = window_status[j].union(r.status);
             }
         }
+        for (f, st) in flagged.iter_mut().zip(&window_status) {
+            f.terminated += usize::from(st.terminated());
+            f.truncated += usize::from(st.truncated());
+            f.clipped += usize::from(st.clipped());
+        }
         progress(i + 1, windows);
+    }
+    for (d, f) in out.iter_mut().zip(flagged) {
+        d.meta.window_flags = Some(f);
     }
     Ok(out)
 }
@@ -443,6 +455,7 @@ pub(crate) fn empty_dataset(
             source,
             policy: policy.into(),
             region: None,
+            window_flags: None,
         },
     }
 }

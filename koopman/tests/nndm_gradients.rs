@@ -34,6 +34,7 @@ fn random_data(n: usize, steps: usize, nx: usize, nu: usize, rng: &mut Rng) -> D
             source: "test".into(),
             policy: "uniform".into(),
             region: None,
+            window_flags: None,
         },
     }
 }

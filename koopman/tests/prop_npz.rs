@@ -41,6 +41,7 @@ fn dataset(n: usize, steps: usize, nx: usize, nu: usize, seed: u64) -> Dataset {
             source: "prop_npz".into(),
             policy: "uniform".into(),
             region: None,
+            window_flags: None,
         },
     }
 }

@@ -94,6 +94,10 @@ impl StepStatus {
     pub fn is_empty(self) -> bool {
         self.0 == 0
     }
+    /// The flags set in `self` or in `other`.
+    pub fn union(self, other: StepStatus) -> Self {
+        StepStatus(self.0 | other.0)
+    }
     /// Every flag of `other` is set in `self`.
     pub fn contains(self, other: StepStatus) -> bool {
         self.0 & other.0 == other.0

@@ -336,6 +336,7 @@ mod tests {
                 source: "s".into(),
                 policy: "uniform".into(),
                 region: None,
+                window_flags: None,
             },
         }
     }

@@ -2,7 +2,9 @@
 //! closed loop against how well it predicts the test set (did the loop leave the data?), how
 //! often the commands sat at a bound, the input authority at the goal (the model's input gain
 //! against the simulator's: [`super::authority`]), how fast deviations grow there in the model and
-//! in the simulator ([`super::growth`]), and one concrete next step.
+//! in the simulator ([`super::growth`]), what the data say ([`super::data_quality`]: windows the
+//! simulator ended, the model's error against the data's spread, the loop outside the data), and
+//! one concrete next step.
 
 use std::path::Path;
 
@@ -10,8 +12,9 @@ use koopman::data::Dataset;
 use serde::{Deserialize, Serialize};
 
 use super::authority::InputAuthority;
-use super::growth::Growth;
 use super::closed_loop::ControlReport;
+use super::data_quality::{data_quality, DataQuality, ENDED_WINDOWS, UNEXPLAINED};
+use super::growth::Growth;
 use crate::error::{Error, Result};
 use koopman::analysis::gain::WEAK_AUTHORITY;
 
@@ -49,6 +52,9 @@ pub struct ControlDiagnosis {
     /// The simulator's and the model's growth rate at the goal (`None`: as `input_authority`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub growth: Option<Growth>,
+    /// What the data say: windows the simulator ended, the model's error against the data's
+    /// spread, the share of the loop outside the data.
+    pub data: DataQuality,
     /// One concrete next step.
     pub next_step: String,
 }
@@ -73,12 +79,14 @@ pub fn diagnose(
         (Some(cl), Some(t)) if t > 0.0 => Some(cl / t),
         _ => None,
     };
+    let data = data_quality(test, win_test, &c.x);
     let next_step = next_step(
         c,
         ratio,
         saturated_fraction,
         input_authority.as_ref(),
         growth.as_ref(),
+        &data,
     );
     Ok(ControlDiagnosis {
         sim: c.sim.clone(),
@@ -91,6 +99,7 @@ pub fn diagnose(
         window_test: win_test,
         input_authority,
         growth,
+        data,
         next_step,
     })
 }
@@ -197,6 +206,7 @@ fn next_step(
     saturated: f64,
     authority: Option<&InputAuthority>,
     growth: Option<&Growth>,
+    data: &DataQuality,
 ) -> String {
     if c.time_to_goal_steps.is_some() {
         return "none: the goal was reached".into();
@@ -221,6 +231,15 @@ fn next_step(
             a.projection, a.cosine
         );
     }
+    if let Some(e) = data.ended_share().filter(|e| *e > ENDED_WINDOWS) {
+        return format!(
+            "{:.0}% of the collection windows reached a state where the simulator ended the \
+             episode (a fall, a stop): much of the data is the plant after it failed, not where \
+             the task is — collect where the task is: smaller inputs ([collect] policy low/high), \
+             a [collect] x0 box around the goal, shorter windows ([collect] steps)",
+            100.0 * e
+        );
+    }
     if let Some(g) = growth.filter(|g| g.model_too_slow()) {
         return format!(
             "the goal is unstable (the simulator's deviations grow {:.2}x per step there) and the \
@@ -232,11 +251,20 @@ fn next_step(
             g.sim_spectral_radius, g.model_spectral_radius, g.horizon, g.too_slow_over_horizon
         );
     }
+    if let Some(u) = data.unexplained_share.filter(|u| *u > UNEXPLAINED) {
+        return format!(
+            "the model leaves {:.0}% of its own test data's variance unexplained: it does not \
+             predict the data it learned from — more iterations or windows ([train].config, \
+             [collect]), a second kind of model ([train] model), or data from a smaller region",
+            100.0 * u
+        );
+    }
     if let Some(r) = off_data.filter(|r| *r > OFF_DATA_RATIO) {
         return format!(
-            "the model predicts the closed loop {r:.1}x worse than its test set: the loop left \
-             the data — collect around the task ([collect] x0 box around the goal or reference, \
-             input bounds the task needs) or run on-policy aggregation (--aggregate 2)"
+            "the model predicts the closed loop {r:.1}x worse than its test set ({:.0}% of the \
+             loop's states outside the data's range): the loop left the data — collect around the task ([collect] x0 box around the goal or reference, \
+             input bounds the task needs) or run on-policy aggregation (--aggregate 2)",
+            100.0 * data.loop_outside_data
         );
     }
     if saturated > SATURATED_FRACTION {
@@ -291,15 +319,18 @@ mod tests {
 
     #[test]
     fn the_next_step_follows_the_numbers() {
+        let clean = DataQuality::default();
         let reached = report(vec![vec![0.0]], Some(0));
-        assert!(next_step(&reached, Some(10.0), 1.0, None, None).starts_with("none"));
+        assert!(next_step(&reached, Some(10.0), 1.0, None, None, &clean).starts_with("none"));
         let missed = report(vec![vec![0.0]], None);
-        assert!(next_step(&missed, Some(10.0), 0.0, None, None).contains("left the data"));
-        assert!(next_step(&missed, Some(1.2), 0.9, None, None).contains("90% of the commands"));
-        assert!(next_step(&missed, Some(1.2), 0.1, None, None).contains("tune the MPC"));
+        assert!(next_step(&missed, Some(10.0), 0.0, None, None, &clean).contains("left the data"));
+        assert!(
+            next_step(&missed, Some(1.2), 0.9, None, None, &clean).contains("90% of the commands")
+        );
+        assert!(next_step(&missed, Some(1.2), 0.1, None, None, &clean).contains("tune the MPC"));
         let mut unsolved = report(vec![vec![0.0]; 4], None);
         unsolved.not_solved = 3;
-        assert!(next_step(&unsolved, None, 0.0, None, None).contains("did not solve"));
+        assert!(next_step(&unsolved, None, 0.0, None, None, &clean).contains("did not solve"));
         let gain = |projection: f64, cosine: f64| InputAuthority {
             at: vec![0.0],
             nominal: vec![0.0],
@@ -311,12 +342,14 @@ mod tests {
             norm_ratio: projection.abs(),
         };
         let wrong = gain(-0.007, -1.0);
-        let s = next_step(&missed, Some(10.0), 0.9, Some(&wrong), None);
+        let s = next_step(&missed, Some(10.0), 0.9, Some(&wrong), None, &clean);
         assert!(s.contains("wrong sign") && s.contains("-0.007"), "{s}");
         let weak = gain(0.1, 1.0);
-        assert!(next_step(&missed, None, 0.0, Some(&weak), None).contains("far smaller"));
+        assert!(next_step(&missed, None, 0.0, Some(&weak), None, &clean).contains("far smaller"));
         let good = gain(0.9, 1.0);
-        assert!(next_step(&missed, Some(1.2), 0.1, Some(&good), None).contains("tune the MPC"));
+        assert!(
+            next_step(&missed, Some(1.2), 0.1, Some(&good), None, &clean).contains("tune the MPC")
+        );
         // An unstable goal and a model that grows too slowly over the horizon: that, before the
         // loop leaving the data (its consequence); a model fast enough, or a stable goal: not.
         let grow = |sim: f64, model: f64| Growth {
@@ -328,12 +361,51 @@ mod tests {
             too_slow_over_horizon: (sim / model).powi(30),
         };
         let slow = grow(1.56, 1.29);
-        let s = next_step(&missed, Some(1e5), 0.9, Some(&good), Some(&slow));
+        let s = next_step(&missed, Some(1e5), 0.9, Some(&good), Some(&slow), &clean);
         assert!(s.contains("unstable") && s.contains("299x too slow"), "{s}");
         let fine = grow(1.56, 1.51);
-        assert!(next_step(&missed, Some(1e5), 0.9, Some(&good), Some(&fine)).contains("left the data"));
+        assert!(
+            next_step(&missed, Some(1e5), 0.9, Some(&good), Some(&fine), &clean)
+                .contains("left the data")
+        );
         let stable = grow(0.99, 0.5);
-        assert!(next_step(&missed, Some(1e5), 0.9, Some(&good), Some(&stable)).contains("left the data"));
+        assert!(
+            next_step(&missed, Some(1e5), 0.9, Some(&good), Some(&stable), &clean)
+                .contains("left the data")
+        );
+    }
+
+    #[test]
+    fn the_data_come_first_when_they_are_the_cause() {
+        use koopman::data::WindowFlags;
+        let missed = report(vec![vec![0.0]], None);
+        let ended = DataQuality {
+            windows: 100,
+            window_flags: Some(WindowFlags {
+                terminated: 48,
+                truncated: 0,
+                clipped: 0,
+            }),
+            unexplained_share: Some(0.4),
+            loop_outside_data: 0.9,
+        };
+        let s = next_step(&missed, Some(50.0), 0.9, None, None, &ended);
+        assert!(s.contains("48% of the collection windows"), "{s}");
+        let few = DataQuality {
+            window_flags: Some(WindowFlags {
+                terminated: 5,
+                ..Default::default()
+            }),
+            ..ended.clone()
+        };
+        let s = next_step(&missed, Some(50.0), 0.9, None, None, &few);
+        assert!(s.contains("40% of its own test data's variance"), "{s}");
+        let explained = DataQuality {
+            unexplained_share: Some(0.01),
+            ..few
+        };
+        let s = next_step(&missed, Some(50.0), 0.9, None, None, &explained);
+        assert!(s.contains("(90% of the loop's states outside"), "{s}");
     }
 
     #[test]

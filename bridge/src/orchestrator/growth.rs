@@ -100,7 +100,11 @@ pub fn model_holding_input(
     let u = pb.qr().solve_lstsq(&rhs);
     (0..nu)
         .map(|j| {
-            let v = if u[(j, 0)].is_finite() { u[(j, 0)] } else { 0.0 };
+            let v = if u[(j, 0)].is_finite() {
+                u[(j, 0)]
+            } else {
+                0.0
+            };
             v.min(hi.get(j).copied().unwrap_or(f64::INFINITY))
                 .max(lo.get(j).copied().unwrap_or(f64::NEG_INFINITY))
         })

@@ -24,7 +24,6 @@
 
 pub mod aggregate;
 pub mod authority;
-pub mod growth;
 pub mod closed_loop;
 pub mod cluster;
 pub mod commands;
@@ -32,7 +31,9 @@ pub mod compare;
 pub mod control;
 pub mod control_loop;
 pub mod control_settings;
+pub mod data_quality;
 pub mod diagnose;
+pub mod growth;
 pub mod position_loop;
 pub mod program;
 pub mod reference;

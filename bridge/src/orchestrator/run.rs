@@ -545,14 +545,13 @@ fn diagnose_controls(
         };
         // The growth rates at the goal (the simulator's and the model's).
         let growth = match sc.sims.iter().position(|s| s.id == c.sim) {
-            Some(j) => super::growth::growth(c, &model_dir, &mut clients[j])
-                .unwrap_or_else(|e| {
-                    on(Event::Phase(&format!(
-                        "no growth rates of '{}' with '{}': {e}",
-                        c.sim, c.model
-                    )));
-                    None
-                }),
+            Some(j) => super::growth::growth(c, &model_dir, &mut clients[j]).unwrap_or_else(|e| {
+                on(Event::Phase(&format!(
+                    "no growth rates of '{}' with '{}': {e}",
+                    c.sim, c.model
+                )));
+                None
+            }),
             _ => None,
         };
         let diagnosis = match test {

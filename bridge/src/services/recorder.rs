@@ -375,6 +375,7 @@ pub fn serve(
                                 source: format!("zenoh:sim/{} (free-run recording)", req.sim),
                                 policy: "recorded".into(),
                                 region: None,
+                                window_flags: None,
                             },
                         };
                         if n > 0 {

@@ -154,6 +154,7 @@ mod tests {
                 source: "t".into(),
                 policy: "t".into(),
                 region: None,
+                window_flags: None,
             },
         };
         let m = Affine {

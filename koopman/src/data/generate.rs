@@ -105,6 +105,7 @@ pub fn generate_with_progress(
         source: builtin_source(&system.parameters()),
         policy: "uniform random input each step (zero-order hold)".to_string(),
         region: None,
+        window_flags: None,
     };
     let data = Dataset {
         n: windows,

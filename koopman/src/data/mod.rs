@@ -68,6 +68,22 @@ pub struct DatasetMeta {
     /// (`koopbridge data gen --x0-low …`); absent from the JSON otherwise.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub region: Option<DataRegion>,
+    /// How many windows the simulator flagged while they were collected (lockstep collection
+    /// over the bridge); absent when nobody counted (in-process data, windows the simulator
+    /// ran itself).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub window_flags: Option<WindowFlags>,
+}
+
+/// The windows of a collection in which the simulator reported a step status at least once.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct WindowFlags {
+    /// Windows with a step the simulator's task ended (`terminated`: a fall, a stop).
+    pub terminated: usize,
+    /// Windows cut by a limit outside the task (`truncated`).
+    pub truncated: usize,
+    /// Windows with an input the simulator clipped into its bounds (`clipped`).
+    pub clipped: usize,
 }
 
 /// A set of windows. `x` is `[n, T+1, nx]` and `u` is `[n, T, nu]`, row-major, f64.
@@ -229,6 +245,7 @@ mod tests {
                 source: "test".into(),
                 policy: "none".into(),
                 region: None,
+                window_flags: None,
             },
         }
     }

@@ -169,6 +169,7 @@ mod tests {
                 source: "test".into(),
                 policy: "test".into(),
                 region: None,
+                window_flags: None,
             },
         }
     }

@@ -133,6 +133,7 @@ impl Dataset {
                 source: format!("{} (no metadata)", path.display()),
                 policy: "unknown".into(),
                 region: None,
+                window_flags: None,
             },
         };
         let data = Dataset {
