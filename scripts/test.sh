@@ -10,6 +10,8 @@ echo "== cargo clippy"
 cargo clippy --release --workspace --all-targets -- -D warnings
 echo "== module import circles (koopman/, bridge/, the CLI)"
 python3 scripts/check-module-cycles.py koopman/src bridge/src src
+echo "== module import circles (the Python package)"
+python3 scripts/check-python-cycles.py adapters/python/python/koopbridge
 if [ -x scripts/setup-python.sh ]; then
   echo "== python environment"
   scripts/setup-python.sh
