@@ -59,17 +59,54 @@ fn edmd_degree_sets_the_dictionary_and_is_refused_for_other_models() {
     let n3 = latent_dim(&low);
     assert_eq!(n3, monomials + 1, "latent_dim");
 
-    // The default degree is the largest within 250 features: far larger.
+    // By default every degree up to the largest within 250 features (20 on 2 states: 231) is
+    // tried on the validation split, and the lowest within 5 % of the best error is kept.
+    let selection = |model: &Path| -> (u64, Vec<(u64, u64, Option<f64>)>) {
+        let text = std::fs::read_to_string(model.join("metrics.json")).unwrap();
+        let m: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let s = &m["degree_selection"];
+        let trials = s["trials"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|t| {
+                (
+                    t["degree"].as_u64().unwrap(),
+                    t["features"].as_u64().unwrap(),
+                    t["validation_error"].as_f64(),
+                )
+            })
+            .collect();
+        (s["chosen"].as_u64().unwrap(), trials)
+    };
     let auto = dir.join("edmd-auto");
     let r = train(&auto, &["--model", "edmd"]);
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-    assert!(latent_dim(&auto) > 200, "{}", latent_dim(&auto));
+    let (chosen, trials) = selection(&auto);
+    assert_eq!(
+        trials.iter().map(|t| t.0).collect::<Vec<_>>(),
+        (1..=20).collect::<Vec<_>>()
+    );
+    assert_eq!(trials[19].1, 231);
+    let best = trials
+        .iter()
+        .filter_map(|t| t.2)
+        .fold(f64::INFINITY, f64::min);
+    let want = trials
+        .iter()
+        .find(|t| t.2.is_some_and(|e| e <= best * 1.05))
+        .unwrap();
+    assert_eq!(chosen, want.0);
+    assert_eq!(latent_dim(&auto), want.1);
+    // The given degree is the only trial (the degree-3 model above).
+    assert_eq!(selection(&low), (3, vec![(3, n3, selection(&low).1[0].2)]));
 
-    // A smaller feature budget chooses a smaller degree.
+    // A smaller feature budget tries fewer degrees (1..=6: 28 features, degree 7 has 36).
     let budget = dir.join("edmd-budget");
     let r = train(&budget, &["--model", "edmd", "--edmd-max-features", "30"]);
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-    assert!(latent_dim(&budget) <= 30 && latent_dim(&budget) > n3);
+    assert_eq!(selection(&budget).1.len(), 6);
+    assert!(latent_dim(&budget) <= 30);
 
     // EDMD options on another model kind: refused, naming the fix, nothing written.
     let wrong = dir.join("koopman");
