@@ -348,7 +348,10 @@ fn train_edmd(args: &TrainArgs, splits: &Splits) -> anyhow::Result<()> {
         splits.train.meta.pairing,
         selection.chosen,
         if selection.by_validation {
-            format!("the lowest validation error of degrees 1 to {}", selection.trials.len())
+            format!(
+                "the lowest within 5 % of the best validation error of degrees 1 to {}",
+                selection.trials.len()
+            )
         } else {
             "--edmd-degree".to_string()
         },
