@@ -33,6 +33,9 @@ pub struct Condensed {
     pub gamma: Mat<f64>,
     /// The Tikhonov term δ that was added to the diagonal of `H`.
     pub tikhonov: f64,
+    /// With a lifted terminal cost ([`Condensed::with_lifted_terminal`]): `Γ_zᵀ P` (H·nu × N),
+    /// so that each step's linear term gains `−Γ_zᵀ P z_ref`.
+    pub terminal_map: Option<Mat<f64>>,
 }
 
 /// Diagonal weights of the condensed cost.
@@ -162,7 +165,49 @@ impl Condensed {
             phi,
             gamma,
             tikhonov,
+            terminal_map: None,
         })
+    }
+
+    /// Adds the lifted terminal cost `(z_H − z_ref)ᵀ P (z_H − z_ref)` (`P`: N × N, symmetric
+    /// positive semidefinite) to a condensed QP built for the same `A`, `B`: with
+    /// `z_H = A^H z_0 + Γ_z U`, `Γ_z = [A^{H−1}B … AB B]`, the Hessian gains `Γ_zᵀ P Γ_z`, `M1`
+    /// gains `Γ_zᵀ P A^H`, and [`Condensed::terminal_map`] keeps `Γ_zᵀ P` for the `z_ref` part.
+    pub fn with_lifted_terminal(
+        mut self,
+        a: MatRef<'_, f64>,
+        b: MatRef<'_, f64>,
+        p: MatRef<'_, f64>,
+    ) -> Result<Self> {
+        let (n, nu, h) = (self.latent, self.nu, self.horizon);
+        if p.nrows() != n || p.ncols() != n {
+            return Err(Error::dimension("terminal cost P (N × N)", n, p.nrows()));
+        }
+        // A^k B for k = 0..H−1, and A^H.
+        let mut akb: Vec<Mat<f64>> = Vec::with_capacity(h);
+        akb.push(b.to_owned());
+        for k in 1..h {
+            let next = a * &akb[k - 1];
+            akb.push(next);
+        }
+        let mut ah = Mat::<f64>::identity(n, n);
+        for _ in 0..h {
+            ah = a * &ah;
+        }
+        let gz = Mat::from_fn(n, h * nu, |i, col| {
+            let (j, k) = (col / nu, col % nu);
+            akb[h - 1 - j][(i, k)]
+        });
+        let tm = gz.transpose() * p; // H·nu × N
+        let extra = &tm * &gz;
+        for i in 0..h * nu {
+            for j in 0..h * nu {
+                self.hessian[(i, j)] += 0.5 * (extra[(i, j)] + extra[(j, i)]);
+            }
+        }
+        self.m1 = &self.m1 + &tm * &ah;
+        self.terminal_map = Some(tm);
+        Ok(self)
     }
 
     /// Number of QP variables H·nu.

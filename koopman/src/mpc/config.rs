@@ -45,6 +45,13 @@ pub struct MpcConfig {
     pub r: Option<Vec<f64>>,
     /// Diagonal of the terminal weight on `x_H` (nx values); `None` = Q.
     pub terminal: Option<Vec<f64>>,
+    /// The terminal cost is the model's infinite-horizon cost-to-go instead: `(z_H − Φ(r_H))ᵀ P
+    /// (z_H − Φ(r_H))` with `P` the discrete Riccati solution of the lifted `(A, B)` under the
+    /// same Q (on `x = P z`) and R (in place of the terminal weight, so not with `terminal`).
+    /// Unconstrained, the first planned input is then LQR's whatever the horizon: what an
+    /// unstable plant needs from a short horizon. Not with the error-state MPC or the
+    /// offset-free correction.
+    pub terminal_riccati: bool,
     /// Lower input bounds (nu values, may be −∞).
     pub u_min: Option<Vec<f64>>,
     /// Upper input bounds (nu values, may be +∞).
@@ -86,6 +93,7 @@ impl Default for MpcConfig {
             q: None,
             r: None,
             terminal: None,
+            terminal_riccati: false,
             u_min: None,
             u_max: None,
             du_max: None,

@@ -147,6 +147,9 @@ pub struct MpcController<'m> {
     /// The offset the correction adds to the predicted states `x_1..x_H` in the last solve
     /// (H·nx values; empty when none).
     pred_offset: Vec<f64>,
+    /// With `terminal_riccati`: `Γ_zᵀ P Φ(r_H)` of the last solve, subtracted from its linear
+    /// term (empty otherwise).
+    terminal_pull: Vec<f64>,
 }
 
 impl<'m> MpcController<'m> {
@@ -180,7 +183,18 @@ impl<'m> MpcController<'m> {
             return Err(Error::dimension("B columns (inputs)", nu, b.ncols()));
         }
         let q = cfg.q.clone().unwrap_or_else(|| vec![1.0; nx]);
-        let terminal = cfg.terminal.clone().unwrap_or_else(|| q.clone());
+        if cfg.terminal_riccati && cfg.terminal.is_some() {
+            return Err(Error::InvalidArgument(
+                "terminal_riccati replaces the terminal weight: give one of terminal and \
+                 terminal_riccati"
+                    .into(),
+            ));
+        }
+        let terminal = match (&cfg.terminal, cfg.terminal_riccati) {
+            (_, true) => vec![0.0; nx], // the cost-to-go P holds x_H's stage cost
+            (Some(t), false) => t.clone(),
+            (None, false) => q.clone(),
+        };
         let r = cfg.r.clone().unwrap_or_else(|| vec![0.0; nu]);
         let w = Weights {
             q: &q,
@@ -188,7 +202,18 @@ impl<'m> MpcController<'m> {
             r: &r,
             regularization: cfg.regularization,
         };
-        let condensed = Condensed::build(a.as_ref(), b.as_ref(), nx, cfg.horizon, &w)?;
+        let mut condensed = Condensed::build(a.as_ref(), b.as_ref(), nx, cfg.horizon, &w)?;
+        if cfg.terminal_riccati {
+            let lqr = super::lqr::Lqr::new(m, &q, &r, 100_000, 1e-12)?;
+            if !lqr.converged {
+                return Err(Error::Numerical(format!(
+                    "terminal_riccati: the Riccati iteration of the model did not converge in {} \
+                     iterations (is (A, B) stabilisable under these weights?)",
+                    lqr.iterations
+                )));
+            }
+            condensed = condensed.with_lifted_terminal(a.as_ref(), b.as_ref(), lqr.p.as_ref())?;
+        }
         let (lo, hi) = input_box(cfg, nu, cfg.horizon)?;
         if let Some(t) = cfg.time_limit {
             if t.is_nan() || t <= 0.0 {
@@ -261,6 +286,7 @@ impl<'m> MpcController<'m> {
             offset: None,
             disturbance_map: Vec::new(),
             pred_offset: Vec::new(),
+            terminal_pull: Vec::new(),
             condensed,
         })
     }
@@ -305,6 +331,10 @@ impl<'m> MpcController<'m> {
             let (z0, r) = self.zr.split_at(latent);
             self.condensed.linear_term(z0, r, &mut self.q);
             self.q.iter_mut().zip(&self.pull).for_each(|(q, p)| *q -= p);
+            self.q
+                .iter_mut()
+                .zip(&self.terminal_pull)
+                .for_each(|(q, p)| *q -= p);
             self.q_current = true;
         }
         &self.q
@@ -395,11 +425,41 @@ impl<'m> MpcController<'m> {
             }
             Backend::Other(_) => self.condensed.linear_term(z0, &self.r, &mut self.q),
         }
+        self.pull_to_terminal_reference()?;
         match feedforward {
             Some(u_ff) => self.weigh_deviation_from(u_ff),
             None => self.pull.clear(),
         }
         self.solve_qp(start, z0)
+    }
+
+    /// With a lifted terminal cost, the linear term's `−Γ_zᵀ P Φ(r_H)` (`r_H`: the reference's
+    /// last step), applied as the input weights' pull is: subtracted from `q`, or `H⁻¹` of it
+    /// added to the dedicated solver's `u*`.
+    fn pull_to_terminal_reference(&mut self) -> Result<()> {
+        let Some(tm) = &self.condensed.terminal_map else {
+            return Ok(());
+        };
+        let nx = self.condensed.nx;
+        let r_h = &self.r[self.r.len() - nx..];
+        let z_ref = self.model.get().lift(r_h);
+        if z_ref.len() != self.condensed.latent || z_ref.iter().any(|v| !v.is_finite()) {
+            return Err(Error::NonFinite("the lifted terminal reference".into()));
+        }
+        self.terminal_pull.clear();
+        self.terminal_pull.resize(tm.nrows(), 0.0);
+        super::condensed::gemv_acc(tm.as_ref(), &z_ref, &mut self.terminal_pull);
+        match &self.solver {
+            Backend::Dedicated { qp, .. } => {
+                gemv_simd(qp.hessian_inverse(), &self.terminal_pull, &mut self.ustar)
+            }
+            Backend::Other(_) => self
+                .q
+                .iter_mut()
+                .zip(&self.terminal_pull)
+                .for_each(|(q, p)| *q -= p),
+        }
+        Ok(())
     }
 
     /// The QP of a solve whose `u*` (dedicated solver) or `q` (the others) is formed, then the

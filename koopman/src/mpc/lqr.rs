@@ -13,8 +13,12 @@ pub struct Lqr {
     pub k: Mat<f64>,
     /// Riccati iterations used.
     pub iterations: usize,
-    /// True if the relative change of the Riccati matrix fell below the tolerance.
+    /// True if the relative change of the Riccati matrix, or of the gain, fell below the
+    /// tolerance.
     pub converged: bool,
+    /// The Riccati matrix `P` (N × N) the gain was computed from: the cost-to-go `zᵀPz` from a
+    /// lifted state, its own stage cost included.
+    pub p: Mat<f64>,
     a: Mat<f64>,
     pinv_b: Mat<f64>,
 }
@@ -65,7 +69,9 @@ impl Lqr {
             let llt = s
                 .llt(Side::Lower)
                 .map_err(|_| Error::Numerical("LQR: R + BᵀPB is not positive definite".into()))?;
-            k = llt.solve(&rhs);
+            let k_prev = std::mem::replace(&mut k, llt.solve(&rhs));
+            let k_diff = (&k - &k_prev).norm_max();
+            let k_scale = k.norm_max();
             let mut pn = &qz + a.transpose() * &pa - rhs.transpose() * &k;
             // Keep P symmetric.
             for i in 0..n {
@@ -83,7 +89,12 @@ impl Lqr {
                 ));
             }
             p = pn;
-            if diff <= tol * scale {
+            // Converged when P stops changing, or when the gain does: a lifted constant that
+            // the input cannot move and the cost sees through an affine offset (EDMD's degree-1
+            // dictionary) makes P's constant-constant entry grow by the same amount every
+            // iteration while K and every other entry of P settle — and that entry multiplies a
+            // deviation that is always zero.
+            if diff <= tol * scale || (it > 0 && k_diff <= tol * k_scale.max(1e-300)) {
                 converged = true;
                 break;
             }
@@ -93,6 +104,7 @@ impl Lqr {
             k,
             iterations,
             converged,
+            p,
             a,
             pinv_b,
         })

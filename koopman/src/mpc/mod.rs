@@ -57,3 +57,5 @@ mod tests;
 mod tests_closed_loop;
 #[cfg(test)]
 mod tests_error_state;
+#[cfg(test)]
+mod tests_terminal;

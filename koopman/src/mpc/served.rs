@@ -326,8 +326,10 @@ fn shooting_planner(model: &dyn OneStepModel, cfg: &MpcConfig) -> Result<RandomS
     if cfg.r.as_ref().is_some_and(|r| r.iter().any(|&v| v != 0.0)) {
         return refuse("no input weight r (the paper's cost is on the states only)");
     }
-    if cfg.terminal.is_some() || cfg.has_general_constraints() {
-        return refuse("no terminal weight, rate or state bounds (input bounds only)");
+    if cfg.terminal.is_some() || cfg.terminal_riccati || cfg.has_general_constraints() {
+        return refuse(
+            "no terminal weight or terminal_riccati, rate or state bounds (input bounds only)",
+        );
     }
     let q = cfg.q.clone().unwrap_or_else(|| vec![1.0; nx]);
     if q.len() != nx {

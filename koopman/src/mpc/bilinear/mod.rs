@@ -187,6 +187,13 @@ impl<'m> BilinearMpc<'m> {
             }
             Ok(v)
         };
+        if cfg.terminal_riccati {
+            return Err(Error::InvalidArgument(
+                "terminal_riccati needs a lifted-linear model (koopman or edmd); the bilinear \
+                 MPC takes a terminal weight"
+                    .into(),
+            ));
+        }
         let q = weights("Q", &cfg.q, nx, 1.0)?;
         let terminal = weights("terminal weight", &cfg.terminal, nx, 1.0)?;
         let terminal = if cfg.terminal.is_some() {

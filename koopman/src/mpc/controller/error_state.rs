@@ -23,7 +23,7 @@ impl MpcController<'_> {
     ///
     /// Errors: as [`MpcController::solve`]; a feed-forward of another length than H·nu
     /// (`InvalidArgument`) or with a non-finite value (`NonFinite`); an offset-free correction
-    /// is on (`InvalidArgument`).
+    /// is on, or the terminal cost is the Riccati one (`InvalidArgument`).
     pub fn solve_about_plan(
         &mut self,
         x: &[f64],
@@ -31,6 +31,11 @@ impl MpcController<'_> {
         feedforward: &[f64],
     ) -> Result<MpcSolution> {
         let start = Instant::now();
+        if self.condensed.terminal_map.is_some() {
+            return Err(Error::InvalidArgument(
+                "the error-state MPC (a feed-forward) does not take terminal_riccati".into(),
+            ));
+        }
         if self.offset.is_some() {
             return Err(Error::InvalidArgument(
                 "the error-state MPC (a feed-forward) does not take an offset-free correction"

@@ -10,7 +10,7 @@
 //! integral action plans towards `r − ξ`. State bounds apply to the moved predictions.
 
 use super::MpcController;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::mpc::offset_free::{OffsetFree, OffsetFreeConfig, OffsetMode};
 
 impl MpcController<'_> {
@@ -19,8 +19,14 @@ impl MpcController<'_> {
     /// [`MpcController::solve`] and [`MpcController::record`] with the input applied after it
     /// (as [`crate::mpc::Policy::act`] does); the error-state MPC refuses it.
     ///
-    /// Errors: settings that do not fit the model's state (see [`OffsetFreeConfig::check`]).
+    /// Errors: settings that do not fit the model's state (see [`OffsetFreeConfig::check`]); a
+    /// correction with `terminal_riccati` (`InvalidArgument`).
     pub fn set_offset_free(&mut self, cfg: Option<OffsetFreeConfig>) -> Result<()> {
+        if cfg.is_some() && self.condensed.terminal_map.is_some() {
+            return Err(Error::InvalidArgument(
+                "the offset-free correction does not take terminal_riccati".into(),
+            ));
+        }
         let (nx, hz) = (self.nx(), self.horizon());
         self.offset = cfg.map(|c| OffsetFree::new(c, nx, hz)).transpose()?;
         self.pred_offset.clear();
