@@ -18,7 +18,8 @@ use crate::model::KoopmanModel;
 ///
 /// ``Mpc(model, **config)``: ``model`` is a ``KoopmanModel`` or the directory of any saved
 /// lifted model (Koopman or EDMD); the keyword arguments are the fields of the MPC
-/// configuration: ``horizon`` (15), ``q``, ``r``, ``terminal`` (diagonals), ``u_min``,
+/// configuration: ``horizon`` (15), ``q``, ``r``, ``terminal`` (diagonals),
+/// ``terminal_riccati`` (the model's Riccati cost-to-go as terminal cost), ``u_min``,
 /// ``u_max``, ``du_max``, ``x_min``, ``x_max``, ``solver`` (``"dedicated"``, ``"clarabel"``,
 /// ``"closed-form"``), ``regularization``, ``max_iterations``, ``time_limit``, ``fallback``.
 /// Every matrix that depends on the model alone is built once, here.
