@@ -86,10 +86,42 @@ impl Scenario {
                 names.push((name, &s.id, k));
             }
         }
+        let riccati = |mpc: &serde_json::Map<String, serde_json::Value>| {
+            mpc.get("terminal_riccati") == Some(&serde_json::Value::Bool(true))
+        };
+        for ctrl in self.control.iter().filter(|c| riccati(&c.mpc)) {
+            let with = if ctrl.feedforward_file.is_some() {
+                "`feedforward_file` (the error-state MPC)"
+            } else if ctrl.offset_free.is_some() {
+                "`offset_free`"
+            } else {
+                continue;
+            };
+            return Err(Error::Config(format!(
+                "[control] for '{}': mpc.terminal_riccati does not combine with {with}",
+                self.controlled_id(ctrl)
+            )));
+        }
+        if let Some(t) = self
+            .tracks
+            .iter()
+            .find(|t| t.error_state && riccati(&t.mpc))
+        {
+            return Err(Error::Config(format!(
+                "[control] for '{}': mpc.terminal_riccati does not combine with `error_state` \
+                 (the error-state MPC)",
+                self.tracked_id(t)
+            )));
+        }
         for ctrl in &self.control {
             let sim = self.controlled_id(ctrl);
             for &k in &kinds {
-                let why = if ctrl.feedforward_file.is_some()
+                let why = if riccati(&ctrl.mpc)
+                    && matches!(k, ModelKind::Bilinear | ModelKind::Nndm)
+                {
+                    "`mpc.terminal_riccati` (the Riccati cost-to-go of the lifted (A, B)) needs a \
+                     lifted-linear model (koopman or edmd)"
+                } else if ctrl.feedforward_file.is_some()
                     && matches!(k, ModelKind::Bilinear | ModelKind::Nndm)
                 {
                     "`feedforward_file` (the error-state MPC) needs a lifted-linear model \
@@ -149,6 +181,37 @@ steps = 20
 
     fn err(train: &str) -> String {
         with_train(train).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn terminal_riccati_is_refused_where_it_cannot_apply() {
+        let with = |control_extra: &str, train: &str| {
+            let text = BASE.replace(
+                "steps = 20\n",
+                &format!("steps = 20\nmpc = {{ terminal_riccati = true }}\n{control_extra}"),
+            );
+            Scenario::parse(&format!("{text}[train]\n{train}\n"))
+        };
+        assert!(with(
+            "",
+            "model = [\"koopman\", \"edmd\"]\nconfig = { iterations = 5 }"
+        )
+        .is_ok());
+        let e = with("", "model = \"bilinear\"").unwrap_err().to_string();
+        assert!(
+            e.contains("terminal_riccati") && e.contains("'bilinear'"),
+            "{e}"
+        );
+        let e = with(
+            "offset_free = { mode = \"integral\", radius = 0.3, gain = [0.1, 0.0] }\n",
+            "model = \"edmd\"",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("terminal_riccati does not combine with `offset_free`"),
+            "{e}"
+        );
     }
 
     #[test]
