@@ -49,7 +49,16 @@ def type_checking_lines(tree: ast.AST) -> set[int]:
     return lines
 
 
-def edges_of(root: pathlib.Path, path: pathlib.Path, files: dict[str, pathlib.Path]) -> list[tuple[str, int, str]]:
+def from_module(node: ast.ImportFrom, package: str) -> str:
+    """The dotted module a `from … import …` in `package` names (relative levels resolved)."""
+    if not node.level:
+        return node.module or ""
+    base = package.split(".")
+    base = base[: len(base) - (node.level - 1)] if node.level > 1 else base
+    return ".".join(base + ([node.module] if node.module else []))
+
+
+def edges_of(root: pathlib.Path, path: pathlib.Path, files: dict[str, pathlib.Path], exports: dict[str, dict[str, str]]) -> list[tuple[str, int, str]]:
     """(target module, line, the import as written) for every import of `path` into the package."""
     me = module_name(root, path)
     package = me if path.name == "__init__.py" else me.rpartition(".")[0]
@@ -71,12 +80,7 @@ def edges_of(root: pathlib.Path, path: pathlib.Path, files: dict[str, pathlib.Pa
                 if name:
                     out.append((name, node.lineno, f"import {a.name}"))
         elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = package.split(".")
-                base = base[: len(base) - (node.level - 1)] if node.level > 1 else base
-                mod = ".".join(base + ([node.module] if node.module else []))
-            else:
-                mod = node.module or ""
+            mod = from_module(node, package)
             if not target(mod):
                 continue
             written = f"from {'.' * node.level}{node.module or ''} import {', '.join(a.name for a in node.names)}"
@@ -87,7 +91,9 @@ def edges_of(root: pathlib.Path, path: pathlib.Path, files: dict[str, pathlib.Pa
                 elif files[mod].name == "__init__.py":
                     # A name a package's __init__ only re-exports belongs to the module that
                     # defines it (outside the package: no edge).
-                    src = reexports(files[mod], mod, files).get(a.name, mod)
+                    if mod not in exports:
+                        exports[mod] = reexports(files[mod], mod, files)
+                    src = exports[mod].get(a.name, mod)
                     if src:
                         out.append((src, node.lineno, written))
                 else:
@@ -101,12 +107,7 @@ def reexports(init: pathlib.Path, package: str, files: dict[str, pathlib.Path]) 
     out: dict[str, str] = {}
     for node in ast.parse(init.read_text()).body:
         if isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = package.split(".")
-                base = base[: len(base) - (node.level - 1)] if node.level > 1 else base
-                mod = ".".join(base + ([node.module] if node.module else []))
-            else:
-                mod = node.module or ""
+            mod = from_module(node, package)
             for a in node.names:
                 sub = f"{mod}.{a.name}"
                 out[a.asname or a.name] = sub if sub in files else (mod if mod in files else "")
@@ -117,8 +118,9 @@ def circles(root: pathlib.Path) -> list[str]:
     """The two-file circles of the package at `root`, one message each."""
     files = {module_name(root, p): p for p in sorted(root.rglob("*.py"))}
     edges: dict[tuple[str, str], tuple[int, str]] = {}
+    exports: dict[str, dict[str, str]] = {}  # each __init__'s re-exports, parsed once
     for mod, path in files.items():
-        for t, line, written in edges_of(root, path, files):
+        for t, line, written in edges_of(root, path, files, exports):
             edges.setdefault((mod, t), (line, written))
     found = []
     for (a, b), (line, written) in sorted(edges.items()):
