@@ -124,6 +124,40 @@ def koopbridge_binary_or_skip() -> Path:
     return exe
 
 
+def scenario_env(exe: Path) -> dict[str, str]:
+    """The environment of a ``koopbridge run`` outside the repository: ``KOOPBRIDGE_PYTHON``
+    unset (the binary finds the venv it was built in), or this Python when the binary has no
+    venv above it."""
+    env = {k: v for k, v in os.environ.items() if k != "KOOPBRIDGE_PYTHON"}
+    if not any((d / ".venv" / "bin" / "python").is_file() for d in exe.resolve().parents):
+        env["KOOPBRIDGE_PYTHON"] = sys.executable  # a binary installed elsewhere: name the Python
+    return env
+
+
+def run_shipped_scenario(tmp_path: Path, name: str, smoke: dict[str, int], replace: list[tuple[str, str]]) -> tuple[str, Path]:
+    """``scenarios/NAME.toml`` cut to a smoke budget (``smoke``: ``key = N`` lines rewritten,
+    ``replace``: exact texts swapped, each required to be there) and run from a folder outside
+    the repository; returns the shipped text and the output folder (the run must succeed)."""
+    import re
+
+    exe = koopbridge_binary_or_skip()
+    text = (ROOT / "scenarios" / f"{name}.toml").read_text()
+    shipped = text
+    for key, value in smoke.items():
+        text, n = re.subn(rf"^{key} = \d+", f"{key} = {value}", text, count=1, flags=re.M)
+        assert n == 1, key
+    for old, new in replace:
+        assert old in text, old
+        text = text.replace(old, new)
+    sc = tmp_path / "elsewhere" / f"{name}.toml"
+    sc.parent.mkdir()
+    sc.write_text(text)
+    out = tmp_path / "out"
+    r = subprocess.run([str(exe), "run", str(sc), "--out", str(out)], cwd=tmp_path, env=scenario_env(exe), capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    return shipped, out
+
+
 class Child:
     """A child process with its output in a log file; killed on exit."""
 

@@ -7,10 +7,6 @@ classical yardstick (``koopbridge.experiments.gym_lqr``) is checked against clos
 from __future__ import annotations
 
 import json
-import os
-import re
-import subprocess
-import sys
 import tomllib
 
 import numpy as np
@@ -19,34 +15,15 @@ import pytest
 pytest.importorskip("gymnasium")
 pytest.importorskip("mujoco")
 
-from conftest import ROOT, koopbridge_binary_or_skip  # noqa: E402
+from conftest import run_shipped_scenario  # noqa: E402
 
 SMOKE = {"train_windows": 256, "val_windows": 32, "test_windows": 32}
-
-
-def _smoke(text: str) -> str:
-    """The shipped scenario with its data, training and control budgets cut to the smoke budget."""
-    for key, value in SMOKE.items():
-        text, n = re.subn(rf"^{key} = \d+", f"{key} = {value}", text, count=1, flags=re.M)
-        assert n == 1, key
-    for old, new in (("iterations = 3000, validate_every = 500", "iterations = 200, validate_every = 100"), ("steps = 200", "steps = 60")):
-        assert old in text, old
-        text = text.replace(old, new)
-    return text
+#: The training and control budgets cut with the data.
+CUTS = [("iterations = 3000, validate_every = 500", "iterations = 200, validate_every = 100"), ("steps = 200", "steps = 60")]
 
 
 def test_double_pendulum_scenario_runs_at_a_smoke_budget(tmp_path):
-    exe = koopbridge_binary_or_skip()
-    shipped = (ROOT / "scenarios" / "gym-inverted-double-pendulum.toml").read_text()
-    sc = tmp_path / "elsewhere" / "gym-idp.toml"
-    sc.parent.mkdir()
-    sc.write_text(_smoke(shipped))
-    out = tmp_path / "out"
-    env = {k: v for k, v in os.environ.items() if k != "KOOPBRIDGE_PYTHON"}
-    if not any((d / ".venv" / "bin" / "python").is_file() for d in exe.resolve().parents):
-        env["KOOPBRIDGE_PYTHON"] = sys.executable
-    r = subprocess.run([str(exe), "run", str(sc), "--out", str(out)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr[-3000:]
+    shipped, out = run_shipped_scenario(tmp_path, "gym-inverted-double-pendulum", SMOKE, CUTS)
 
     collect = tomllib.loads(shipped)["collect"]
     centre, radius = np.array(collect["x0_center"]), np.array(collect["x0_radius"])

@@ -6,10 +6,6 @@ and even this small model brings the arm most of the way to the reference."""
 from __future__ import annotations
 
 import json
-import os
-import re
-import subprocess
-import sys
 import tomllib
 
 import numpy as np
@@ -18,34 +14,15 @@ import pytest
 pytest.importorskip("gymnasium")
 pytest.importorskip("mujoco")
 
-from conftest import ROOT, koopbridge_binary_or_skip  # noqa: E402
+from conftest import run_shipped_scenario  # noqa: E402
 
 SMOKE = {"train_windows": 256, "val_windows": 32, "test_windows": 32}
-
-
-def _smoke(text: str) -> str:
-    """The shipped scenario with its data, training and control budgets cut to the smoke budget."""
-    for key, value in SMOKE.items():
-        text, n = re.subn(rf"^{key} = \d+", f"{key} = {value}", text, count=1, flags=re.M)
-        assert n == 1, key
-    for old, new in (("iterations = 3000, validate_every = 500", "iterations = 300, validate_every = 100"), ("steps = 200", "steps = 100")):
-        assert old in text, old
-        text = text.replace(old, new)
-    return text
+#: The training and control budgets cut with the data.
+CUTS = [("iterations = 3000, validate_every = 500", "iterations = 300, validate_every = 100"), ("steps = 200", "steps = 100")]
 
 
 def test_reacher_scenario_reaches_at_a_smoke_budget(tmp_path):
-    exe = koopbridge_binary_or_skip()
-    shipped = (ROOT / "scenarios" / "gym-reacher.toml").read_text()
-    sc = tmp_path / "elsewhere" / "gym-reacher.toml"
-    sc.parent.mkdir()
-    sc.write_text(_smoke(shipped))
-    out = tmp_path / "out"
-    env = {k: v for k, v in os.environ.items() if k != "KOOPBRIDGE_PYTHON"}
-    if not any((d / ".venv" / "bin" / "python").is_file() for d in exe.resolve().parents):
-        env["KOOPBRIDGE_PYTHON"] = sys.executable  # a binary installed elsewhere: name the Python
-    r = subprocess.run([str(exe), "run", str(sc), "--out", str(out)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr[-3000:]
+    shipped, out = run_shipped_scenario(tmp_path, "gym-reacher", SMOKE, CUTS)
 
     # The data: every window's first state inside the x0 box, the target fixed and at rest.
     collect = tomllib.loads(shipped)["collect"]
