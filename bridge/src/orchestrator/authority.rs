@@ -4,8 +4,6 @@
 //! one `step` with `u0 ± δ` per input), compared as `koopbridge control`'s pre-flight check does
 //! (`koopman::analysis::gain_agreement`).
 
-use std::path::Path;
-
 use faer::Mat;
 use koopman::analysis::{gain_agreement, model_input_gain, InputGain};
 use serde::{Deserialize, Serialize};
@@ -81,18 +79,15 @@ fn rows(g: &InputGain) -> Vec<Vec<f64>> {
     })
 }
 
-/// The input authority of control run `c` with the lifted model saved in `model_dir`, measured
-/// on `sim` at the goal (the reference's first state). `None` for a model without a lifted
-/// form (its gain depends on the state), a trajectory reference or a simulator without inputs.
+/// The input authority of control run `c` with its lifted `model`, measured on `sim` at the goal
+/// (the reference's first state). `None` for a trajectory reference or a simulator without
+/// inputs (a model without a lifted form, whose gain depends on the state, is not measured).
 /// Afterwards the simulator is at the goal (the next `step` needs a `reset` as ever).
 pub fn input_authority(
     c: &ControlReport,
-    model_dir: &Path,
+    model: &dyn koopman::model::LiftedModel,
     sim: &mut SimClient,
 ) -> Result<Option<InputAuthority>> {
-    let Ok(model) = koopman::model::load_lifted(model_dir) else {
-        return Ok(None);
-    };
     let info = sim.info.sim.clone();
     let (nx, nu) = (info.nx(), info.nu());
     if nu == 0 || c.reference_trajectory.is_some() || c.reference.len() < nx {
@@ -115,7 +110,7 @@ pub fn input_authority(
         })
         .collect();
     let truth = measure_sim_gain(sim, &at, &nominal, &delta)?;
-    let m = model_input_gain(model.as_ref(), 1);
+    let m = model_input_gain(model, 1);
     let a = gain_agreement(&m, &truth)
         .map_err(|e| Error::Config(format!("input authority of '{}': {e}", c.model)))?;
     Ok(Some(InputAuthority {

@@ -6,8 +6,6 @@
 //! simulator ended, the model's error against the data's spread, the loop outside the data), and
 //! one concrete next step.
 
-use std::path::Path;
-
 use koopman::data::Dataset;
 use serde::{Deserialize, Serialize};
 
@@ -59,20 +57,20 @@ pub struct ControlDiagnosis {
     pub next_step: String,
 }
 
-/// Diagnoses `c` with the model saved in `model_dir`, the run's test windows `test`, and the
+/// Diagnoses `c` with its lifted `model` (`None`: a kind without one), the run's test windows
+/// `test`, and the
 /// input authority and growth rates measured at the goal ([`super::authority::input_authority`],
 /// [`super::growth::growth`]).
 pub fn diagnose(
     c: &ControlReport,
-    model_dir: &Path,
+    model: Option<&dyn koopman::model::LiftedModel>,
     test: &Dataset,
     input_authority: Option<InputAuthority>,
     growth: Option<Growth>,
 ) -> Result<ControlDiagnosis> {
     let saturated_fraction = saturated_fraction(c);
-    let errors = koopman::model::load_lifted(model_dir)
-        .ok()
-        .map(|model| prediction_errors(model.as_ref(), c, test))
+    let errors = model
+        .map(|model| prediction_errors(model, c, test))
         .transpose()?;
     let [one_cl, one_test, win_cl, win_test] = errors.unwrap_or([None; 4]);
     let ratio = match (win_cl.or(one_cl), win_test.or(one_test)) {

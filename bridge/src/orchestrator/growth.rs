@@ -5,8 +5,6 @@
 //! model's lifted `A`, and what their ratio becomes over the MPC's horizon. A model that grows
 //! slower than an unstable plant plans as if the plant fell slowly.
 
-use std::path::Path;
-
 use faer::Mat;
 use serde::{Deserialize, Serialize};
 
@@ -111,14 +109,14 @@ pub fn model_holding_input(
         .collect()
 }
 
-/// The growth check of control run `c` with the lifted model in `model_dir`, measured on `sim` at
-/// the goal with the input the model holds it with ([`model_holding_input`], within the
-/// simulator's bounds). `None` for a model without a lifted form, a trajectory reference or a run
-/// without an MPC horizon.
-pub fn growth(c: &ControlReport, model_dir: &Path, sim: &mut SimClient) -> Result<Option<Growth>> {
-    let Ok(model) = koopman::model::load_lifted(model_dir) else {
-        return Ok(None);
-    };
+/// The growth check of control run `c` with its lifted `model`, measured on `sim` at the goal
+/// with the input the model holds it with ([`model_holding_input`], within the simulator's
+/// bounds). `None` for a trajectory reference or a run without an MPC horizon.
+pub fn growth(
+    c: &ControlReport,
+    model: &dyn koopman::model::LiftedModel,
+    sim: &mut SimClient,
+) -> Result<Option<Growth>> {
     let nx = sim.info.sim.nx();
     let Some(horizon) = c.mpc.as_ref().map(|m| m.horizon) else {
         return Ok(None);
@@ -128,7 +126,7 @@ pub fn growth(c: &ControlReport, model_dir: &Path, sim: &mut SimClient) -> Resul
     }
     let at = c.reference[..nx].to_vec();
     let info = sim.info.sim.clone();
-    let hold = model_holding_input(model.as_ref(), &at, &info.u_min, &info.u_max);
+    let hold = model_holding_input(model, &at, &info.u_min, &info.u_max);
     let jac = measure_state_jacobian(sim, &at, &hold)?;
     let sim_spectral_radius = spectral_radius(jac.as_ref())?;
     let model_spectral_radius = spectral_radius(model.a().as_ref())?;

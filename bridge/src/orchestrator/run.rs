@@ -529,33 +529,33 @@ fn diagnose_controls(
                 })
                 .and_then(|p| Dataset::load_npz(&p).map_err(|e| Error::Config(e.to_string())))
         });
-        let model_dir = out.join("models").join(&c.model);
-        // The input authority at the goal, measured on the simulator (it does not stop the rest
-        // of the diagnosis when it cannot be).
-        let authority = match sc.sims.iter().position(|s| s.id == c.sim) {
-            Some(j) => super::authority::input_authority(c, &model_dir, &mut clients[j])
-                .unwrap_or_else(|e| {
-                    on(Event::Phase(&format!(
-                        "no input authority of '{}' with '{}': {e}",
-                        c.sim, c.model
-                    )));
+        // The lifted model, read once (`None`: a kind without one, whose gain depends on the
+        // state). The input authority and growth rates at the goal are measured on the
+        // simulator; one that cannot be measured does not stop the rest of the diagnosis.
+        let model = koopman::model::load_lifted(&out.join("models").join(&c.model)).ok();
+        let mut noted = |what: &str, e: Error| {
+            on(Event::Phase(&format!(
+                "no {what} of '{}' with '{}': {e}",
+                c.sim, c.model
+            )))
+        };
+        let (authority, growth) = match (&model, sc.sims.iter().position(|s| s.id == c.sim)) {
+            (Some(m), Some(j)) => (
+                super::authority::input_authority(c, m.as_ref(), &mut clients[j]).unwrap_or_else(
+                    |e| {
+                        noted("input authority", e);
+                        None
+                    },
+                ),
+                super::growth::growth(c, m.as_ref(), &mut clients[j]).unwrap_or_else(|e| {
+                    noted("growth rates", e);
                     None
                 }),
-            _ => None,
-        };
-        // The growth rates at the goal (the simulator's and the model's).
-        let growth = match sc.sims.iter().position(|s| s.id == c.sim) {
-            Some(j) => super::growth::growth(c, &model_dir, &mut clients[j]).unwrap_or_else(|e| {
-                on(Event::Phase(&format!(
-                    "no growth rates of '{}' with '{}': {e}",
-                    c.sim, c.model
-                )));
-                None
-            }),
-            _ => None,
+            ),
+            _ => (None, None),
         };
         let diagnosis = match test {
-            Ok(test) => diagnose::diagnose(c, &model_dir, test, authority, growth),
+            Ok(test) => diagnose::diagnose(c, model.as_deref(), test, authority, growth),
             Err(e) => Err(Error::Config(e.to_string())),
         };
         match diagnosis {
