@@ -37,6 +37,8 @@ enum Command {
     Serve(cli::serve::ServeArgs),
     /// Run a scenario file: collection → training → control → report.
     Run(cli::run::RunArgs),
+    /// Watch a running session (or open a recorded view.rrd) in Rerun's viewer.
+    View(cli::view::ViewArgs),
     /// Run a plain Zenoh router (scale-out: services and simulators on several hosts).
     Router(cli::router::RouterArgs),
     /// Export a trained model and its MPC as an FMI 3.0 / 2.0 co-simulation FMU (controller.fmu).
@@ -59,6 +61,7 @@ fn main() -> std::process::ExitCode {
         Command::Serve(a) => cli::serve::run(a),
         Command::Run(a) => cli::run::run(a),
         Command::Router(a) => cli::router::run(a),
+        Command::View(a) => cli::view::run(a),
         Command::ExportFmu(a) => cli::export_fmu::run(a),
     };
     match result {

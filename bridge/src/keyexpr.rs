@@ -132,6 +132,16 @@ impl Keys {
         self.checked("recorder id", id, &["recorder", id, "record"])
     }
 
+    /// `…/view/events`: the run's events for a viewer (PROTOCOL.md §10).
+    pub fn view_events(&self) -> String {
+        self.key(&["view", "events"])
+    }
+
+    /// `…/view/{sim}/step`: simulator `sim`'s closed-loop states for a viewer.
+    pub fn view_step(&self, sim: &str) -> Result<String> {
+        self.checked("sim id", sim, &["view", sim, "step"])
+    }
+
     /// `…/alive/{role}/{id}`.
     pub fn alive(&self, role: Role, id: &str) -> Result<String> {
         self.checked("participant id", id, &["alive", role.as_str(), id])
@@ -204,6 +214,8 @@ pub enum Role {
     Orchestrator,
     /// A trajectory planner.
     Planner,
+    /// A viewer (`python -m koopbridge.view`).
+    Viewer,
 }
 
 impl Role {
@@ -217,6 +229,7 @@ impl Role {
             Role::Models => "models",
             Role::Orchestrator => "orchestrator",
             Role::Planner => "planner",
+            Role::Viewer => "viewer",
         }
     }
 }

@@ -23,6 +23,7 @@ pub mod sim;
 pub mod sweep;
 pub mod sweep_local;
 pub mod train;
+pub mod view;
 
 use std::path::PathBuf;
 

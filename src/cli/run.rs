@@ -5,6 +5,7 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
+use bridge::orchestrator::viewer::{ViewMode, ViewOptions};
 use bridge::orchestrator::{run_scenario_with, Event, RunExtras, RunOptions};
 use bridge::scenario::Scenario;
 
@@ -69,8 +70,48 @@ pub struct RunArgs {
     /// either way.
     #[arg(long)]
     pub fail_on_warning: bool,
+    /// Watch the run live in Rerun: every state against its reference, the inputs, the MPC's
+    /// solve time and plan, collection and training progress (python -m koopbridge.view).
+    /// `native`: Rerun's desktop viewer (needs a display); `web`: its web viewer on a local port
+    /// (the address is printed); without a value: native where there is a display, else web.
+    /// The view is also recorded into OUT/view.rrd (`koopbridge view --open OUT/view.rrd`).
+    /// A viewer that cannot start or dies is a warning: the run goes on.
+    #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "auto", value_name = "WHERE")]
+    pub view: Option<ViewArg>,
+    /// The web viewer's port with `--view web` (default: a free one).
+    #[arg(long, value_name = "PORT")]
+    pub view_port: Option<u16>,
+    /// Record the view into OUT/view.rrd without showing it (no display needed).
+    #[arg(long, conflicts_with = "view")]
+    pub record_view: bool,
     #[command(flatten)]
     pub zenoh: super::ZenohArgs,
+}
+
+/// Where `--view` shows the run.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum ViewArg {
+    /// The desktop viewer where there is a display, else the web viewer.
+    Auto,
+    /// Rerun's desktop viewer.
+    Native,
+    /// Rerun's web viewer on a local port.
+    Web,
+}
+
+/// The run's view from `--view`, `--view-port` and `--record-view`.
+fn view_options(args: &RunArgs) -> Option<ViewOptions> {
+    let mode = match (args.view, args.record_view) {
+        (Some(ViewArg::Auto), _) => ViewMode::auto(),
+        (Some(ViewArg::Native), _) => ViewMode::Native,
+        (Some(ViewArg::Web), _) => ViewMode::Web,
+        (None, true) => ViewMode::Record,
+        (None, false) => return None,
+    };
+    Some(ViewOptions {
+        mode,
+        web_port: args.view_port,
+    })
 }
 
 /// Runs `koopbridge run`.
@@ -111,6 +152,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let extras = RunExtras {
         loop_baseline: args.loop_baseline,
         aggregate: args.aggregate,
+        view: view_options(&args),
     };
     let report = run_scenario_with(&sc, &opts, &extras, &mut |e| match e {
         Event::Phase(p) => {
@@ -190,6 +232,13 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         );
     }
     // With several model kinds, each control run is named by its model (`{scenario}-{sim}-{kind}`).
+    if let Some(v) = &report.view {
+        println!(
+            "  view: {} (open it with: koopbridge view --open {})",
+            v.display(),
+            v.display()
+        );
+    }
     let kinds = report
         .models
         .iter()

@@ -277,6 +277,7 @@ pub fn aggregate(
                 publish: round < rounds,
                 baseline: false,
                 deprioritise: &|id| cluster.deprioritise_sim(id),
+                view: &cluster.view,
             },
             on,
         )?;

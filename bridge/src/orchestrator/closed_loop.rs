@@ -10,6 +10,7 @@ use serde::{Deserialize, Serialize};
 
 use super::position_loop::PositionLoop;
 use super::reference::Reference;
+use super::view::{RunView, StepView, ViewStep};
 use crate::client::{Client, Liveliness, SimClient};
 use crate::codec::{SolveReply, SolveRequest, SolveStatus, StateMsg, StepStatus};
 use crate::error::{Error, ErrorCode, Result};
@@ -143,6 +144,8 @@ pub struct ControlTask<'a> {
     pub replay: Option<&'a [Vec<f64>]>,
     /// The perturbation of the episode, sent with the reset (the simulator applies it).
     pub perturbation: Option<&'a crate::messages::Perturbation>,
+    /// Where its states are shown to a viewer (published only while one subscribes).
+    pub view: Option<StepView<'a>>,
 }
 
 /// One simulator's closed loop in progress.
@@ -263,7 +266,9 @@ impl<'a> ControlRun<'a> {
     pub fn decide(&mut self, client: &Client, live: &Liveliness) -> Result<Vec<f64>> {
         let k = self.us.len();
         if let Some(inputs) = self.task.replay {
-            return Ok(inputs[k.min(inputs.len() - 1)].clone());
+            let u = inputs[k.min(inputs.len() - 1)].clone();
+            self.show(k, Some(&u), None);
+            return Ok(u);
         }
         let (r, h) = (self.task.reference, self.task.horizon);
         let (mut reference, mut feedforward) = (r.window(k, h), r.feedforward(k, h));
@@ -295,7 +300,32 @@ impl<'a> ControlRun<'a> {
                 .entry(status_name(r.status).to_string())
                 .or_default() += 1;
         }
-        Ok(r.u[..nu].to_vec())
+        let u = r.u[..nu].to_vec();
+        self.show(k, Some(&u), Some(&r));
+        Ok(u)
+    }
+
+    /// Shows state `k` to a viewer, if one watches: with the input decided there and the MPC's
+    /// reply (its plan predicted by the model), or alone (the last state).
+    fn show(&self, k: usize, u: Option<&[f64]>, reply: Option<&SolveReply>) {
+        let Some(v) = &self.task.view else { return };
+        let Some(publisher) = v.view.step_publisher(&self.sim.id) else {
+            return;
+        };
+        let x = &self.xs[k];
+        let step = ViewStep {
+            row: v.row,
+            episode: v.episode,
+            k,
+            t: k as f64 * self.info.dt,
+            x,
+            reference: self.task.reference.at(k, self.info.nx()),
+            u,
+            solve_us: reply.map(|r| r.solve_time_ns as f64 / 1e3),
+            status: reply.map(|r| status_name(r.status)),
+            plan: reply.and_then(|r| v.view.plan(self.task.model, x, &r.u)),
+        };
+        RunView::publish_step(&publisher, &step);
     }
 
     /// Steps the simulator with `u` and records the state it brought.
@@ -323,6 +353,7 @@ impl<'a> ControlRun<'a> {
 
     /// The report of the finished loop.
     pub fn finish(self) -> ControlReport {
+        self.show(self.xs.len() - 1, None, None);
         let info = &self.info;
         let nx = info.nx();
         let r = self.task.reference;

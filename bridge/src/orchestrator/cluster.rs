@@ -30,6 +30,8 @@ pub struct Cluster {
     /// The participants that were already in the session and were used, not started
     /// ([`RunOptions::attach_existing`]).
     pub existing: Vec<(Role, String)>,
+    /// What a viewer of the run sees (published only while one subscribes).
+    pub view: super::view::RunView,
 }
 
 impl Drop for Cluster {
@@ -250,12 +252,14 @@ impl Cluster {
                 &logs.join("services.log"),
             )?);
         }
+        let view = super::view::RunView::declare(&client, opts.out_dir.join("models"))?;
         let mut c = Cluster {
             children,
             client,
             live,
             endpoint,
             existing,
+            view,
         };
         c.wait_ready(&who, opts.ready_timeout)?;
         Ok(c)

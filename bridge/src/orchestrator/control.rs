@@ -36,6 +36,8 @@ pub struct ControlPhase<'a> {
     /// Lowers the CPU priority of simulator `id`'s process once the loop of several has found
     /// another one to be its critical path; true if it did (e.g. [`super::Cluster::deprioritise_sim`]).
     pub deprioritise: &'a dyn Fn(&str) -> bool,
+    /// Where the closed loops are shown to a viewer.
+    pub view: &'a super::view::RunView,
 }
 
 /// Runs the control phase of `sc`: returns one report per `[control]` entry (in order) and the
@@ -103,6 +105,11 @@ pub fn control_phase(
                     publish,
                     replay: None,
                     perturbation: None,
+                    view: Some(super::view::StepView {
+                        view: what.view,
+                        row: &p.model,
+                        episode: None,
+                    }),
                 },
             ));
         }

@@ -20,6 +20,8 @@
 //! - [`reuse`]: a rerun into the same folder reuses unchanged data and models;
 //! - [`train`]: one simulator's model trained through the trainer service ([`TrainReport`]);
 //! - [`compare`]: the models of a run (one per simulator and `[train].model` kind) side by side;
+//! - [`view`]: what a viewer shows, published while someone watches; [`viewer`]: the viewer
+//!   process of `--view` / `--record-view`;
 //! - [`run`]: the whole scenario ([`run_scenario`]) and its report.
 
 pub mod aggregate;
@@ -46,6 +48,8 @@ pub mod tracking;
 pub mod tracking_report;
 pub mod train;
 pub mod validate;
+pub mod view;
+pub mod viewer;
 
 use std::path::PathBuf;
 use std::time::Duration;

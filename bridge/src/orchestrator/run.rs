@@ -19,6 +19,7 @@ use super::track_aggregate::{aggregate_tracking, TrackingRound};
 use super::tracking::{tracking_phase, ReplayCache, TrackReport, TrackingPhase};
 use super::train::{job_config, train_model_as, TrainReport};
 use super::validate::validate_scenario;
+use super::viewer::ViewerProc;
 use super::{Cluster, ControlReport, Event, RunOptions};
 use crate::client::SimClient;
 use crate::collect::{collect_regions, CollectJob, Split};
@@ -73,6 +74,9 @@ pub struct Report {
     /// ([`diagnose::diagnose`]).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub diagnoses: Vec<ControlDiagnosis>,
+    /// The run's recorded view (`--view`, `--record-view`), to open with `koopbridge view --open`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub view: Option<PathBuf>,
     /// What the user should know about the results, also reported as [`Event::Warning`]: every
     /// control run whose MPC did not solve every step or whose simulator reported an episode end
     /// ([`ControlReport::warnings`]),
@@ -134,6 +138,8 @@ pub struct RunExtras {
     /// On-policy aggregation rounds after the first control run ([`super::aggregate`]); 0 =
     /// none.
     pub aggregate: usize,
+    /// Show the run live and record it (`view.rrd`, [`super::viewer`]); `None`: no viewer.
+    pub view: Option<super::viewer::ViewOptions>,
 }
 
 /// The placeholders of a run's commands.
@@ -217,6 +223,33 @@ pub fn run_scenario_with(
             super::cluster::names(&cluster.existing)
         )));
     }
+    let mut warnings = Vec::new();
+    let viewer = extras.view.as_ref().and_then(|v| {
+        let (endpoint, live) = (&cluster.endpoint, &cluster.live);
+        let base = sc.base_dir.as_deref().unwrap_or(Path::new("."));
+        ViewerProc::start(
+            v,
+            &session_id,
+            endpoint,
+            &opts.out_dir,
+            base,
+            live,
+            &mut |w| warnings.push(w.to_string()),
+        )
+    });
+    warnings.iter().for_each(|w| on(Event::Warning(w)));
+    if let Some(url) = viewer.as_ref().and_then(ViewerProc::web_url) {
+        on(Event::Phase(&format!(
+            "live view (Rerun's web viewer): {url}"
+        )));
+    }
+    // Every event is also published for a viewer (while one subscribes).
+    let view = &cluster.view;
+    let outer = on;
+    let on: &mut dyn FnMut(Event<'_>) = &mut |e| {
+        view.event(&e);
+        outer(e)
+    };
     let mut clients: Vec<SimClient> = sc
         .sims
         .iter()
@@ -247,7 +280,6 @@ pub fn run_scenario_with(
 
     hooks(HookPhase::BeforeControl, on)?;
     let (mut controls, mut control_loop, mut aggregation) = (Vec::new(), None, Vec::new());
-    let mut warnings = Vec::new();
     for (i, &kind) in kinds.iter().enumerate().filter(|_| !sc.control.is_empty()) {
         on(Event::Phase(&if kinds.len() > 1 {
             format!(
@@ -274,6 +306,7 @@ pub fn run_scenario_with(
                 publish: record,
                 baseline: extras.loop_baseline && i == 0,
                 deprioritise: &|id| cluster.deprioritise_sim(id),
+                view: &cluster.view,
             },
             on,
         )?;
@@ -314,6 +347,7 @@ pub fn run_scenario_with(
                 model_of: &|id, kind| sc.model_name(id, kind),
                 aggregating: extras.aggregate > 0,
                 replays: &replays,
+                view: &cluster.view,
             },
             on,
         )?
@@ -344,6 +378,15 @@ pub fn run_scenario_with(
             warnings.push(w);
         }
     }
+    let view_file = match viewer.map(ViewerProc::finish) {
+        Some(Err(w)) => {
+            on(Event::Warning(&w));
+            warnings.push(w);
+            None
+        }
+        Some(Ok(path)) => Some(path),
+        None => None,
+    };
     let models = compare::side_by_side(&trained, &controls);
     let report = Report {
         scenario: sc.name.clone(),
@@ -358,6 +401,7 @@ pub fn run_scenario_with(
         tracking,
         tracking_aggregation,
         diagnoses,
+        view: view_file,
         warnings,
         wall_seconds: t0.elapsed().as_secs_f64(),
     };

@@ -156,6 +156,7 @@ pub fn aggregate_tracking(
                 model_of: &model_of,
                 aggregating: true,
                 replays,
+                view: &cluster.view,
             },
             on,
         )?;

@@ -22,6 +22,7 @@ use super::control_settings::mpc_config;
 use super::reference::{reference_path, Reference};
 use super::reference_set::ReferenceSet;
 use super::survival::{fails, mean_abs_error, survival_steps, windows, RunForWindows, Summary};
+use super::view::{RunView, StepView};
 use super::{Event, SERVICES_ID};
 use crate::client::{Client, Liveliness, SimClient};
 use crate::error::{Error, ErrorCode, Result};
@@ -51,6 +52,8 @@ pub struct TrackingPhase<'a> {
     pub aggregating: bool,
     /// The replay rows of earlier tasks and passes.
     pub replays: &'a RefCell<ReplayCache>,
+    /// Where the closed loops are shown to a viewer.
+    pub view: &'a RunView,
 }
 
 /// One run of one row on one reference, as scored.
@@ -149,6 +152,7 @@ pub fn tracking_phase(
                         horizon: mpc.horizon,
                         steps,
                         perturbation: perturbations.get(i),
+                        view: what.view,
                     };
                     scored.push(run_one(client, live, &mut clients[j], t, &refs, i, how)?);
                     on(Event::Control(i + 1, refs.len()));
@@ -208,6 +212,7 @@ pub fn tracking_phase(
                     horizon: mpc.horizon,
                     steps,
                     perturbation: perturbations.get(i),
+                    view: what.view,
                 };
                 scored.push(run_one(client, live, &mut clients[j], t, &refs, i, how)?);
                 on(Event::Control(i + 1, refs.len()));
@@ -265,7 +270,8 @@ enum Row<'a> {
     ErrorState,
 }
 
-/// How one run is driven: its row, the model served, the MPC horizon, the steps at most.
+/// How one run is driven: its row, the model served, the MPC horizon, the steps at most, the
+/// perturbation, the view.
 #[derive(Clone, Copy)]
 struct How<'a> {
     row: Row<'a>,
@@ -273,6 +279,7 @@ struct How<'a> {
     horizon: usize,
     steps: usize,
     perturbation: Option<&'a Perturbation>,
+    view: &'a RunView,
 }
 
 /// One closed loop (or replay) of reference `i`, scored: stops at a fall or a refused step (with
@@ -309,6 +316,14 @@ fn run_one(
             _ => None,
         },
         perturbation: how.perturbation,
+        view: Some(StepView {
+            view: how.view,
+            row: match how.row {
+                Row::Replay(_) => "replay",
+                _ => how.model,
+            },
+            episode: Some(i),
+        }),
     };
     run_task(client, live, sim, task, t, x)
 }

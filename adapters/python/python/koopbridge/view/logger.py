@@ -1,0 +1,186 @@
+"""Turns a run's view messages (PROTOCOL.md §10: events, closed-loop states, trainer progress)
+into Rerun entities, one plot per state group; knows nothing of Zenoh, so it is testable alone."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import rerun as rr
+
+__all__ = ["RunLogger", "SimLayout", "state_groups", "loop_path"]
+
+# A group of at most this many states is one plot; more are split (a plot of 30 lines is unread).
+MAX_GROUP = 12
+
+
+def state_groups(names: Sequence[str], units: Sequence[str] | None = None) -> list[tuple[str, list[int]]]:
+    """The plots of a simulator's states: by unit where the simulator names units (the Go2's
+    joint angles in one plot, its velocities in another), else consecutive runs of at most
+    ``MAX_GROUP``; each as (group name, state indices)."""
+    groups: dict[str, list[int]] = {}
+    if units is not None and len(units) == len(names):
+        for i, u in enumerate(units):
+            groups.setdefault(_path_chunk(u if u != "1" else "unitless"), []).append(i)
+    else:
+        for i in range(len(names)):
+            groups.setdefault(f"states_{i // MAX_GROUP}" if len(names) > MAX_GROUP else "states", []).append(i)
+    out: list[tuple[str, list[int]]] = []
+    for g, idx in groups.items():
+        chunks = [idx[j : j + MAX_GROUP] for j in range(0, len(idx), MAX_GROUP)]
+        out.extend((g if len(chunks) == 1 else f"{g}_{n}", c) for n, c in enumerate(chunks))
+    return out
+
+
+def _path_chunk(text: str) -> str:
+    """``text`` as one entity-path part (Rerun splits on ``/``)."""
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in text) or "_"
+
+
+def loop_path(sim: str, row: str, episode: int | None) -> str:
+    """The entity path of one closed loop: ``control/{sim}/{row}`` and, in a tracking task, the
+    reference's index (``ref007``)."""
+    base = f"control/{_path_chunk(sim)}/{_path_chunk(row)}"
+    return base if episode is None else f"{base}/ref{episode:03d}"
+
+
+@dataclass
+class SimLayout:
+    """What the viewer knows of a simulator from its ``info``: names, bounds and the plots."""
+
+    state_names: list[str]
+    input_names: list[str]
+    u_min: list[float]
+    u_max: list[float]
+    groups: list[tuple[str, list[int]]] = field(default_factory=list)
+
+    @staticmethod
+    def from_info(info: dict[str, Any]) -> SimLayout:
+        names = list(info.get("state_names", []))
+        units = info.get("extra", {}).get("state_units") if isinstance(info.get("extra"), dict) else None
+        return SimLayout(
+            state_names=names,
+            input_names=list(info.get("input_names", [])),
+            u_min=[_num(v) for v in info.get("u_min", [])],
+            u_max=[_num(v) for v in info.get("u_max", [])],
+            groups=state_groups(names, units),
+        )
+
+    @staticmethod
+    def unnamed(nx: int, nu: int) -> SimLayout:
+        """A layout for a simulator whose ``info`` could not be read."""
+        names = [f"x{i}" for i in range(nx)]
+        return SimLayout(names, [f"u{i}" for i in range(nu)], [], [], state_groups(names))
+
+
+def _num(v: Any) -> float:
+    """A JSON number, ``null`` (a non-finite value) as NaN."""
+    return float("nan") if v is None else float(v)
+
+
+def _vec(v: Sequence[Any] | None) -> np.ndarray:
+    return np.array([_num(a) for a in (v or [])], dtype=np.float64)
+
+
+class RunLogger:
+    """Logs the view messages of one run into a Rerun recording (``rec``). ``layout_of(sim, nx,
+    nu)`` gives a simulator's :class:`SimLayout` (asked once per simulator)."""
+
+    def __init__(self, rec: rr.RecordingStream, layout_of: Callable[[str, int, int], SimLayout]) -> None:
+        self.rec = rec
+        self._layout_of = layout_of
+        self._layouts: dict[str, SimLayout] = {}
+        self._declared: set[str] = set()
+        self._ticks: dict[str, int] = {}
+        self._jobs: dict[str, str] = {}
+        self.steps_logged = 0
+
+    # ---- closed loops ----
+
+    def step(self, sim: str, m: dict[str, Any]) -> None:
+        """One state of a closed loop (``…/view/{sim}/step``)."""
+        x = _vec(m["x"])
+        u = _vec(m.get("u")) if m.get("u") is not None else None
+        lay = self._layouts.get(sim)
+        if lay is None:
+            lay = self._layouts[sim] = self._layout_of(sim, len(x), 0 if u is None else len(u))
+        path = loop_path(sim, str(m.get("row", "")), m.get("episode"))
+        self._declare(path, lay)
+        tick = self._ticks.get(sim, 0)
+        self._ticks[sim] = tick + 1
+        rec = self.rec
+        rec.set_time("step", sequence=int(m["k"]))
+        rec.set_time(f"{_path_chunk(sim)}_tick", sequence=tick)
+        ref = _vec(m.get("reference"))
+        for g, idx in lay.groups:
+            rec.log(f"{path}/state/{g}", rr.Scalars(x[idx]))
+            if len(ref) == len(x):
+                rec.log(f"{path}/reference/{g}", rr.Scalars(ref[idx]))
+        if u is not None:
+            rec.log(f"{path}/input", rr.Scalars(u))
+        if m.get("solve_us") is not None:
+            rec.log(f"{path}/solve_us", rr.Scalars([float(m["solve_us"])]))
+            if m.get("status") not in (None, "solved"):
+                rec.log(f"{path}/events", rr.TextLog(f"step {m['k']}: MPC {m['status']}", level="WARN"))
+        plan = m.get("plan")
+        if plan:
+            p = np.array([[_num(v) for v in row] for row in plan], dtype=np.float64)
+            k0 = float(m["k"])
+            ts = k0 + np.arange(len(p), dtype=np.float64)
+            for g, idx in lay.groups:
+                strips = [np.column_stack([ts, p[:, i]]) for i in idx]
+                rec.log(f"{path}/plan/{g}", rr.LineStrips2D(strips, labels=[lay.state_names[i] for i in idx]))
+        self.steps_logged += 1
+
+    def _declare(self, path: str, lay: SimLayout) -> None:
+        """The static part of a loop's entities, once: series names and the input bounds."""
+        if path in self._declared:
+            return
+        self._declared.add(path)
+        for g, idx in lay.groups:
+            names = [lay.state_names[i] for i in idx]
+            self.rec.log(f"{path}/state/{g}", rr.SeriesLines(names=names), static=True)
+            self.rec.log(f"{path}/reference/{g}", rr.SeriesLines(names=[f"{n} (reference)" for n in names], widths=1.0), static=True)
+        if lay.input_names:
+            self.rec.log(f"{path}/input", rr.SeriesLines(names=lay.input_names), static=True)
+        bounds = [(n, lo, hi) for n, lo, hi in zip(lay.input_names, lay.u_min, lay.u_max, strict=False) if math.isfinite(lo) and math.isfinite(hi)]
+        if bounds:
+            text = ", ".join(f"{n} ∈ [{lo:g}, {hi:g}]" for n, lo, hi in bounds)
+            self.rec.log(f"{path}/input_bounds", rr.TextDocument(text), static=True)
+
+    # ---- the run's events and the trainer ----
+
+    def event(self, m: dict[str, Any], wall_s: float) -> None:
+        """A run event (``…/view/events``): a phase, a warning, collection or control progress."""
+        rec = self.rec
+        rec.reset_time()
+        rec.set_time("wall", duration=wall_s)
+        kind = m.get("event")
+        if kind == "phase":
+            rec.log("run/log", rr.TextLog(str(m.get("text", "")), level="INFO"))
+        elif kind == "warning":
+            rec.log("run/log", rr.TextLog(str(m.get("text", "")), level="WARN"))
+        elif kind == "collect":
+            rec.log(f"run/collect/{_path_chunk(str(m.get('split', '')))}", rr.Scalars([float(m.get("done", 0))]))
+        elif kind == "control":
+            rec.log("run/control_progress", rr.Scalars([float(m.get("done", 0))]))
+
+    def train_progress(self, trainer: str, job: str, m: dict[str, Any], model: str | None = None) -> None:
+        """One progress message of a trainer job (PROTOCOL.md §5), under ``train/{model or job}``."""
+        name = _path_chunk(model or job)
+        rec = self.rec
+        rec.reset_time()
+        if "iteration" not in m:
+            if m.get("state"):
+                rec.log(f"train/{name}/log", rr.TextLog(f"job {job}: {m['state']} {m.get('error') or ''}".strip()))
+            return
+        rec.set_time("iteration", sequence=int(m["iteration"]))
+        loss = m.get("loss") or {}
+        for term in ("total", "pred", "ctrl", "cov"):
+            if isinstance(loss.get(term), (int, float)):
+                rec.log(f"train/{name}/loss/{term}", rr.Scalars([float(loss[term])]))
+        if isinstance(m.get("validation"), (int, float)):
+            rec.log(f"train/{name}/validation", rr.Scalars([float(m["validation"])]))
