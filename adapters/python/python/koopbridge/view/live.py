@@ -17,6 +17,7 @@ import rerun as rr
 import zenoh
 
 from .logger import RunLogger, SimLayout
+from .robots import robot_for
 
 __all__ = ["Sinks", "follow", "free_port"]
 
@@ -116,7 +117,9 @@ def follow(
 
     def layout_of(sim: str, nx: int, nu: int) -> SimLayout:
         info = _get_json(s, f"{root}/sim/{sim}/info")
-        return SimLayout.from_info(info) if isinstance(info, dict) else SimLayout.unnamed(nx, nu)
+        if not isinstance(info, dict):
+            return SimLayout.unnamed(nx, nu)
+        return SimLayout.from_info(info, robot_for(info))
 
     log = RunLogger(rec, layout_of)
     models: dict[str, str | None] = {}
@@ -128,6 +131,7 @@ def follow(
         try:
             kind, key, payload = inbox.get(timeout=0.2)
         except queue.Empty:
+            log.flush()
             if stop.is_set():
                 break
             continue

@@ -11,10 +11,14 @@ from typing import Any
 import numpy as np
 import rerun as rr
 
+from .robots import GHOST_OFFSET, RobotPoser
+
 __all__ = ["RunLogger", "SimLayout", "state_groups", "loop_path"]
 
 # A group of at most this many states is one plot; more are split (a plot of 30 lines is unread).
 MAX_GROUP = 12
+# The robot's poses are sent in columns of this many steps (and whenever the inbox is empty).
+POSE_BATCH = 32
 
 
 def state_groups(names: Sequence[str], units: Sequence[str] | None = None) -> list[tuple[str, list[int]]]:
@@ -56,17 +60,18 @@ class SimLayout:
     u_min: list[float]
     u_max: list[float]
     groups: list[tuple[str, list[int]]] = field(default_factory=list)
+    robot: RobotPoser | None = None
 
     @staticmethod
-    def from_info(info: dict[str, Any]) -> SimLayout:
+    def from_info(info: dict[str, Any], robot: RobotPoser | None = None) -> SimLayout:
         names = list(info.get("state_names", []))
-        units = info.get("extra", {}).get("state_units") if isinstance(info.get("extra"), dict) else None
         return SimLayout(
             state_names=names,
             input_names=list(info.get("input_names", [])),
             u_min=[_num(v) for v in info.get("u_min", [])],
             u_max=[_num(v) for v in info.get("u_max", [])],
-            groups=state_groups(names, units),
+            groups=state_groups(names, state_units(info)),
+            robot=robot,
         )
 
     @staticmethod
@@ -74,6 +79,19 @@ class SimLayout:
         """A layout for a simulator whose ``info`` could not be read."""
         names = [f"x{i}" for i in range(nx)]
         return SimLayout(names, [f"u{i}" for i in range(nu)], [], [], state_groups(names))
+
+
+def state_units(info: dict[str, Any]) -> list[str] | None:
+    """The state's units where the simulator names them in its ``extra`` (``units.state`` of any
+    section, e.g. ``extra.mujoco.units.state``)."""
+    extra = info.get("extra")
+    if not isinstance(extra, dict):
+        return None
+    for section in [extra, *[v for v in extra.values() if isinstance(v, dict)]]:
+        units = section.get("units")
+        if isinstance(units, dict) and isinstance(units.get("state"), list):
+            return [str(u) for u in units["state"]]
+    return None
 
 
 def _num(v: Any) -> float:
@@ -96,6 +114,8 @@ class RunLogger:
         self._declared: set[str] = set()
         self._ticks: dict[str, int] = {}
         self._jobs: dict[str, str] = {}
+        self._poses: dict[str, tuple[dict[str, list[int]], list[tuple[np.ndarray, np.ndarray]]]] = {}
+        self._robots_drawn: set[str] = set()
         self.steps_logged = 0
 
     # ---- closed loops ----
@@ -133,7 +153,39 @@ class RunLogger:
             for g, idx in lay.groups:
                 strips = [np.column_stack([ts, p[:, i]]) for i in idx]
                 rec.log(f"{path}/plan/{g}", rr.LineStrips2D(strips, labels=[lay.state_names[i] for i in idx]))
+        if lay.robot is not None:
+            self._robot(sim, lay.robot, x, ref if len(ref) == len(x) else None, {"step": int(m["k"]), f"{_path_chunk(sim)}_tick": tick})
         self.steps_logged += 1
+
+    def _robot(self, sim: str, robot: RobotPoser, x: np.ndarray, ref: np.ndarray | None, times: dict[str, int]) -> None:
+        """Queues the robot's pose (and its reference ghost's) for ``robot/{sim}``."""
+        root = f"robot/{_path_chunk(sim)}"
+        if root not in self._robots_drawn:
+            self._robots_drawn.add(root)
+            robot.log_geometry(self.rec, f"{root}/actual")
+            robot.log_geometry(self.rec, f"{root}/reference", ghost=True)
+        for which, state, offset in (("actual", x, None), ("reference", ref, GHOST_OFFSET)):
+            pose = None if state is None else robot.pose(state, offset)
+            if pose is None:
+                continue
+            buf = self._poses.setdefault(f"{root}/{which}", ({}, []))
+            for name, v in times.items():
+                buf[0].setdefault(name, []).append(v)
+            buf[1].append(pose)
+            if len(buf[1]) >= POSE_BATCH:
+                self._flush_poses(f"{root}/{which}", robot)
+
+    def _flush_poses(self, root: str, robot: RobotPoser) -> None:
+        times, poses = self._poses.pop(root, ({}, []))
+        robot.log_poses(self.rec, root, times, poses)
+
+    def flush(self) -> None:
+        """Sends the queued robot poses (call when nothing else is waiting, and at the end)."""
+        for root in list(self._poses):
+            sim = root.split("/")[1]
+            lay = next((lay for s, lay in self._layouts.items() if _path_chunk(s) == sim), None)
+            if lay is not None and lay.robot is not None:
+                self._flush_poses(root, lay.robot)
 
     def _declare(self, path: str, lay: SimLayout) -> None:
         """The static part of a loop's entities, once: series names and the input bounds."""
