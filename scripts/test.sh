@@ -25,6 +25,8 @@ fi
 echo "== cargo test"
 cargo test --release --workspace
 if [ -d .venv ] && [ -d adapters/python/tests ]; then
+  echo "== browser for the live view's test (Debian's chromium)"
+  scripts/setup-browser.sh
   echo "== pytest"
   .venv/bin/python -m pytest -q adapters
 fi

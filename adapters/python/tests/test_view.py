@@ -93,16 +93,16 @@ def test_recorded_view_holds_every_state_plan_and_loss_of_the_report(tmp_path):
     # The [control] loop: one row per state, the last equal to the report's; a plan per decision
     # starting at the state it was made from; a solve time per decision.
     c = next(c for c in report["controls"] if c["sim"] == "pend-a")
-    base = "/" + loop_path("pend-a", c["model"], None)
-    states = rows[f"{base}/state/states"]
+    at = lambda what: "/" + loop_path("pend-a", what, c["model"], None)  # noqa: E731
+    states = rows[at("state/states") + "/x"]
     assert len(states) == len(c["x"]) == 31
     assert [k for k, _ in states] == list(range(31))
     np.testing.assert_allclose(states[-1][1], c["x"][-1], rtol=0, atol=1e-12)
     np.testing.assert_allclose(states[7][1], c["x"][7], rtol=0, atol=1e-12)
-    assert len(rows[f"{base}/reference/states"]) == 31
-    assert len(rows[f"{base}/input"]) == len(c["u"]) == 30
-    np.testing.assert_allclose(rows[f"{base}/input"][3][1], c["u"][3], atol=1e-12)
-    assert len(rows[f"{base}/solve_us"]) == 30
+    assert len(rows[at("state/states") + "/reference"]) == 31
+    assert len(rows[at("input")]) == len(c["u"]) == 30
+    np.testing.assert_allclose(rows[at("input")][3][1], c["u"][3], atol=1e-12)
+    assert len(rows[at("solve_us")]) == 30
 
     # The tracking task: each reference's loop per row (replay and the model), as many states
     # as the report says it ran.
@@ -110,8 +110,8 @@ def test_recorded_view_holds_every_state_plan_and_loss_of_the_report(tmp_path):
     assert t["sim"] == "pend-b" and t["references"] == 2
     for row in t["rows"]:
         for i, ran in enumerate(row["steps_run"]):
-            path = "/" + loop_path("pend-b", row["row"], i)
-            assert len(rows[f"{path}/state/states"]) == ran + 1, (row["row"], i)
+            path = "/" + loop_path("pend-b", "state/states", row["row"], i)
+            assert len(rows[f"{path}/x"]) == ran + 1, (row["row"], i)
     # The trainer's progress: every job's loss terms and validation error.
     for job in report["train"]:
         assert len(rows[f"/train/{job['model']}/loss/total"]) >= 1, job["model"]
@@ -123,7 +123,7 @@ def test_plan_strips_start_at_the_state_and_span_the_horizon(tmp_path):
     _, out = run(tmp_path, "--record-view")
     report = json.loads((out / "report.json").read_text())
     c = next(c for c in report["controls"] if c["sim"] == "pend-a")
-    path = "/" + loop_path("pend-a", c["model"], None) + "/plan/states"
+    path = "/" + loop_path("pend-a", "plan/states", c["model"], None)
     strips = {}
     for ch in RrdReader(out / "view.rrd").stream():
         if ch.entity_path == path and not ch.is_static:
@@ -133,7 +133,7 @@ def test_plan_strips_start_at_the_state_and_span_the_horizon(tmp_path):
     assert sorted(strips) == list(range(30))
     theta = np.array(strips[5][0])  # the first state's planned curve at step 5: (t, theta) pairs
     assert theta.shape == (11, 2)
-    np.testing.assert_allclose(theta[:, 0], np.arange(5, 16))
+    np.testing.assert_allclose(theta[:, 0], np.arange(11))
     assert theta[0, 1] == pytest.approx(c["x"][5][0], abs=1e-5)
 
 

@@ -16,6 +16,7 @@ from typing import Any
 import rerun as rr
 import zenoh
 
+from .blueprint import layout
 from .logger import RunLogger, SimLayout
 from .robots import robot_for
 
@@ -121,7 +122,8 @@ def follow(
             return SimLayout.unnamed(nx, nu)
         return SimLayout.from_info(info, robot_for(info))
 
-    log = RunLogger(rec, layout_of)
+    log = RunLogger(rec, layout_of, layout)
+    log.send_layout()
     models: dict[str, str | None] = {}
     t0 = time.monotonic()
     if ready is not None:
@@ -141,7 +143,7 @@ def follow(
             continue
         parts = key.split("/")
         if kind == "step":
-            log.step(parts[3], m)
+            log.step(parts[3], m, time.monotonic() - t0)
         elif kind == "event":
             log.event(m, time.monotonic() - t0)
         else:
@@ -149,7 +151,7 @@ def follow(
             if job not in models:
                 rec_ = _get_json(s, f"{root}/trainer/{trainer}/jobs/{job}")
                 models[job] = rec_.get("spec", {}).get("model") if isinstance(rec_, dict) else None
-            log.train_progress(trainer, job, m, models[job])
+            log.train_progress(job, m, time.monotonic() - t0, models[job])
     token.undeclare()
     for sub in subs:
         sub.undeclare()

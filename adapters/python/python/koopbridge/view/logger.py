@@ -4,7 +4,7 @@ into Rerun entities, one plot per state group; knows nothing of Zenoh, so it is 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -13,7 +13,7 @@ import rerun as rr
 
 from .robots import GHOST_OFFSET, RobotPoser
 
-__all__ = ["RunLogger", "SimLayout", "state_groups", "loop_path"]
+__all__ = ["RunLogger", "SimLayout", "loop_path", "path_chunk", "state_groups"]
 
 # A group of at most this many states is one plot; more are split (a plot of 30 lines is unread).
 MAX_GROUP = 12
@@ -28,7 +28,7 @@ def state_groups(names: Sequence[str], units: Sequence[str] | None = None) -> li
     groups: dict[str, list[int]] = {}
     if units is not None and len(units) == len(names):
         for i, u in enumerate(units):
-            groups.setdefault(_path_chunk(u if u != "1" else "unitless"), []).append(i)
+            groups.setdefault(path_chunk(u if u != "1" else "unitless"), []).append(i)
     else:
         for i in range(len(names)):
             groups.setdefault(f"states_{i // MAX_GROUP}" if len(names) > MAX_GROUP else "states", []).append(i)
@@ -39,15 +39,16 @@ def state_groups(names: Sequence[str], units: Sequence[str] | None = None) -> li
     return out
 
 
-def _path_chunk(text: str) -> str:
+def path_chunk(text: str) -> str:
     """``text`` as one entity-path part (Rerun splits on ``/``)."""
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in text) or "_"
 
 
-def loop_path(sim: str, row: str, episode: int | None) -> str:
-    """The entity path of one closed loop: ``control/{sim}/{row}`` and, in a tracking task, the
-    reference's index (``ref007``)."""
-    base = f"control/{_path_chunk(sim)}/{_path_chunk(row)}"
+def loop_path(sim: str, what: str, row: str, episode: int | None) -> str:
+    """The entity path of ``what`` (``state/{group}``, ``input``, ``solve_us``, ``plan/{group}``,
+    ``events``) of one closed loop: ``control/{sim}/{what}/{row}`` and, in a tracking task, the
+    reference's index (``…/ref007``); what a plot shows is then a path prefix."""
+    base = f"control/{path_chunk(sim)}/{what}/{path_chunk(row)}"
     return base if episode is None else f"{base}/ref{episode:03d}"
 
 
@@ -105,61 +106,76 @@ def _vec(v: Sequence[Any] | None) -> np.ndarray:
 
 class RunLogger:
     """Logs the view messages of one run into a Rerun recording (``rec``). ``layout_of(sim, nx,
-    nu)`` gives a simulator's :class:`SimLayout` (asked once per simulator)."""
+    nu)`` gives a simulator's :class:`SimLayout` (asked once per simulator); ``blueprint(layouts)``
+    the viewer's layout for the simulators seen so far (sent again when one appears)."""
 
-    def __init__(self, rec: rr.RecordingStream, layout_of: Callable[[str, int, int], SimLayout]) -> None:
+    def __init__(
+        self,
+        rec: rr.RecordingStream,
+        layout_of: Callable[[str, int, int], SimLayout],
+        blueprint: Callable[[Mapping[str, SimLayout]], Any] | None = None,
+    ) -> None:
         self.rec = rec
+        self._blueprint = blueprint
         self._layout_of = layout_of
         self._layouts: dict[str, SimLayout] = {}
         self._declared: set[str] = set()
         self._ticks: dict[str, int] = {}
         self._jobs: dict[str, str] = {}
-        self._poses: dict[str, tuple[dict[str, list[int]], list[tuple[np.ndarray, np.ndarray]]]] = {}
+        self._poses: dict[str, tuple[dict[tuple[str, str], list[float]], list[tuple[np.ndarray, np.ndarray]]]] = {}
         self._robots_drawn: set[str] = set()
         self.steps_logged = 0
 
     # ---- closed loops ----
 
-    def step(self, sim: str, m: dict[str, Any]) -> None:
-        """One state of a closed loop (``…/view/{sim}/step``)."""
+    def step(self, sim: str, m: dict[str, Any], wall_s: float) -> None:
+        """One state of a closed loop (``…/view/{sim}/step``), received ``wall_s`` after the
+        viewer started (the ``wall`` timeline every plot shares)."""
         x = _vec(m["x"])
         u = _vec(m.get("u")) if m.get("u") is not None else None
         lay = self._layouts.get(sim)
         if lay is None:
             lay = self._layouts[sim] = self._layout_of(sim, len(x), 0 if u is None else len(u))
-        path = loop_path(sim, str(m.get("row", "")), m.get("episode"))
-        self._declare(path, lay)
+            self.send_layout()
+            self._declare_sim(sim, lay)
+        row, episode = str(m.get("row", "")), m.get("episode")
+
+        def at(what: str) -> str:
+            return loop_path(sim, what, row, episode)
+
+        self._declare(sim, row, episode, lay)
         tick = self._ticks.get(sim, 0)
         self._ticks[sim] = tick + 1
-        rec = self.rec
-        rec.set_time("step", sequence=int(m["k"]))
-        rec.set_time(f"{_path_chunk(sim)}_tick", sequence=tick)
+        rec, k = self.rec, int(m["k"])
+        rec.set_time("wall", duration=wall_s)
+        rec.set_time("step", sequence=k)
+        rec.set_time(f"{path_chunk(sim)}_tick", sequence=tick)
         ref = _vec(m.get("reference"))
         for g, idx in lay.groups:
-            rec.log(f"{path}/state/{g}", rr.Scalars(x[idx]))
+            rec.log(f"{at(f'state/{g}')}/x", rr.Scalars(x[idx]))
             if len(ref) == len(x):
-                rec.log(f"{path}/reference/{g}", rr.Scalars(ref[idx]))
+                rec.log(f"{at(f'state/{g}')}/reference", rr.Scalars(ref[idx]))
         if u is not None:
-            rec.log(f"{path}/input", rr.Scalars(u))
+            rec.log(at("input"), rr.Scalars(u))
         if m.get("solve_us") is not None:
-            rec.log(f"{path}/solve_us", rr.Scalars([float(m["solve_us"])]))
+            rec.log(at("solve_us"), rr.Scalars([float(m["solve_us"])]))
             if m.get("status") not in (None, "solved"):
-                rec.log(f"{path}/events", rr.TextLog(f"step {m['k']}: MPC {m['status']}", level="WARN"))
+                rec.log(at("events"), rr.TextLog(f"step {k}: MPC {m['status']}", level="WARN"))
         plan = m.get("plan")
         if plan:
-            p = np.array([[_num(v) for v in row] for row in plan], dtype=np.float64)
-            k0 = float(m["k"])
-            ts = k0 + np.arange(len(p), dtype=np.float64)
+            p = np.array([[_num(v) for v in r] for r in plan], dtype=np.float64)
+            ahead = np.arange(len(p), dtype=np.float64)  # steps ahead of this one: a fixed axis
             for g, idx in lay.groups:
-                strips = [np.column_stack([ts, p[:, i]]) for i in idx]
-                rec.log(f"{path}/plan/{g}", rr.LineStrips2D(strips, labels=[lay.state_names[i] for i in idx]))
+                strips = [np.column_stack([ahead, p[:, i]]) for i in idx]
+                rec.log(at(f"plan/{g}"), rr.LineStrips2D(strips))
         if lay.robot is not None:
-            self._robot(sim, lay.robot, x, ref if len(ref) == len(x) else None, {"step": int(m["k"]), f"{_path_chunk(sim)}_tick": tick})
+            times = {"wall": ("duration", wall_s), "step": ("sequence", k), f"{path_chunk(sim)}_tick": ("sequence", tick)}
+            self._robot(sim, lay.robot, x, ref if len(ref) == len(x) else None, times)
         self.steps_logged += 1
 
-    def _robot(self, sim: str, robot: RobotPoser, x: np.ndarray, ref: np.ndarray | None, times: dict[str, int]) -> None:
+    def _robot(self, sim: str, robot: RobotPoser, x: np.ndarray, ref: np.ndarray | None, times: dict[str, tuple[str, float]]) -> None:
         """Queues the robot's pose (and its reference ghost's) for ``robot/{sim}``."""
-        root = f"robot/{_path_chunk(sim)}"
+        root = f"robot/{path_chunk(sim)}"
         if root not in self._robots_drawn:
             self._robots_drawn.add(root)
             robot.log_geometry(self.rec, f"{root}/actual")
@@ -169,8 +185,8 @@ class RunLogger:
             if pose is None:
                 continue
             buf = self._poses.setdefault(f"{root}/{which}", ({}, []))
-            for name, v in times.items():
-                buf[0].setdefault(name, []).append(v)
+            for name, (kind, v) in times.items():
+                buf[0].setdefault((name, kind), []).append(v)
             buf[1].append(pose)
             if len(buf[1]) >= POSE_BATCH:
                 self._flush_poses(f"{root}/{which}", robot)
@@ -183,25 +199,35 @@ class RunLogger:
         """Sends the queued robot poses (call when nothing else is waiting, and at the end)."""
         for root in list(self._poses):
             sim = root.split("/")[1]
-            lay = next((lay for s, lay in self._layouts.items() if _path_chunk(s) == sim), None)
+            lay = next((lay for s, lay in self._layouts.items() if path_chunk(s) == sim), None)
             if lay is not None and lay.robot is not None:
                 self._flush_poses(root, lay.robot)
 
-    def _declare(self, path: str, lay: SimLayout) -> None:
-        """The static part of a loop's entities, once: series names and the input bounds."""
-        if path in self._declared:
+    def _declare(self, sim: str, row: str, episode: int | None, lay: SimLayout) -> None:
+        """The series names of one loop's entities, once (static)."""
+        key = loop_path(sim, "", row, episode)
+        if key in self._declared:
             return
-        self._declared.add(path)
+        self._declared.add(key)
         for g, idx in lay.groups:
             names = [lay.state_names[i] for i in idx]
-            self.rec.log(f"{path}/state/{g}", rr.SeriesLines(names=names), static=True)
-            self.rec.log(f"{path}/reference/{g}", rr.SeriesLines(names=[f"{n} (reference)" for n in names], widths=1.0), static=True)
+            base = loop_path(sim, f"state/{g}", row, episode)
+            self.rec.log(f"{base}/x", rr.SeriesLines(names=names), static=True)
+            self.rec.log(f"{base}/reference", rr.SeriesLines(names=[f"{n} (reference)" for n in names], widths=1.0), static=True)
         if lay.input_names:
-            self.rec.log(f"{path}/input", rr.SeriesLines(names=lay.input_names), static=True)
+            self.rec.log(loop_path(sim, "input", row, episode), rr.SeriesLines(names=lay.input_names), static=True)
+
+    def _declare_sim(self, sim: str, lay: SimLayout) -> None:
+        """A simulator's input bounds (static, once)."""
         bounds = [(n, lo, hi) for n, lo, hi in zip(lay.input_names, lay.u_min, lay.u_max, strict=False) if math.isfinite(lo) and math.isfinite(hi)]
         if bounds:
             text = ", ".join(f"{n} ∈ [{lo:g}, {hi:g}]" for n, lo, hi in bounds)
-            self.rec.log(f"{path}/input_bounds", rr.TextDocument(text), static=True)
+            self.rec.log(f"control/{path_chunk(sim)}/input_bounds", rr.TextDocument(text), static=True)
+
+    def send_layout(self) -> None:
+        """Sends the layout for the simulators seen so far (it replaces the previous one)."""
+        if self._blueprint is not None:
+            self.rec.send_blueprint(self._blueprint(self._layouts))
 
     # ---- the run's events and the trainer ----
 
@@ -216,15 +242,17 @@ class RunLogger:
         elif kind == "warning":
             rec.log("run/log", rr.TextLog(str(m.get("text", "")), level="WARN"))
         elif kind == "collect":
-            rec.log(f"run/collect/{_path_chunk(str(m.get('split', '')))}", rr.Scalars([float(m.get("done", 0))]))
+            rec.log(f"run/collect/{path_chunk(str(m.get('split', '')))}", rr.Scalars([float(m.get("done", 0))]))
         elif kind == "control":
             rec.log("run/control_progress", rr.Scalars([float(m.get("done", 0))]))
 
-    def train_progress(self, trainer: str, job: str, m: dict[str, Any], model: str | None = None) -> None:
-        """One progress message of a trainer job (PROTOCOL.md §5), under ``train/{model or job}``."""
-        name = _path_chunk(model or job)
+    def train_progress(self, job: str, m: dict[str, Any], wall_s: float, model: str | None = None) -> None:
+        """One progress message of a trainer job (PROTOCOL.md §5), under ``train/{model or job}``,
+        received ``wall_s`` after the viewer started."""
+        name = path_chunk(model or job)
         rec = self.rec
         rec.reset_time()
+        rec.set_time("wall", duration=wall_s)
         if "iteration" not in m:
             if m.get("state"):
                 rec.log(f"train/{name}/log", rr.TextLog(f"job {job}: {m['state']} {m.get('error') or ''}".strip()))
