@@ -17,6 +17,8 @@ enum BenchWhat {
     Mpc(super::bench_mpc::BenchMpcArgs),
     /// Training speed (iterations/second) of the neural Koopman trainer.
     Train(super::bench_train::BenchTrainArgs),
+    /// What the live view costs a run: step and solve round trips without and with `--view`.
+    View(super::bench_view::BenchViewArgs),
 }
 
 /// Runs `koopbridge bench`.
@@ -26,5 +28,6 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchWhat::Edmd(a) => super::bench_edmd::run(a),
         BenchWhat::Mpc(a) => super::bench_mpc::run(a),
         BenchWhat::Train(a) => super::bench_train::run(a),
+        BenchWhat::View(a) => super::bench_view::run(a),
     }
 }

@@ -5,6 +5,7 @@ pub mod bench_bridge;
 pub mod bench_edmd;
 pub mod bench_mpc;
 pub mod bench_train;
+pub mod bench_view;
 pub mod control;
 pub mod control_diagnostics;
 pub mod control_plot;

@@ -58,17 +58,29 @@ fn python_args(args: &ViewArgs) -> Vec<String> {
     a
 }
 
-/// Runs `koopbridge view` (the Python viewer in the foreground, its exit status passed on).
+/// Runs `koopbridge view`: the Python viewer replaces this process (on Unix; elsewhere it runs
+/// in the foreground and its exit status is passed on), so that stopping `koopbridge view` stops
+/// the viewer.
 pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     let python = bridge::orchestrator::program::external_program("{python}", Path::new("."));
-    let status = std::process::Command::new(&python)
-        .args(python_args(&args))
-        .status()
-        .map_err(|e| anyhow::anyhow!("could not start {}: {e}", python.display()))?;
-    if !status.success() {
-        anyhow::bail!("the viewer ended with {status}");
+    let mut cmd = std::process::Command::new(&python);
+    cmd.args(python_args(&args));
+    #[cfg(unix)]
+    {
+        use std::os::unix::process::CommandExt;
+        let e = cmd.exec();
+        anyhow::bail!("could not start {}: {e}", python.display());
     }
-    Ok(())
+    #[cfg(not(unix))]
+    {
+        let status = cmd
+            .status()
+            .map_err(|e| anyhow::anyhow!("could not start {}: {e}", python.display()))?;
+        if !status.success() {
+            anyhow::bail!("the viewer ended with {status}");
+        }
+        Ok(())
+    }
 }
 
 #[cfg(test)]

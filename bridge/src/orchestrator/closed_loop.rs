@@ -165,6 +165,8 @@ pub struct ControlRun<'a> {
     terminated: Vec<bool>,
     sim_failure: Option<String>,
     publisher: Option<zenoh::pubsub::Publisher<'static>>,
+    /// The input decided at the current state and the MPC's reply, until the view shows them.
+    decided: Option<(Vec<f64>, Option<SolveReply>)>,
 }
 
 impl<'a> ControlRun<'a> {
@@ -205,6 +207,7 @@ impl<'a> ControlRun<'a> {
             terminated: vec![first.status.terminated()],
             sim_failure: None,
             publisher,
+            decided: None,
         };
         run.publish(first.k, first.t, &[])?;
         Ok(run)
@@ -267,7 +270,7 @@ impl<'a> ControlRun<'a> {
         let k = self.us.len();
         if let Some(inputs) = self.task.replay {
             let u = inputs[k.min(inputs.len() - 1)].clone();
-            self.show(k, Some(&u), None);
+            self.decided = Some((u.clone(), None));
             return Ok(u);
         }
         let (r, h) = (self.task.reference, self.task.horizon);
@@ -301,8 +304,16 @@ impl<'a> ControlRun<'a> {
                 .or_default() += 1;
         }
         let u = r.u[..nu].to_vec();
-        self.show(k, Some(&u), Some(&r));
+        self.decided = Some((u.clone(), Some(r)));
         Ok(u)
+    }
+
+    /// Shows the state the last input was decided at to a viewer (once the step has come back:
+    /// the viewer's work then overlaps the next solve, not the simulator's step).
+    fn show_decided(&mut self) {
+        if let Some((u, reply)) = self.decided.take() {
+            self.show(self.us.len(), Some(&u), reply.as_ref());
+        }
     }
 
     /// Shows state `k` to a viewer, if one watches: with the input decided there and the MPC's
@@ -333,6 +344,7 @@ impl<'a> ControlRun<'a> {
         let t = Instant::now();
         let next = self.sim.step(&u, Some(live))?;
         self.step_us.push(t.elapsed().as_secs_f64() * 1e6);
+        self.show_decided();
         self.xs.push(next.x);
         self.terminated.push(next.status.terminated());
         self.flags.count(self.xs.len() - 1, next.status);
@@ -344,6 +356,7 @@ impl<'a> ControlRun<'a> {
     /// Records that the simulator refused to step with `u` (`why`): a non-finite state ends the
     /// run, so that it scores as a failure at this step.
     pub fn fail_step(&mut self, u: Vec<f64>, why: String) {
+        self.show_decided();
         let nx = self.info.nx();
         self.xs.push(vec![f64::NAN; nx]);
         self.terminated.push(true);
@@ -352,7 +365,8 @@ impl<'a> ControlRun<'a> {
     }
 
     /// The report of the finished loop.
-    pub fn finish(self) -> ControlReport {
+    pub fn finish(mut self) -> ControlReport {
+        self.show_decided();
         self.show(self.xs.len() - 1, None, None);
         let info = &self.info;
         let nx = info.nx();

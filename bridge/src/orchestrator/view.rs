@@ -72,28 +72,40 @@ pub struct StepView<'a> {
     pub episode: Option<usize>,
 }
 
-/// A lifted model's matrices, for predicting a plan's states.
+/// A lifted model and its matrices row by row (`[A | B]`, N × (N + nu)), for predicting a
+/// plan's states.
 struct Predictor {
     model: Box<dyn LiftedModel>,
-    a: faer::Mat<f64>,
-    b: faer::Mat<f64>,
+    ab: Vec<f64>,
 }
 
 impl Predictor {
+    fn new(model: Box<dyn LiftedModel>) -> Self {
+        let (a, b) = (model.a(), model.b());
+        let (n, nu) = (a.nrows(), b.ncols());
+        let mut ab = Vec::with_capacity(n * (n + nu));
+        for i in 0..n {
+            ab.extend((0..n).map(|j| a[(i, j)]));
+            ab.extend((0..nu).map(|j| b[(i, j)]));
+        }
+        Predictor { model, ab }
+    }
+
     /// x̂_0 … x̂_H: `z = Φ(x)`, then `z ← A z + B u_j` for each planned input.
     fn states(&self, x: &[f64], plan_u: &[f64]) -> Option<Vec<Vec<f64>>> {
-        let (nx, nu, n) = (self.model.nx(), self.model.nu(), self.model.latent_dim());
-        let mut z = self.model.try_lift(x).ok()?;
+        let (nx, nu) = (self.model.nx(), self.model.nu());
+        let mut zu = self.model.try_lift(x).ok()?;
+        let n = zu.len();
+        zu.resize(n + nu, 0.0);
+        let mut next = vec![0.0; n];
         let mut out = vec![x.to_vec()];
         for u in plan_u.chunks_exact(nu) {
-            let next: Vec<f64> = (0..n)
-                .map(|i| {
-                    let az: f64 = (0..n).map(|j| self.a[(i, j)] * z[j]).sum();
-                    az + (0..nu).map(|j| self.b[(i, j)] * u[j]).sum::<f64>()
-                })
-                .collect();
-            z = next;
-            out.push(z[..nx].to_vec());
+            zu[n..].copy_from_slice(u);
+            for (row, z) in self.ab.chunks_exact(n + nu).zip(next.iter_mut()) {
+                *z = row.iter().zip(&zu).map(|(r, v)| r * v).sum();
+            }
+            zu[..n].copy_from_slice(&next);
+            out.push(next[..nx].to_vec());
         }
         Some(out)
     }
@@ -177,8 +189,7 @@ impl RunView {
     fn load(&self, name: &str) -> Option<Arc<Predictor>> {
         validate_chunk("model name", name).ok()?;
         let model = koopman::model::load_lifted(&self.models_dir.join(name)).ok()?;
-        let (a, b) = (model.a(), model.b());
-        Some(Arc::new(Predictor { model, a, b }))
+        Some(Arc::new(Predictor::new(model)))
     }
 }
 
@@ -201,22 +212,29 @@ mod tests {
 
     #[test]
     fn a_plan_is_the_model_rolled_out_under_the_planned_inputs() {
-        // x⁺ = 0.5 x + u (nx = nu = 1, no lifting beyond x): from x = 2 with u = 1, 0:
-        // 2 → 2 → 1.
+        // x⁺ = A x + B u with A = [[1, 0.1], [0, 0.9]], B = [0, 0.5] (nx = N = 2, nu = 1):
+        // from x = (1, 2) with u = 2 then −4: (1.2, 2.8), then (1.48, 0.52).
         let m = MatrixModel::new(
-            faer::mat![[0.5]],
-            faer::mat![[1.0]],
-            faer::Mat::zeros(0, 1),
+            faer::mat![[1.0, 0.1], [0.0, 0.9]],
+            faer::mat![[0.0], [0.5]],
+            faer::Mat::zeros(0, 2),
             Vec::new(),
         )
         .unwrap();
-        let model: Box<dyn LiftedModel> = Box::new(m);
-        let (a, b) = (model.a(), model.b());
-        let p = Predictor { model, a, b };
-        assert_eq!(
-            p.states(&[2.0], &[1.0, 0.0]).unwrap(),
-            vec![vec![2.0], vec![2.0], vec![1.0]]
+        let p = Predictor::new(Box::new(m));
+        let got = p.states(&[1.0, 2.0], &[2.0, -4.0]).unwrap();
+        let want = [[1.0, 2.0], [1.2, 2.8], [1.48, 0.52]];
+        assert_eq!(got.len(), 3);
+        for (g, w) in got.iter().zip(want) {
+            assert!(
+                g.iter().zip(w).all(|(a, b)| (a - b).abs() < 1e-12),
+                "{got:?}"
+            );
+        }
+        assert!(p.states(&[f64::NAN, 0.0], &[1.0]).is_none());
+        assert!(
+            p.states(&[1.0], &[1.0]).is_none(),
+            "a state of the wrong length"
         );
-        assert!(p.states(&[f64::NAN], &[1.0]).is_none());
     }
 }

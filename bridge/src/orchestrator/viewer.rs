@@ -53,6 +53,8 @@ pub struct ViewOptions {
     pub web_port: Option<u16>,
 }
 
+/// By how much the viewer's nice value is raised above the run's.
+const VIEWER_NICE: i32 = 10;
 /// How long the viewer is given to subscribe (importing Rerun takes a few seconds).
 const READY: Duration = Duration::from_secs(60);
 /// How long the viewer is given to write `view.rrd` once the run has ended.
@@ -117,6 +119,10 @@ impl ViewerProc {
                 return None;
             }
         };
+        // The run comes first: on a busy machine the viewer lags rather than slows the loop.
+        if let Err(e) = crate::priority::lower_priority(child.id(), VIEWER_NICE) {
+            tracing::debug!("the viewer's priority could not be lowered: {e}");
+        }
         let who = [(Role::Viewer, VIEWER_ID.to_string())];
         let deadline = Instant::now() + READY;
         loop {

@@ -95,7 +95,10 @@ def main(argv: list[str] | None = None) -> int:
         sinks.close(rec)
         s.close()
     if log is not None:
-        print(f"koopbridge view: {log.steps_logged} closed-loop states shown", file=sys.stderr)
+        import resource
+
+        cpu = resource.getrusage(resource.RUSAGE_SELF)
+        print(f"koopbridge view: {log.steps_logged} closed-loop states shown, {cpu.ru_utime + cpu.ru_stime:.1f} s of CPU", file=sys.stderr)
     return 0
 
 

@@ -11,14 +11,13 @@ from typing import Any
 import numpy as np
 import rerun as rr
 
+from .columns import BATCH, Columns, Times
 from .robots import GHOST_OFFSET, RobotPoser
 
 __all__ = ["RunLogger", "SimLayout", "loop_path", "path_chunk", "state_groups"]
 
 # A group of at most this many states is one plot; more are split (a plot of 30 lines is unread).
 MAX_GROUP = 12
-# The robot's poses are sent in columns of this many steps (and whenever the inbox is empty).
-POSE_BATCH = 32
 
 
 def state_groups(names: Sequence[str], units: Sequence[str] | None = None) -> list[tuple[str, list[int]]]:
@@ -124,6 +123,7 @@ class RunLogger:
         self._jobs: dict[str, str] = {}
         self._poses: dict[str, tuple[dict[tuple[str, str], list[float]], list[tuple[np.ndarray, np.ndarray]]]] = {}
         self._robots_drawn: set[str] = set()
+        self._columns = Columns(rec)
         self.steps_logged = 0
 
     # ---- closed loops ----
@@ -146,34 +146,33 @@ class RunLogger:
         self._declare(sim, row, episode, lay)
         tick = self._ticks.get(sim, 0)
         self._ticks[sim] = tick + 1
-        rec, k = self.rec, int(m["k"])
-        rec.set_time("wall", duration=wall_s)
-        rec.set_time("step", sequence=k)
-        rec.set_time(f"{path_chunk(sim)}_tick", sequence=tick)
+        k = int(m["k"])
+        times = {("wall", "duration"): wall_s, ("step", "sequence"): k, (f"{path_chunk(sim)}_tick", "sequence"): tick}
+        cols = self._columns
         ref = _vec(m.get("reference"))
         for g, idx in lay.groups:
-            rec.log(f"{at(f'state/{g}')}/x", rr.Scalars(x[idx]))
+            cols.scalars(f"{at(f'state/{g}')}/x", times, x[idx])
             if len(ref) == len(x):
-                rec.log(f"{at(f'state/{g}')}/reference", rr.Scalars(ref[idx]))
+                cols.scalars(f"{at(f'state/{g}')}/reference", times, ref[idx])
         if u is not None:
-            rec.log(at("input"), rr.Scalars(u))
+            cols.scalars(at("input"), times, u)
         if m.get("solve_us") is not None:
-            rec.log(at("solve_us"), rr.Scalars([float(m["solve_us"])]))
+            cols.scalars(at("solve_us"), times, np.array([float(m["solve_us"])]))
             if m.get("status") not in (None, "solved"):
-                rec.log(at("events"), rr.TextLog(f"step {k}: MPC {m['status']}", level="WARN"))
+                self.rec.set_time("wall", duration=wall_s)
+                self.rec.set_time("step", sequence=k)
+                self.rec.log(at("events"), rr.TextLog(f"step {k}: MPC {m['status']}", level="WARN"))
         plan = m.get("plan")
         if plan:
             p = np.array([[_num(v) for v in r] for r in plan], dtype=np.float64)
             ahead = np.arange(len(p), dtype=np.float64)  # steps ahead of this one: a fixed axis
             for g, idx in lay.groups:
-                strips = [np.column_stack([ahead, p[:, i]]) for i in idx]
-                rec.log(at(f"plan/{g}"), rr.LineStrips2D(strips))
+                cols.strips(at(f"plan/{g}"), times, np.stack([np.column_stack([ahead, p[:, i]]) for i in idx]))
         if lay.robot is not None:
-            times = {"wall": ("duration", wall_s), "step": ("sequence", k), f"{path_chunk(sim)}_tick": ("sequence", tick)}
             self._robot(sim, lay.robot, x, ref if len(ref) == len(x) else None, times)
         self.steps_logged += 1
 
-    def _robot(self, sim: str, robot: RobotPoser, x: np.ndarray, ref: np.ndarray | None, times: dict[str, tuple[str, float]]) -> None:
+    def _robot(self, sim: str, robot: RobotPoser, x: np.ndarray, ref: np.ndarray | None, times: Times) -> None:
         """Queues the robot's pose (and its reference ghost's) for ``robot/{sim}``."""
         root = f"robot/{path_chunk(sim)}"
         if root not in self._robots_drawn:
@@ -185,10 +184,10 @@ class RunLogger:
             if pose is None:
                 continue
             buf = self._poses.setdefault(f"{root}/{which}", ({}, []))
-            for name, (kind, v) in times.items():
-                buf[0].setdefault((name, kind), []).append(v)
+            for key, v in times.items():
+                buf[0].setdefault(key, []).append(v)
             buf[1].append(pose)
-            if len(buf[1]) >= POSE_BATCH:
+            if len(buf[1]) >= BATCH:
                 self._flush_poses(f"{root}/{which}", robot)
 
     def _flush_poses(self, root: str, robot: RobotPoser) -> None:
@@ -196,7 +195,9 @@ class RunLogger:
         robot.log_poses(self.rec, root, times, poses)
 
     def flush(self) -> None:
-        """Sends the queued robot poses (call when nothing else is waiting, and at the end)."""
+        """Sends the queued rows and robot poses (call when nothing else is waiting, and at the
+        end)."""
+        self._columns.flush()
         for root in list(self._poses):
             sim = root.split("/")[1]
             lay = next((lay for s, lay in self._layouts.items() if path_chunk(s) == sim), None)

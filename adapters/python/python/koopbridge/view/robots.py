@@ -85,10 +85,7 @@ class RobotPoser:
         pose)."""
         if not poses:
             return
-        index = [
-            rr.TimeColumn(name, sequence=[int(t) for t in v]) if kind == "sequence" else rr.TimeColumn(name, duration=v)
-            for (name, kind), v in times.items()
-        ]
+        index = [rr.TimeColumn(name, sequence=[int(t) for t in v]) if kind == "sequence" else rr.TimeColumn(name, duration=v) for (name, kind), v in times.items()]
         pos = np.stack([p for p, _ in poses])
         mat = np.stack([m for _, m in poses])
         for j, g in enumerate(self.geoms):
