@@ -62,6 +62,7 @@ pub fn run(args: BenchViewArgs) -> anyhow::Result<()> {
             view: view.then_some(ViewOptions {
                 mode: ViewMode::Web,
                 web_port: None,
+                video: None,
             }),
             ..Default::default()
         };

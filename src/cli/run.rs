@@ -84,6 +84,13 @@ pub struct RunArgs {
     /// Record the view into OUT/view.rrd without showing it (no display needed).
     #[arg(long, conflicts_with = "view")]
     pub record_view: bool,
+    /// MP4s of these references' closed loops (comma-separated indices of a tracking task's
+    /// references; a `[control]` loop is 0) for MuJoCo simulators, into OUT/videos/: the robot
+    /// beside its reference, rendered offscreen (EGL, no GPU needed), the step and the tracking
+    /// error in the frame. Records the view as --record-view does unless --view is given. The
+    /// frames are rendered beside the run at low priority; the run waits for the last ones.
+    #[arg(long, value_name = "REFS", value_parser = parse_refs)]
+    pub video: Option<String>,
     #[command(flatten)]
     pub zenoh: super::ZenohArgs,
 }
@@ -101,7 +108,7 @@ pub enum ViewArg {
 
 /// The run's view from `--view`, `--view-port` and `--record-view`.
 fn view_options(args: &RunArgs) -> Option<ViewOptions> {
-    let mode = match (args.view, args.record_view) {
+    let mode = match (args.view, args.record_view || args.video.is_some()) {
         (Some(ViewArg::Auto), _) => ViewMode::auto(),
         (Some(ViewArg::Native), _) => ViewMode::Native,
         (Some(ViewArg::Web), _) => ViewMode::Web,
@@ -111,7 +118,20 @@ fn view_options(args: &RunArgs) -> Option<ViewOptions> {
     Some(ViewOptions {
         mode,
         web_port: args.view_port,
+        video: args.video.clone(),
     })
+}
+
+/// `--video 0,3,17`: reference indices, each a non-negative integer.
+fn parse_refs(text: &str) -> Result<String, String> {
+    for part in text.split(',') {
+        if part.trim().parse::<usize>().is_err() {
+            return Err(format!(
+                "{part:?} is not a reference index (a non-negative integer); e.g. --video 0,3"
+            ));
+        }
+    }
+    Ok(text.replace(' ', ""))
 }
 
 /// Runs `koopbridge run`.
@@ -232,6 +252,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         );
     }
     // With several model kinds, each control run is named by its model (`{scenario}-{sim}-{kind}`).
+    for v in &report.videos {
+        println!("  video: {}", v.display());
+    }
     if let Some(v) = &report.view {
         println!(
             "  view: {} (open it with: koopbridge view --open {})",

@@ -168,3 +168,57 @@ def test_state_plots_follow_the_simulator_s_units_and_stay_readable():
     many = state_groups([f"x{i}" for i in range(30)])
     assert [len(i) for _, i in many] == [12, 12, 6] and sum((i for _, i in many), []) == list(range(30))
     assert state_groups(["a", "b"]) == [("states", [0, 1])]
+
+
+GYM = """
+name = "view-video"
+[[sims]]
+id = "cart"
+command = ["{python}", "-m", "koopbridge.adapters.gym", "InvertedDoublePendulum-v5", "--quiet"]
+[collect]
+policy = { kind = "uniform", low = -0.1, high = 0.1 }
+x0_center = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+x0_radius = [0.05, 0.03, 0.03, 0.1, 0.1, 0.1]
+train_windows = 200
+val_windows = 40
+test_windows = 40
+steps = 5
+seed = 42
+[train]
+model = "edmd"
+[control]
+x0 = [0.0, 0.05, 0.05, 0.0, 0.0, 0.0]
+reference = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+steps = 40
+mpc = { horizon = 30, q = [10.0, 10.0, 10.0, 0.1, 0.1, 0.1], r = [0.3] }
+"""
+
+
+def test_video_renders_each_state_beside_its_reference(tmp_path):
+    pytest.importorskip("gymnasium")
+    iio = pytest.importorskip("imageio.v3")
+    exe = koopbridge_binary_or_skip()
+    sc = tmp_path / "view-video.toml"
+    sc.write_text(GYM)
+    out = tmp_path / "out"
+    r = subprocess.run([str(exe), "run", str(sc), "--out", str(out), "--video", "0"], cwd=tmp_path, env=scenario_env(exe), capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    report = json.loads((out / "report.json").read_text())
+    c = report["control"]
+    assert [Path(v).name for v in report["videos"]] == [f"cart-{c['model']}-ref000.mp4"]
+    frames = iio.imread(report["videos"][0])
+    # dt = 0.05 s at 25 frames per second: every state is a frame, the robot beside the reference.
+    assert frames.shape == (len(c["x"]), 240, 640, 3), frames.shape
+    left, right = frames[:, 40:200, :320].astype(float), frames[:, 40:200, 320:].astype(float)
+    assert left.std() > 5 and right.std() > 5, "blank frames"
+
+    def changed(a: np.ndarray, b: np.ndarray) -> float:
+        """The share of pixels that changed visibly (a channel by more than 30 of 255)."""
+        return float((np.abs(a - b).max(axis=-1) > 30).mean())
+
+    # The reference (upright, still) is the same picture in every frame; the robot, tilted at
+    # x0 (0.05 rad per pole), differs from it and moves (measured: 0.4 % and 0.5 % of pixels).
+    assert changed(right[0], right[-1]) == 0.0
+    assert changed(left[0], right[0]) > 0.001 and changed(left[0], left[-1]) > 0.001
+    bad = subprocess.run([str(exe), "run", str(sc), "--out", str(out), "--video", "0,x"], env=scenario_env(exe), capture_output=True, text=True, timeout=60)
+    assert bad.returncode != 0 and "'x'" in bad.stderr.replace('"', "'") and "reference index" in bad.stderr, bad.stderr

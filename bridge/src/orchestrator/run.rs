@@ -77,6 +77,9 @@ pub struct Report {
     /// The run's recorded view (`--view`, `--record-view`), to open with `koopbridge view --open`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub view: Option<PathBuf>,
+    /// The MP4s of `--video` (one per simulator, row and reference).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub videos: Vec<PathBuf>,
     /// What the user should know about the results, also reported as [`Event::Warning`]: every
     /// control run whose MPC did not solve every step or whose simulator reported an episode end
     /// ([`ControlReport::warnings`]),
@@ -401,6 +404,10 @@ pub fn run_scenario_with(
         tracking,
         tracking_aggregation,
         diagnoses,
+        videos: match extras.view.as_ref().and_then(|v| v.video.as_ref()) {
+            Some(_) => ViewerProc::videos(&opts.out_dir),
+            None => Vec::new(),
+        },
         view: view_file,
         warnings,
         wall_seconds: t0.elapsed().as_secs_f64(),

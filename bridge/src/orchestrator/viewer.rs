@@ -51,20 +51,26 @@ pub struct ViewOptions {
     pub mode: ViewMode,
     /// The web viewer's port (`--view web`; default: a free one).
     pub web_port: Option<u16>,
+    /// MP4s of these references' loops (`--video 0,3`; a `[control]` loop is reference 0),
+    /// written into `videos/` beside `view.rrd`.
+    pub video: Option<String>,
 }
 
 /// By how much the viewer's nice value is raised above the run's.
 const VIEWER_NICE: i32 = 10;
 /// How long the viewer is given to subscribe (importing Rerun takes a few seconds).
 const READY: Duration = Duration::from_secs(60);
-/// How long the viewer is given to write `view.rrd` once the run has ended.
+/// How long the viewer is given to write `view.rrd` once the run has ended (and, with
+/// `--video`, to render the frames it has not rendered yet).
 const FLUSH: Duration = Duration::from_secs(60);
+const FLUSH_WITH_VIDEO: Duration = Duration::from_secs(1800);
 
 /// The running viewer.
 pub struct ViewerProc {
     child: ChildProc,
     rrd: PathBuf,
     out_dir: PathBuf,
+    video: bool,
 }
 
 /// What `python -m koopbridge.view` is started with to follow session `session` at `endpoint`
@@ -90,6 +96,9 @@ pub fn viewer_args(opts: &ViewOptions, session: &str, endpoint: &str, rrd: &Path
     }
     if let (ViewMode::Web, Some(p)) = (opts.mode, opts.web_port) {
         a.extend(["--web-port".into(), p.to_string()]);
+    }
+    if let Some(refs) = &opts.video {
+        a.extend(["--video".into(), refs.clone()]);
     }
     a
 }
@@ -131,6 +140,7 @@ impl ViewerProc {
                     child,
                     rrd,
                     out_dir: out_dir.to_path_buf(),
+                    video: opts.video.is_some(),
                 });
             }
             let why = match child.exited() {
@@ -155,6 +165,20 @@ impl ViewerProc {
         }
     }
 
+    /// The MP4s the viewer wrote (`videos/*.mp4`), by name.
+    pub fn videos(out_dir: &Path) -> Vec<PathBuf> {
+        let mut v: Vec<PathBuf> = std::fs::read_dir(out_dir.join("videos"))
+            .into_iter()
+            .flatten()
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| p.extension().is_some_and(|e| e == "mp4"))
+            .filter(|p| !p.to_string_lossy().ends_with(".part.mp4"))
+            .collect();
+        v.sort();
+        v
+    }
+
     /// The web viewer's address, once the viewer has written it (`view.json`).
     pub fn web_url(&self) -> Option<String> {
         let text = std::fs::read_to_string(self.out_dir.join("view.json")).ok()?;
@@ -172,7 +196,8 @@ impl ViewerProc {
             ));
         }
         self.child.release();
-        self.child.reap(Instant::now() + FLUSH);
+        let grace = if self.video { FLUSH_WITH_VIDEO } else { FLUSH };
+        self.child.reap(Instant::now() + grace);
         match self.rrd.is_file() {
             true => Ok(self.rrd),
             false => Err(format!(
@@ -193,6 +218,7 @@ mod tests {
         let o = ViewOptions {
             mode: ViewMode::Web,
             web_port: Some(9090),
+            video: None,
         };
         let a = viewer_args(&o, "s1", "tcp/127.0.0.1:7000", Path::new("out/view.rrd"));
         let line = a.join(" ");
@@ -211,8 +237,10 @@ mod tests {
         let r = ViewOptions {
             mode: ViewMode::Record,
             web_port: Some(9090),
+            video: Some("0,3".into()),
         };
         let a = viewer_args(&r, "s1", "e", Path::new("v.rrd"));
         assert!(!a.iter().any(|s| s.starts_with("--web")), "{a:?}");
+        assert!(a.ends_with(&["--video".into(), "0,3".into()]), "{a:?}");
     }
 }

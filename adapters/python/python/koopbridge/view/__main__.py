@@ -33,6 +33,13 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--web", action="store_true", help="Rerun's web viewer on local ports (its address is printed and written to view.json beside --save)")
     g.add_argument("--native", action="store_true", help="Rerun's desktop viewer (needs a display)")
     g.add_argument("--web-port", type=int, metavar="PORT", help="the web viewer's port (default: a free one)")
+    g.add_argument(
+        "--video",
+        metavar="REFS",
+        help="MP4s of these references' loops (comma-separated indices; a [control] loop is 0) for MuJoCo simulators: "
+        "the robot beside its reference, rendered offscreen (MUJOCO_GL=egl unless set)",
+    )
+    g.add_argument("--video-dir", metavar="DIR", help="where the MP4s go (default: videos/ beside --save, else ./videos)")
     add_lifeline_argument(g)
     return p
 
@@ -59,6 +66,18 @@ def main(argv: list[str] | None = None) -> int:
         return open_recording(args.open, args.web)
     if not (args.save or args.web or args.native):
         args.native = True
+    video = None
+    if args.video:
+        from .video import VideoWriter, parse_episodes
+
+        try:
+            episodes = parse_episodes(args.video)
+        except ValueError as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
+        os.environ.setdefault("MUJOCO_GL", "egl")  # before MuJoCo is imported
+        folder = Path(args.video_dir) if args.video_dir else (Path(args.save).parent / "videos" if args.save else Path("videos"))
+        video = VideoWriter(folder, episodes)
     rec = rr.RecordingStream("koopbridge", recording_id=args.session)
     sinks = Sinks(args.save, args.web, args.native, args.web_port)
     try:
@@ -88,12 +107,15 @@ def main(argv: list[str] | None = None) -> int:
             os.replace(tmp, meta)
 
     try:
-        log = follow(s, args.session, args.id, rec, stop, ready)
+        log = follow(s, args.session, args.id, rec, stop, ready, video)
     except KeyboardInterrupt:
         log = None
     finally:
         sinks.close(rec)
         s.close()
+        if video is not None:
+            for f in video.close():
+                print(f"koopbridge view: video {f}", file=sys.stderr)
     if log is not None:
         import resource
 

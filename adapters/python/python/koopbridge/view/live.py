@@ -100,6 +100,7 @@ def follow(
     rec: rr.RecordingStream,
     stop: threading.Event,
     ready: Any = None,
+    video: Any = None,
 ) -> RunLogger:
     """Shows session ``session`` in ``rec`` until ``stop`` is set, then drains what arrived.
     ``ready()`` is called once subscribed, before the liveliness token is declared (whoever waits
@@ -122,7 +123,7 @@ def follow(
             return SimLayout.unnamed(nx, nu)
         return SimLayout.from_info(info, robot_for(info))
 
-    log = RunLogger(rec, layout_of, layout)
+    log = RunLogger(rec, layout_of, layout, video)
     log.send_layout()
     models: dict[str, str | None] = {}
     t0 = time.monotonic()

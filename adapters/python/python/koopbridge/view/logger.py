@@ -13,6 +13,7 @@ import rerun as rr
 
 from .columns import BATCH, Columns, Times
 from .robots import GHOST_OFFSET, RobotPoser
+from .video import VideoWriter
 
 __all__ = ["RunLogger", "SimLayout", "loop_path", "path_chunk", "state_groups"]
 
@@ -61,6 +62,7 @@ class SimLayout:
     u_max: list[float]
     groups: list[tuple[str, list[int]]] = field(default_factory=list)
     robot: RobotPoser | None = None
+    dt: float = 0.0
 
     @staticmethod
     def from_info(info: dict[str, Any], robot: RobotPoser | None = None) -> SimLayout:
@@ -72,6 +74,7 @@ class SimLayout:
             u_max=[_num(v) for v in info.get("u_max", [])],
             groups=state_groups(names, state_units(info)),
             robot=robot,
+            dt=_num(info.get("dt", 0.0)),
         )
 
     @staticmethod
@@ -106,15 +109,18 @@ def _vec(v: Sequence[Any] | None) -> np.ndarray:
 class RunLogger:
     """Logs the view messages of one run into a Rerun recording (``rec``). ``layout_of(sim, nx,
     nu)`` gives a simulator's :class:`SimLayout` (asked once per simulator); ``blueprint(layouts)``
-    the viewer's layout for the simulators seen so far (sent again when one appears)."""
+    the viewer's layout for the simulators seen so far (sent again when one appears); ``video``
+    renders the chosen references' loops of MuJoCo simulators into MP4s."""
 
     def __init__(
         self,
         rec: rr.RecordingStream,
         layout_of: Callable[[str, int, int], SimLayout],
         blueprint: Callable[[Mapping[str, SimLayout]], Any] | None = None,
+        video: VideoWriter | None = None,
     ) -> None:
         self.rec = rec
+        self.video = video
         self._blueprint = blueprint
         self._layout_of = layout_of
         self._layouts: dict[str, SimLayout] = {}
@@ -170,6 +176,8 @@ class RunLogger:
                 cols.strips(at(f"plan/{g}"), times, np.stack([np.column_stack([ahead, p[:, i]]) for i in idx]))
         if lay.robot is not None:
             self._robot(sim, lay.robot, x, ref if len(ref) == len(x) else None, times)
+            if self.video is not None and self.video.wants(episode):
+                self.video.add(lay.robot, sim, row, episode, k, lay.dt, x, ref if len(ref) == len(x) else None)
         self.steps_logged += 1
 
     def _robot(self, sim: str, robot: RobotPoser, x: np.ndarray, ref: np.ndarray | None, times: Times) -> None:
