@@ -133,7 +133,7 @@ def test_plan_strips_start_at_the_state_and_span_the_horizon(tmp_path):
     assert sorted(strips) == list(range(30))
     theta = np.array(strips[5][0])  # the first state's planned curve at step 5: (t, theta) pairs
     assert theta.shape == (11, 2)
-    np.testing.assert_allclose(theta[:, 0], np.arange(11))
+    np.testing.assert_allclose(theta[:, 0], np.arange(11) * 0.02)  # seconds ahead (dt = 0.02 s)
     assert theta[0, 1] == pytest.approx(c["x"][5][0], abs=1e-5)
 
 

@@ -22,7 +22,7 @@
 //! - [`compare`]: the models of a run (one per simulator and `[train].model` kind) side by side;
 //! - [`view`]: what a viewer shows, published while someone watches; [`viewer`]: the viewer
 //!   process of `--view` / `--record-view`;
-//! - [`run`]: the whole scenario ([`run_scenario`]) and its report.
+//! - [`run`]: the whole scenario ([`run_scenario`]); [`report`]: its report (`report.json`).
 
 pub mod aggregate;
 pub mod authority;
@@ -40,6 +40,7 @@ pub mod position_loop;
 pub mod program;
 pub mod reference;
 pub mod reference_set;
+pub mod report;
 pub mod reuse;
 pub mod run;
 pub mod survival;

@@ -144,11 +144,17 @@ pub fn tracking_phase(
                 )));
                 let t0 = Instant::now();
                 let mut scored = Vec::new();
+                // The view tells the replays of perturbed tasks apart by the task's label.
+                let shown_as = match &t.label {
+                    Some(l) if !l.is_empty() => format!("{REPLAY_ROW}+{l}"),
+                    _ => REPLAY_ROW.to_string(),
+                };
                 for i in 0..refs.len() {
                     let u = &refs.u.as_ref().expect("checked above")[i];
                     let how = How {
                         row: Row::Replay(u),
                         model: "",
+                        shown_as: &shown_as,
                         horizon: mpc.horizon,
                         steps,
                         perturbation: perturbations.get(i),
@@ -209,6 +215,7 @@ pub fn tracking_phase(
                 let how = How {
                     row,
                     model: &model,
+                    shown_as: &name,
                     horizon: mpc.horizon,
                     steps,
                     perturbation: perturbations.get(i),
@@ -270,12 +277,13 @@ enum Row<'a> {
     ErrorState,
 }
 
-/// How one run is driven: its row, the model served, the MPC horizon, the steps at most, the
-/// perturbation, the view.
+/// How one run is driven: its row, the model served, the row's name in the view, the MPC
+/// horizon, the steps at most, the perturbation, the view.
 #[derive(Clone, Copy)]
 struct How<'a> {
     row: Row<'a>,
     model: &'a str,
+    shown_as: &'a str,
     horizon: usize,
     steps: usize,
     perturbation: Option<&'a Perturbation>,
@@ -318,10 +326,7 @@ fn run_one(
         perturbation: how.perturbation,
         view: Some(StepView {
             view: how.view,
-            row: match how.row {
-                Row::Replay(_) => "replay",
-                _ => how.model,
-            },
+            row: how.shown_as,
             episode: Some(i),
         }),
     };

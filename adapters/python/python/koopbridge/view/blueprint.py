@@ -23,7 +23,7 @@ def _sim_tab(sim: str, lay: SimLayout) -> rrb.Container:
     if lay.robot is not None:
         side.append(rrb.Spatial3DView(origin=f"/robot/{s}", name=f"{sim} (reference: the blue ghost)"))
     side += [
-        rrb.Spatial2DView(origin=f"/control/{s}/plan", name=f"{sim}: MPC plan (x̂ against steps ahead)"),
+        rrb.Spatial2DView(origin=f"/control/{s}/plan", name=f"{sim}: MPC plan (x̂ against seconds ahead)"),
         rrb.TimeSeriesView(origin=f"/control/{s}/solve_us", name=f"{sim}: solve time (µs)"),
     ]
     return rrb.Horizontal(rrb.Vertical(*plots), rrb.Vertical(*side), column_shares=[3, 2], name=sim)

@@ -171,7 +171,9 @@ class RunLogger:
         plan = m.get("plan")
         if plan:
             p = np.array([[_num(v) for v in r] for r in plan], dtype=np.float64)
-            ahead = np.arange(len(p), dtype=np.float64)  # steps ahead of this one: a fixed axis
+            # Seconds ahead of this state: a fixed axis on the scale of the states (a 2D view keeps
+            # its aspect ratio, so steps ahead would flatten every curve).
+            ahead = np.arange(len(p), dtype=np.float64) * (lay.dt if lay.dt > 0 else 1.0)
             for g, idx in lay.groups:
                 cols.strips(at(f"plan/{g}"), times, np.stack([np.column_stack([ahead, p[:, i]]) for i in idx]))
         if lay.robot is not None:
