@@ -50,7 +50,7 @@ from pathlib import Path
 import imageio.v3 as iio
 from PIL import Image
 report = json.loads((Path(sys.argv[1]) / "report.json").read_text())
-videos = [v for v in report["videos"] if "error-state" in v] or report["videos"]
+videos = [v for v in report["videos"] if "error-state" in v and "-edmd" not in v] or report["videos"]
 frames = iio.imread(videos[0])
 Image.fromarray(frames[min(50, len(frames) - 1)]).save(sys.argv[2], optimize=True)
 print("wrote", sys.argv[2], "from", videos[0])

@@ -179,7 +179,7 @@ class RunLogger:
         if lay.robot is not None:
             self._robot(sim, lay.robot, x, ref if len(ref) == len(x) else None, times)
             if self.video is not None and self.video.wants(episode):
-                self.video.add(lay.robot, sim, row, episode, k, lay.dt, x, ref if len(ref) == len(x) else None)
+                self.video.add(lay.robot, sim, row, episode, k, lay.dt, x, ref if len(ref) == len(x) else None, last=u is None)
         self.steps_logged += 1
 
     def _robot(self, sim: str, robot: RobotPoser, x: np.ndarray, ref: np.ndarray | None, times: Times) -> None:

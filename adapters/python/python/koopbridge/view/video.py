@@ -47,10 +47,13 @@ class VideoWriter:
     def wants(self, episode: int | None) -> bool:
         return (0 if episode is None else episode) in self.episodes
 
-    def add(self, robot: RobotPoser, sim: str, row: str, episode: int | None, k: int, dt: float, x: np.ndarray, ref: np.ndarray | None) -> None:
-        """One state of a loop: a frame of the robot at ``x`` beside the reference ``ref``."""
+    def add(
+        self, robot: RobotPoser, sim: str, row: str, episode: int | None, k: int, dt: float, x: np.ndarray, ref: np.ndarray | None, last: bool = False
+    ) -> None:
+        """One state of a loop: a frame of the robot at ``x`` beside the reference ``ref``; the
+        loop's ``last`` state writes its file (so that no finished loop is held in memory)."""
         stride = max(1, round(1.0 / (self.fps * dt))) if dt > 0 else 1
-        if k % stride:
+        if k % stride and not last:
             return  # frames at about `fps` of simulated time
         key = (sim, row, 0 if episode is None else episode)
         clip = self._clips.get(key)
@@ -66,6 +69,8 @@ class VideoWriter:
         frame = np.concatenate([left, right if right is not None else np.zeros_like(left)], axis=1)
         error = float(np.mean(np.abs(x - ref))) if ref is not None and len(ref) == len(x) else float("nan")
         clip.frames.append(_caption(frame, f"{sim} · {row} · reference {key[2]}", f"step {k}  t = {k * dt:.2f} s  mean |x - r| = {error:.3f}"))
+        if last:
+            self._write(clip)
 
     def _render(self, robot: RobotPoser, x: np.ndarray) -> np.ndarray | None:
         import mujoco
@@ -104,7 +109,8 @@ class VideoWriter:
         part = clip.path.with_name(clip.path.name + ".part.mp4")
         iio.imwrite(part, np.stack(clip.frames), fps=self.fps, codec="libx264", macro_block_size=16)
         part.replace(clip.path)
-        self.written.append(clip.path)
+        if clip.path not in self.written:
+            self.written.append(clip.path)
         clip.frames.clear()
 
     def close(self) -> list[Path]:
