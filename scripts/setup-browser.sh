@@ -7,7 +7,8 @@ set -euo pipefail
 packages=(chromium libegl1 libgl1-mesa-dri)
 missing=()
 for p in "${packages[@]}"; do
-  dpkg -s "$p" > /dev/null 2>&1 || missing+=("$p")
+  # "install ok installed" only: a removed package keeps its config files and `dpkg -s` succeeds.
+  [ "$(dpkg-query -W -f='${Status}' "$p" 2> /dev/null)" = "install ok installed" ] || missing+=("$p")
 done
 if [ "${#missing[@]}" -eq 0 ]; then
   exit 0
