@@ -193,3 +193,30 @@ def repo_tmp():
     d = Path(tempfile.mkdtemp(prefix="pytest-scenario-", dir=base))
     yield d
     shutil.rmtree(d, ignore_errors=True)
+
+
+def idp_scenario(name: str, steps: int) -> str:
+    """A small Gymnasium InvertedDoublePendulum-v5 scenario (the shipped one's data box and MPC,
+    EDMD only, a few hundred windows; `steps` closed-loop steps) for the live view's tests."""
+    return f"""
+name = "{name}"
+[[sims]]
+id = "cart"
+command = ["{{python}}", "-m", "koopbridge.adapters.gym", "InvertedDoublePendulum-v5", "--quiet"]
+[collect]
+policy = {{ kind = "uniform", low = -0.1, high = 0.1 }}
+x0_center = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+x0_radius = [0.05, 0.03, 0.03, 0.1, 0.1, 0.1]
+train_windows = 200
+val_windows = 40
+test_windows = 40
+steps = 5
+seed = 42
+[train]
+model = "edmd"
+[control]
+x0 = [0.0, 0.05, 0.05, 0.0, 0.0, 0.0]
+reference = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+steps = {steps}
+mpc = {{ horizon = 30, q = [10.0, 10.0, 10.0, 0.1, 0.1, 0.1], r = [0.3] }}
+"""

@@ -16,7 +16,7 @@ import pytest
 rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
-from conftest import koopbridge_binary_or_skip, scenario_env  # noqa: E402
+from conftest import idp_scenario, koopbridge_binary_or_skip, scenario_env  # noqa: E402
 from koopbridge.view import loop_path, state_groups  # noqa: E402
 
 SCENARIO = """
@@ -170,28 +170,7 @@ def test_state_plots_follow_the_simulator_s_units_and_stay_readable():
     assert state_groups(["a", "b"]) == [("states", [0, 1])]
 
 
-GYM = """
-name = "view-video"
-[[sims]]
-id = "cart"
-command = ["{python}", "-m", "koopbridge.adapters.gym", "InvertedDoublePendulum-v5", "--quiet"]
-[collect]
-policy = { kind = "uniform", low = -0.1, high = 0.1 }
-x0_center = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
-x0_radius = [0.05, 0.03, 0.03, 0.1, 0.1, 0.1]
-train_windows = 200
-val_windows = 40
-test_windows = 40
-steps = 5
-seed = 42
-[train]
-model = "edmd"
-[control]
-x0 = [0.0, 0.05, 0.05, 0.0, 0.0, 0.0]
-reference = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
-steps = 40
-mpc = { horizon = 30, q = [10.0, 10.0, 10.0, 0.1, 0.1, 0.1], r = [0.3] }
-"""
+GYM = idp_scenario("view-video", steps=40)
 
 
 def test_video_renders_each_state_beside_its_reference(tmp_path):

@@ -19,30 +19,9 @@ import pytest
 pytest.importorskip("rerun")
 pytest.importorskip("gymnasium")
 
-from conftest import ROOT, Child, free_endpoint, koopbridge_binary_or_skip, scenario_env  # noqa: E402
+from conftest import ROOT, Child, free_endpoint, idp_scenario, koopbridge_binary_or_skip, scenario_env  # noqa: E402
 
-SCENARIO = """
-name = "view-browser"
-[[sims]]
-id = "cart"
-command = ["{python}", "-m", "koopbridge.adapters.gym", "InvertedDoublePendulum-v5", "--quiet"]
-[collect]
-policy = { kind = "uniform", low = -0.1, high = 0.1 }
-x0_center = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
-x0_radius = [0.05, 0.03, 0.03, 0.1, 0.1, 0.1]
-train_windows = 200
-val_windows = 40
-test_windows = 40
-steps = 5
-seed = 42
-[train]
-model = "edmd"
-[control]
-x0 = [0.0, 0.05, 0.05, 0.0, 0.0, 0.0]
-reference = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
-steps = 150
-mpc = { horizon = 30, q = [10.0, 10.0, 10.0, 0.1, 0.1, 0.1], r = [0.3] }
-"""
+SCENARIO = idp_scenario("view-browser", steps=150)
 
 
 def chromium_or_skip() -> None:

@@ -37,7 +37,8 @@ impl std::fmt::Debug for RunView {
 /// One state of a closed loop (or replay) as a viewer sees it (`…/view/{sim}/step`, JSON).
 #[derive(Debug, Serialize)]
 pub struct ViewStep<'a> {
-    /// The row: the model controlling, or `replay`.
+    /// The row's name as report.json gives it (a `[control]` loop: its model; a tracking task's
+    /// row: `{model}+{label}`; a replay: `replay` or `replay+{label}`).
     pub row: &'a str,
     /// The reference's index in a tracking task's set; absent for a `[control]` loop.
     pub episode: Option<usize>,

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import rerun as rr
 
-from .columns import BATCH, Columns, Times
+from .columns import Columns, Times
 from .robots import GHOST_OFFSET, RobotPoser
 from .video import VideoWriter
 
@@ -127,7 +127,6 @@ class RunLogger:
         self._declared: set[str] = set()
         self._ticks: dict[str, int] = {}
         self._jobs: dict[str, str] = {}
-        self._poses: dict[str, tuple[dict[tuple[str, str], list[float]], list[tuple[np.ndarray, np.ndarray]]]] = {}
         self._robots_drawn: set[str] = set()
         self._columns = Columns(rec)
         self.steps_logged = 0
@@ -191,28 +190,13 @@ class RunLogger:
             robot.log_geometry(self.rec, f"{root}/reference", ghost=True)
         for which, state, offset in (("actual", x, None), ("reference", ref, GHOST_OFFSET)):
             pose = None if state is None else robot.pose(state, offset)
-            if pose is None:
-                continue
-            buf = self._poses.setdefault(f"{root}/{which}", ({}, []))
-            for key, v in times.items():
-                buf[0].setdefault(key, []).append(v)
-            buf[1].append(pose)
-            if len(buf[1]) >= BATCH:
-                self._flush_poses(f"{root}/{which}", robot)
-
-    def _flush_poses(self, root: str, robot: RobotPoser) -> None:
-        times, poses = self._poses.pop(root, ({}, []))
-        robot.log_poses(self.rec, root, times, poses)
+            if pose is not None:
+                self._columns.pose(f"{root}/{which}", times, robot, pose)
 
     def flush(self) -> None:
         """Sends the queued rows and robot poses (call when nothing else is waiting, and at the
         end)."""
         self._columns.flush()
-        for root in list(self._poses):
-            sim = root.split("/")[1]
-            lay = next((lay for s, lay in self._layouts.items() if path_chunk(s) == sim), None)
-            if lay is not None and lay.robot is not None:
-                self._flush_poses(root, lay.robot)
 
     def _declare(self, sim: str, row: str, episode: int | None, lay: SimLayout) -> None:
         """The series names of one loop's entities, once (static)."""

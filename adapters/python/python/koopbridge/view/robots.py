@@ -77,15 +77,11 @@ class RobotPoser:
             pos += offset
         return pos, np.array(d.geom_xmat[self.geoms])
 
-    def log_poses(
-        self, rec: rr.RecordingStream, root: str, times: dict[tuple[str, str], list[float]], poses: list[tuple[np.ndarray, np.ndarray]]
-    ) -> None:
-        """Several poses at once (one column per geom: tens of times cheaper than a log call per
-        geom and step), at ``times`` ((timeline, ``sequence`` or ``duration``) -> one value per
-        pose)."""
+    def log_poses(self, rec: rr.RecordingStream, root: str, index: list[rr.TimeColumn], poses: list[tuple[np.ndarray, np.ndarray]]) -> None:
+        """Several poses at once, at the times ``index`` (one per pose): one column per geom, tens
+        of times cheaper than a log call per geom and step."""
         if not poses:
             return
-        index = [rr.TimeColumn(name, sequence=[int(t) for t in v]) if kind == "sequence" else rr.TimeColumn(name, duration=v) for (name, kind), v in times.items()]
         pos = np.stack([p for p, _ in poses])
         mat = np.stack([m for _, m in poses])
         for j, g in enumerate(self.geoms):
