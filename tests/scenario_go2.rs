@@ -126,7 +126,35 @@ fn go2_survival_scenario_tracks_in_the_engine_as_the_python_loop_did() {
         "Q's weighted states"
     );
     assert!(es["r"].as_array().unwrap().iter().all(|v| v == 1.0), "{es}");
-    for f in ["tracking/survival.png", "tracking/table.md"] {
+    // The RL expert's row (the after-control hook `legged_expert_row`): every survival task but
+    // aggregation, its survivals within the references' length.
+    let expert = report["expert"]["tasks"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no expert row in report.json: {}", report["expert"]));
+    let names: Vec<&str> = expert.iter().map(|e| e["task"].as_str().unwrap()).collect();
+    assert_eq!(
+        names,
+        [
+            "nominal",
+            "error-state",
+            "push",
+            "mass",
+            "friction",
+            "mass-friction"
+        ]
+    );
+    for e in expert {
+        let s = e["survivals"].as_array().unwrap();
+        assert!(
+            s.len() == 2 && s.iter().all(|v| v.as_u64().is_some_and(|v| v <= 40)),
+            "{e}"
+        );
+    }
+    for f in [
+        "tracking/survival.png",
+        "tracking/table.md",
+        "tracking/expert.md",
+    ] {
         let len = std::fs::metadata(out.join(f)).map(|m| m.len());
         assert!(len.is_ok_and(|n| n > 0), "{f} missing or empty");
     }

@@ -415,7 +415,28 @@ impl SimClient {
     pub fn reset(&mut self, req: &ResetRequest) -> Result<StepReply> {
         let key = self.client.keys.sim(&self.id, SimLeaf::Reset)?;
         let body = serde_json::to_vec(req).map_err(|e| Error::Config(e.to_string()))?;
-        let b = self.client.query(&key, body, self.timeout, &self.who())?;
+        let began = Instant::now();
+        let mut unroutable = 0;
+        let b = loop {
+            match self
+                .client
+                .query(&key, body.clone(), self.timeout, &self.who())
+            {
+                Err(Error::Timeout { after_ms, .. })
+                    if self.may_resend_unroutable(began, after_ms, unroutable) =>
+                {
+                    self.wait_unroutable("reset", &mut unroutable)
+                }
+                Err(Error::Timeout { who, what, .. }) => {
+                    return Err(Error::Timeout {
+                        who,
+                        what,
+                        after_ms: began.elapsed().as_millis() as u64,
+                    })
+                }
+                r => break r?,
+            }
+        };
         let r = StepReply::decode(&b)?;
         self.k = r.k;
         Ok(r)
@@ -432,8 +453,34 @@ impl SimClient {
             .start(&self.step_key, body, self.timeout, &self.who())
     }
 
-    /// Waits for a step started by [`SimClient::start_step`]; on timeout, re-sends the same
-    /// request up to `retries` times; checks that the reply's k is k + 1.
+    /// Whether a request whose query ended after `after_ms` with no reply found no route to the
+    /// simulator and may be sent again: it ended well before its deadline (nothing answered it,
+    /// so nothing was applied twice: the adapter answers a repeated step from its cache) and
+    /// the backoff of resend no. `unroutable` still fits in the step timeout counted from `began`.
+    /// Seen through a router re-establishing a simulator's link under load (a TLS router in CI):
+    /// the queryable is unroutable for a moment and every query ends at once.
+    fn may_resend_unroutable(&self, began: Instant, after_ms: u64, unroutable: u32) -> bool {
+        let ended_early = u128::from(after_ms) * 2 < self.timeout.as_millis();
+        ended_early && began.elapsed() + unroutable_backoff(unroutable) < self.timeout
+    }
+
+    /// Sleeps resend no. `unroutable`'s backoff (warning on the first) and counts it.
+    fn wait_unroutable(&self, what: &str, unroutable: &mut u32) {
+        if *unroutable == 0 {
+            tracing::warn!(
+                "{} is not routable for {what} {}; re-sending until it is (for up to {:?})",
+                self.who(),
+                self.k,
+                self.timeout
+            );
+        }
+        std::thread::sleep(unroutable_backoff(*unroutable));
+        *unroutable += 1;
+    }
+
+    /// Waits for a step started by [`SimClient::start_step`]; a request that found no route is
+    /// re-sent with backoff while the step timeout lasts; one that timed out is re-sent up to
+    /// `retries` times; checks that the reply's k is k + 1.
     pub fn finish_step(
         &mut self,
         pending: PendingQuery,
@@ -442,6 +489,8 @@ impl SimClient {
     ) -> Result<StepReply> {
         let mut pending = pending;
         let mut attempt = 0;
+        let began = Instant::now();
+        let mut unroutable = 0;
         loop {
             let watch = live.map(|l| (l, Role::Sim, self.id.as_str()));
             match pending.wait(watch) {
@@ -473,20 +522,27 @@ impl SimClient {
                     self.k = r.k;
                     return Ok(r);
                 }
-                Err(Error::Timeout { after_ms, .. }) if attempt < self.retries => {
+                Err(Error::Timeout { after_ms, .. })
+                    if self.may_resend_unroutable(began, after_ms, unroutable) =>
+                {
+                    self.wait_unroutable("step", &mut unroutable);
+                    pending = self.start_step(u)?;
+                }
+                Err(Error::Timeout { .. }) if attempt < self.retries => {
                     attempt += 1;
                     tracing::warn!(
                         "{} did not answer step {}; retry {attempt}",
                         self.who(),
                         self.k
                     );
-                    // A query that ended at once with no reply found no route to the queryable
-                    // (a router between the peers briefly without it, seen under load through a
-                    // TLS router): resending at once meets the same gap, so wait a little.
-                    if after_ms < 50 {
-                        std::thread::sleep(Duration::from_millis(25 * attempt as u64));
-                    }
                     pending = self.start_step(u)?;
+                }
+                Err(Error::Timeout { who, what, .. }) => {
+                    return Err(Error::Timeout {
+                        who,
+                        what,
+                        after_ms: began.elapsed().as_millis() as u64,
+                    })
                 }
                 Err(e) => return Err(e),
             }
@@ -498,6 +554,11 @@ impl SimClient {
         let p = self.start_step(u)?;
         self.finish_step(p, u, live)
     }
+}
+
+/// The wait before resend no. `n` of a request that found no route: 25 ms, doubling to 400 ms.
+fn unroutable_backoff(n: u32) -> Duration {
+    Duration::from_millis(25 << n.min(4))
 }
 
 /// Steps every simulator concurrently (all requests first, then all replies) with its own input.
@@ -548,5 +609,92 @@ mod tests {
             Ok(_) => panic!("connected to a simulator that does not exist"),
         }
         assert!(t.elapsed() >= wait, "gave up early: {:?}", t.elapsed());
+    }
+
+    /// A lockstep client of simulator `id` without its `info` barrier: `nx` 1, at step 0.
+    fn bare_sim_client(c: &Client, id: &str, timeout: Duration) -> SimClient {
+        let info = InfoReply {
+            protocol_version: PROTOCOL_VERSION,
+            id: id.into(),
+            mode: "lockstep".into(),
+            k: 0,
+            sim: crate::messages::SimInfo {
+                env: "test".into(),
+                kind: "test".into(),
+                version: "0".into(),
+                dt: 0.1,
+                state_names: vec!["x".into()],
+                input_names: vec!["u".into()],
+                u_min: vec![f64::NEG_INFINITY],
+                u_max: vec![f64::INFINITY],
+                angle_indices: vec![],
+                extra: Default::default(),
+            },
+            stats: Default::default(),
+        };
+        SimClient {
+            client: c.clone(),
+            id: id.into(),
+            info,
+            k: 0,
+            timeout,
+            retries: 2,
+            step_key: c.keys.sim(id, SimLeaf::Step).unwrap(),
+        }
+    }
+
+    /// A step sent while the simulator's queryable is not routable (every query ends at once)
+    /// is sent again until it is: here the queryable appears 400 ms later, well past the two
+    /// retries' worth of immediate failures, and the step gets its reply.
+    #[test]
+    fn a_step_is_resent_until_the_simulator_is_routable() {
+        let s = open_session(&ZenohOptions::default()).unwrap();
+        let c = Client::new(s.clone(), Keys::new("unroutable-sim-test").unwrap());
+        let key = c.keys.sim("late", SimLeaf::Step).unwrap();
+        let server = std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(400));
+            let q = s.declare_queryable(key).wait().unwrap();
+            let query = q.recv().unwrap();
+            let req = StepRequest::decode(&query.payload().unwrap().to_bytes()).unwrap();
+            let reply = StepReply {
+                k: req.k + 1,
+                t: 0.1,
+                x: vec![req.u[0] * 2.0],
+                status: Default::default(),
+            };
+            query
+                .reply(query.key_expr().clone(), reply.encode())
+                .wait()
+                .unwrap();
+            std::thread::sleep(Duration::from_millis(200));
+        });
+        let mut sim = bare_sim_client(&c, "late", Duration::from_secs(3));
+        let t = Instant::now();
+        let r = sim.step(&[0.5], None).unwrap();
+        assert_eq!((r.k, r.x.clone()), (1, vec![1.0]));
+        assert!(
+            t.elapsed() >= Duration::from_millis(400),
+            "{:?}",
+            t.elapsed()
+        );
+        server.join().unwrap();
+    }
+
+    /// A simulator that never becomes routable: the step gives up once its timeout has passed
+    /// (not after the retries' few immediate failures) and the error names the whole wait.
+    #[test]
+    fn an_unroutable_simulator_times_out_after_the_step_timeout() {
+        let s = open_session(&ZenohOptions::default()).unwrap();
+        let c = Client::new(s, Keys::new("unroutable-sim-test-2").unwrap());
+        let wait = Duration::from_millis(800);
+        let mut sim = bare_sim_client(&c, "nobody", wait);
+        let t = Instant::now();
+        match sim.step(&[0.5], None) {
+            Err(Error::Timeout { after_ms, .. }) => {
+                assert!(after_ms >= 400, "gave up after {after_ms} ms");
+                assert!(t.elapsed() < wait * 2, "{:?}", t.elapsed());
+            }
+            other => panic!("expected a timeout, got {other:?}"),
+        }
     }
 }

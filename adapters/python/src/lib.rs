@@ -8,6 +8,7 @@
 //!   [`control`] for the JSON control plane through the `bridge` types;
 //! - [`systems`]: `ReferenceSystem`, the built-in Rust reference dynamics;
 //! - [`planner`]: `PlannerService`, a Python planner served at `…/planner/{id}/plan`;
+//! - [`survival`]: `survival`, the scenario engine's survival metric of a tracking task;
 //! - [`errors`]: the exception types; [`convert`]: numpy conversions; [`zenoh_args`]: the
 //!   Zenoh arguments as `ZenohOptions`.
 
@@ -21,6 +22,7 @@ mod errors;
 mod model;
 mod mpc;
 mod planner;
+mod survival;
 mod systems;
 mod zenoh_args;
 
@@ -35,6 +37,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<client::Client>()?;
     m.add_class::<systems::ReferenceSystem>()?;
     m.add_class::<planner::PlannerService>()?;
+    m.add_function(wrap_pyfunction!(survival::survival, m)?)?;
     errors::register(py, m)?;
     m.add("PROTOCOL_VERSION", bridge::codec::PROTOCOL_VERSION)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;

@@ -150,6 +150,12 @@ def test_the_g1_survival_toml_through_koopbridge_run(tmp_path):
     mpc = rows["g1-survival-g1+error-state"]["mpc"]
     assert [i for i, w in enumerate(mpc["q"]) if w > 0] == list(range(10, 31)) and mpc["r"] == [1.0] * 23
     assert (out / "tracking" / "table.md").stat().st_size > 0
+    # The RL expert's row (the after-control hook): every survival task, its survivals finite
+    # and within the references' length, beside the others in tracking/expert.md.
+    expert = rep["expert"]["tasks"]
+    assert [e["task"] for e in expert] == ["nominal", "error-state", "push", "mass", "friction", "mass-friction"]
+    assert all(len(e["survivals"]) == 2 and all(0 <= v <= 40 for v in e["survivals"]) for e in expert), expert
+    assert "| push |" in (out / "tracking" / "expert.md").read_text()
     assert json.loads((out / "report.json").read_text())["train"][0]["model"] == "g1-survival-g1"
     assert (out / "models" / "g1-survival-g1" / "config.json").is_file()
     shutil.rmtree(out, ignore_errors=True)

@@ -41,6 +41,34 @@ pub fn survival_steps(failed: &[bool], length: usize) -> Result<usize, String> {
     }
 }
 
+/// Survival steps of a run of states `xs` (`xs[0]` the shared start) with the simulator's fall
+/// flags `terminated` (one per state) against `reference` (states `r_0 .. r_L`, the last held
+/// past its end), over `length` transitions: every state scored by [`fails`], then
+/// [`survival_steps`].
+pub fn survival_of_run(
+    xs: &[Vec<f64>],
+    terminated: &[bool],
+    reference: &[Vec<f64>],
+    length: usize,
+    spec: &SurvivalSpec,
+) -> Result<usize, String> {
+    if reference.is_empty() || xs.len() != terminated.len() {
+        return Err(format!(
+            "survival: {} states with {} fall flags against a reference of {} states",
+            xs.len(),
+            terminated.len(),
+            reference.len()
+        ));
+    }
+    let failed: Vec<bool> = xs
+        .iter()
+        .zip(terminated)
+        .enumerate()
+        .map(|(k, (s, &fell))| fails(s, &reference[k.min(reference.len() - 1)], fell, spec))
+        .collect();
+    survival_steps(&failed, length)
+}
+
 /// Mean, spread, quartiles, range and count of per-reference figures (the quartiles and median
 /// interpolated linearly between order statistics, as numpy's `percentile`).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]

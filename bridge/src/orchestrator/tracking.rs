@@ -21,7 +21,7 @@ use super::commands::Placeholders;
 use super::control_settings::mpc_config;
 use super::reference::{reference_path, Reference};
 use super::reference_set::ReferenceSet;
-use super::survival::{fails, mean_abs_error, survival_steps, windows, RunForWindows, Summary};
+use super::survival::{fails, mean_abs_error, survival_of_run, windows, RunForWindows, Summary};
 use super::view::{RunView, StepView};
 use super::{Event, SERVICES_ID};
 use crate::client::{Client, Liveliness, SimClient};
@@ -377,14 +377,7 @@ fn run_task(
     };
     let survival = match &t.survival {
         Some(spec) => {
-            let failed: Vec<bool> = report
-                .x
-                .iter()
-                .zip(&terminated)
-                .enumerate()
-                .map(|(k, (s, &fell))| fails(s, &x[k.min(x.len() - 1)], fell, spec))
-                .collect();
-            Some(survival_steps(&failed, steps).map_err(Error::Config)?)
+            Some(survival_of_run(&report.x, &terminated, x, steps, spec).map_err(Error::Config)?)
         }
         None => None,
     };

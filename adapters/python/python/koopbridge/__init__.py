@@ -34,6 +34,7 @@ from ._native import (
     RemoteError,
     Unsupported,
     __version__,
+    survival,
 )
 from .serving import SimulatorAdapter, run_main
 from .simulator import SimInfo, Simulator
@@ -57,4 +58,5 @@ __all__ = [
     "Unsupported",
     "__version__",
     "run_main",
+    "survival",
 ]

@@ -17,6 +17,7 @@ __all__ = [
     "Client",
     "ReferenceSystem",
     "PlannerService",
+    "survival",
     "KoopbridgeError",
     "RemoteError",
     "BridgeTimeout",
@@ -260,3 +261,14 @@ class PlannerService:
     def stop(self) -> None: ...
     @property
     def serving(self) -> bool: ...
+
+def survival(
+    x: _ArrayLike,
+    reference: _ArrayLike,
+    terminated: Sequence[bool],
+    threshold: float,
+    states: Sequence[int],
+    length: int | None = None,
+) -> int:
+    """Survival steps of the run ``x`` (with its fall flags) against ``reference``: the scenario engine's metric."""
+    ...

@@ -20,7 +20,7 @@ depends only on ``(policy, seed, window)`` still, so blocks resume bit for bit.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -29,7 +29,7 @@ import numpy as np
 from .._native import InvalidInput, KoopbridgeError
 from ..collect import Windows
 
-__all__ = ["ExpertPolicy", "ExpertRobot", "collect_expert"]
+__all__ = ["ExpertPolicy", "ExpertRobot", "collect_expert", "expert_rollouts"]
 
 #: Restarts after falls allowed in one episode before the collection gives up.
 MAX_RESTARTS = 50
@@ -47,7 +47,8 @@ class ExpertRobot(Protocol):
     u_hi: np.ndarray
     command_slew: np.ndarray
 
-    def reset(self, seed: int | None = None, x0: Any = None) -> np.ndarray: ...
+    def reset(self, seed: int | None = None, x0: Any = None, perturbation: dict[str, Any] | None = None) -> np.ndarray: ...
+    def step(self, u: Any) -> np.ndarray: ...
     def state(self) -> np.ndarray: ...
     def expert_reset(self) -> None: ...
     def expert_targets(self, command: np.ndarray) -> np.ndarray: ...
@@ -160,8 +161,9 @@ class _Episode:
             self.step()
         return np.asarray(self.robot.state(), dtype=np.float64)
 
-    def step(self) -> tuple[np.ndarray, np.ndarray]:
-        """One expert step; returns (next state, the targets applied)."""
+    def step(self, apply: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """One expert step through ``apply`` (default: the robot's ``advance``); returns (next
+        state, the targets applied)."""
         r = self.robot
         if self.k % self.command_steps == 0:
             self.goal = self.rng.uniform(self.low, self.high)
@@ -171,7 +173,7 @@ class _Episode:
             targets = targets + self.rng.normal(0.0, self.policy.noise, targets.shape)
         targets = np.clip(targets, r.u_lo, r.u_hi)
         self.k += 1
-        return r.advance(targets), targets
+        return (apply or r.advance)(targets), targets
 
 
 def collect_expert(robot: ExpertRobot, policy: ExpertPolicy, seed: int, n_windows: int, T: int, start: int = 0) -> Windows:
@@ -220,3 +222,57 @@ def collect_expert(robot: ExpertRobot, policy: ExpertPolicy, seed: int, n_window
                 x = np.asarray(robot.state(), dtype=np.float64)
         i = e * K + last
     return Windows(x=xs, u=us, seed=seed, start=start, reset_seeds=seeds)
+
+
+
+def _expert_run(robot: ExpertRobot, policy: ExpertPolicy, rng: np.random.Generator, T: int,
+                perturbation: Mapping[str, Any] | None) -> tuple[np.ndarray, np.ndarray]:
+    """One episode from ``rng``: the seeded reset and warm-up; with ``perturbation`` (not
+    ``None``) the robot then reset to that state as a reset request would (``reset(x0,
+    perturbation)``: the same state, the actuators' memory cold) and ``T`` expert steps through
+    ``step`` (the push at its step), else ``T`` steps on from the warm-up as the collection
+    runs them (ending at a fall, where the collection restarts the episode). A perturbed run
+    goes on after a fall. Returns x (T+1, nx) and each state's fall flag."""
+    ep = _Episode(robot, policy, rng, T)
+    x = np.empty((T + 1, robot.nx))
+    fell = np.zeros(T + 1, dtype=bool)
+    x[0] = ep.start()
+    apply = None
+    if perturbation is not None:
+        x[0] = robot.reset(x0=x[0], perturbation=dict(perturbation))
+        apply = robot.step
+    for t in range(T):
+        x[t + 1], _ = ep.step(apply)
+        fell[t + 1] = robot.is_fallen()
+        if fell[t + 1] and perturbation is None:  # the collection restarts here
+            return x[: t + 2], fell[: t + 2]
+    return x, fell
+
+
+def expert_rollouts(robot: ExpertRobot, policy: ExpertPolicy, seed: int, window: int, T: int,
+                    perturbations: list[Mapping[str, Any]]) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
+    """The expert's own closed loop on the tracking task of a reference: window ``window`` of
+    the collection with ``seed`` and one window per episode (``legged_references``' references)
+    walked again — the same episode, warm-up and velocity commands — once as collected (the
+    reference itself, bit for bit: the caller's check that this is its task) and once per entry
+    of ``perturbations`` from the reference's first state as the scenario engine's reset request
+    starts every row (a reset request's ``perturbation``: ``mass_scale``, ``friction_scale``,
+    ``push = {step, velocity}``; ``{}`` for the nominal robot), the expert acting instead of the
+    MPC, not stopped by a fall. Returns the collected run's states and, per perturbation, the
+    states and fall flags. ``InvalidInput`` for a policy with noise or several windows per
+    episode; ``KoopbridgeError`` when the episode keeps falling."""
+    if policy.windows_per_episode != 1 or policy.noise > 0:
+        raise InvalidInput("expert rollouts: the references' policy has one window per episode and no noise")
+    rng = np.random.default_rng([seed, window, 1])
+    for _ in range(MAX_RESTARTS + 1):  # the collection restarts an episode that falls
+        at_start = rng.bit_generator.state
+        collected, fell = _expert_run(robot, policy, rng, T, None)
+        if not fell.any():
+            break
+    else:
+        raise KoopbridgeError(f"expert rollouts: episode {window} of seed {seed} fell {MAX_RESTARTS + 1} times")
+    runs = []
+    for p in perturbations:
+        rng.bit_generator.state = at_start
+        runs.append(_expert_run(robot, policy, rng, T, p))
+    return collected, runs

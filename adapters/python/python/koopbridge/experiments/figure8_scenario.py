@@ -27,8 +27,9 @@ import numpy as np
 
 from .dataset_npz import write_atomic
 from .figure8_ref import SKIP, Figure8, joint_p_command, references, tracking_error
+from .run_report import update_report
 
-__all__ = ["closed_loop_of", "main", "parser", "plan_of", "simulator", "update_report"]
+__all__ = ["closed_loop_of", "main", "parser", "plan_of", "simulator"]
 
 
 def simulator(state: str = "ee,q,qd", u_limit: float = 0.3) -> Any:
@@ -55,13 +56,6 @@ def closed_loop_of(report: dict[str, Any], sim: str) -> dict[str, Any]:
         if e.get("sim") == sim:
             return e
     raise KeyError(f"report.json has no control result for simulator {sim!r} (found {[e.get('sim') for e in entries]})")
-
-
-def update_report(path: Path, key: str, value: dict[str, Any]) -> None:
-    """Adds ``key: value`` to the JSON object in ``path``, atomically."""
-    report = json.loads(path.read_text())
-    report[key] = value
-    write_atomic(str(path), lambda f: f.write(json.dumps(report, indent=2).encode()))  # type: ignore[attr-defined]
 
 
 def _baseline(sim: Any, task: Figure8, kind: str, u_limit: float) -> np.ndarray:

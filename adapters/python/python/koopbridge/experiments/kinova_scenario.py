@@ -29,7 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from .figure8_scenario import closed_loop_of, update_report, write_npy
+from .figure8_scenario import closed_loop_of, write_npy
+from .run_report import update_report
 
 __all__ = ["feedback_gain", "held_out_goals", "main", "parser", "plan_reference", "tracking_errors"]
 
