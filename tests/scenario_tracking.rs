@@ -248,3 +248,87 @@ survival = {{ threshold = 0.5, states = [0] }}
     assert!(!out.join("data/pend/train.npz").exists());
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `[train] pretrained`: a model trained by another run is one more row of the tracking task,
+/// scored exactly as in the run that trained it (same references, same simulator: the same
+/// survivals and errors), beside this run's own model (trained differently, so a row that used
+/// the wrong model would show); a folder that is not a model or whose dimensions are not the
+/// simulator's is refused before anything is collected, naming the entry.
+#[test]
+fn a_model_trained_elsewhere_is_a_row_scored_as_in_its_own_run() {
+    let dir = common::scratch("tracking-pretrained");
+    let task = r#"
+[[control]]
+references = "{out}/data/pend/test.npz"
+survival = { threshold = 0.5, states = [0] }
+"#;
+    let (o, first) = run(&dir, "first", &format!("name = \"first\"\n{BASE}{task}"));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let model = first.join("models/first-pend");
+    // The second run trains its own model for fewer iterations and scores the first one's too.
+    let base = BASE.replace("iterations = 30,", "iterations = 10,");
+    let given = format!(
+        "pretrained = [{{ name = \"given\", path = \"{}\" }}]\n",
+        model.display()
+    );
+    let (o, second) = run(
+        &dir,
+        "second",
+        &format!("name = \"second\"\n{base}{given}{task}"),
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let rows = |out: &Path| json(&out.join("report.json"))["tracking"][0]["rows"].clone();
+    let (a, b) = (rows(&first), rows(&second));
+    let names: Vec<&str> = b
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["row"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["replay", "second-pend", "given"]);
+    for key in ["survivals", "tracking_rms", "steps_run"] {
+        assert_eq!(
+            b[2][key], a[1][key],
+            "{key}: the given model as in its own run"
+        );
+    }
+    assert_ne!(
+        b[1]["tracking_rms"], a[1]["tracking_rms"],
+        "the second run's own model is another model"
+    );
+    let report = json(&second.join("report.json"));
+    assert_eq!(report["pretrained"][0]["kind"], "koopman");
+    assert!(second.join("models/given/config.json").is_file());
+
+    // Not a model folder; a model of other dimensions: refused before collection.
+    let fake = dir.join("fake");
+    std::fs::create_dir_all(&fake).unwrap();
+    for (name, config, why) in [
+        ("none", None, "is not a model folder"),
+        (
+            "wide",
+            Some(r#"{"kind": "koopman", "nx": 3, "nu": 1}"#),
+            "its nx/nu are 3/1, simulator 'pend' has 2/1",
+        ),
+    ] {
+        if let Some(c) = config {
+            std::fs::write(fake.join("config.json"), c).unwrap();
+        }
+        let given = format!(
+            "pretrained = [{{ name = \"given\", path = \"{}\" }}]\n",
+            fake.display()
+        );
+        let (o, out) = run(&dir, name, &format!("name = \"bad\"\n{BASE}{given}{task}"));
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success());
+        assert!(
+            stderr.contains("[train] pretrained 'given'") && stderr.contains(why),
+            "{stderr}"
+        );
+        assert!(
+            !out.join("data/pend/train.npz").exists(),
+            "nothing collected"
+        );
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -22,6 +22,7 @@ pub mod collect;
 pub mod control;
 mod data_region;
 pub mod extras;
+mod pretrained;
 mod region;
 pub mod track;
 pub mod train;
@@ -30,6 +31,7 @@ mod train_names;
 pub use collect::{CollectSpec, Policy};
 pub use control::{ControlSpec, PerturbationSpec, PositionLoopSpec, QFromData, SurvivalSpec};
 pub use extras::{CommandLine, HookPhase, HookSpec, ParticipantRole, ParticipantSpec};
+pub use pretrained::PretrainedSpec;
 pub use track::TrackSpec;
 pub use train::TrainSpec;
 

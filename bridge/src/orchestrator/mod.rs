@@ -37,6 +37,7 @@ pub mod data_quality;
 pub mod diagnose;
 pub mod growth;
 pub mod position_loop;
+pub mod pretrained;
 pub mod program;
 pub mod reference;
 pub mod reference_set;

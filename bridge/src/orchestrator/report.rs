@@ -9,6 +9,7 @@ use super::aggregate::AggregationRound;
 use super::compare::ModelResult;
 use super::control_loop::LoopReport;
 use super::diagnose::ControlDiagnosis;
+use super::pretrained::Pretrained;
 use super::track_aggregate::TrackingRound;
 use super::tracking::TrackReport;
 use super::train::TrainReport;
@@ -48,6 +49,9 @@ pub struct Report {
     /// row and one row per model kind, paired by reference ([`TrackReport`]).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub tracking: Vec<TrackReport>,
+    /// The models trained elsewhere (`[train] pretrained`) the tracking tasks scored.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub pretrained: Vec<Pretrained>,
     /// On-policy aggregation rounds of the tracking tasks (`--aggregate` with a task marked
     /// `aggregate = true`): per round the retrained models and every task again
     /// ([`TrackingRound`]).

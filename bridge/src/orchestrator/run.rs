@@ -12,6 +12,7 @@ use super::commands::{run_hooks, Placeholders};
 use super::compare;
 use super::control::{control_phase, ControlPhase};
 use super::diagnose::{self, ControlDiagnosis};
+use super::pretrained;
 pub use super::report::{CollectReport, Report};
 use super::reuse;
 use super::track_aggregate::aggregate_tracking;
@@ -179,6 +180,8 @@ pub fn run_scenario_with(
     validate_scenario(sc, &infos)?;
     let collect_key = reuse::collect_key(sc, &infos);
     let ph = placeholders(sc, opts, &session_id, &cluster.endpoint)?;
+    // The models trained elsewhere that exist already are checked before anything is collected.
+    pretrained::install(sc, &ph, &infos, true, None)?;
     let hooks = |phase: HookPhase, on: &mut dyn FnMut(Event<'_>)| {
         run_hooks(&sc.hooks, phase, &ph, &mut |m| on(Event::Phase(m)))
     };
@@ -199,6 +202,8 @@ pub fn run_scenario_with(
     }
 
     hooks(HookPhase::BeforeControl, on)?;
+    let infos: Vec<&SimInfo> = clients.iter().map(|c| &c.info.sim).collect();
+    let pretrained = pretrained::install(sc, &ph, &infos, false, Some(&opts.out_dir))?;
     let (mut controls, mut control_loop, mut aggregation) = (Vec::new(), None, Vec::new());
     for (i, &kind) in kinds.iter().enumerate().filter(|_| !sc.control.is_empty()) {
         on(Event::Phase(&if kinds.len() > 1 {
@@ -265,6 +270,7 @@ pub fn run_scenario_with(
                 out_dir: &opts.out_dir,
                 kinds: &kinds,
                 model_of: &|id, kind| sc.model_name(id, kind),
+                pretrained: &pretrained,
                 aggregating: extras.aggregate > 0,
                 replays: &replays,
                 view: &cluster.view,
@@ -319,6 +325,7 @@ pub fn run_scenario_with(
         control_loop,
         aggregation,
         tracking,
+        pretrained,
         tracking_aggregation,
         diagnoses,
         videos: match extras.view.as_ref().and_then(|v| v.video.as_ref()) {

@@ -154,6 +154,7 @@ pub fn aggregate_tracking(
                 out_dir: &opts.out_dir,
                 kinds,
                 model_of: &model_of,
+                pretrained: &[],
                 aggregating: true,
                 replays,
                 view: &cluster.view,

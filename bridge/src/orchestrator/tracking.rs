@@ -1,6 +1,7 @@
 //! The tracking phase of a run: each tracking task (`[control]` with `references`) runs one closed
 //! loop per reference from its first state — the same [`ControlRun`] as every closed loop — for
-//! every trained model kind, and the replay row (the references' inputs open loop); scores them
+//! every trained model kind and every model trained elsewhere (`[train] pretrained`), and the
+//! replay row (the references' inputs open loop); scores them
 //! with the survival metric ([`super::survival`]) and writes the closed loops as on-policy
 //! training windows.
 
@@ -19,6 +20,7 @@ pub use super::tracking_report::{table, OnPolicy, TrackReport, TrackRow, REPLAY_
 use super::closed_loop::{ControlReport, ControlRun, ControlTask};
 use super::commands::Placeholders;
 use super::control_settings::mpc_config;
+use super::pretrained::Pretrained;
 use super::reference::{reference_path, Reference};
 use super::reference_set::ReferenceSet;
 use super::survival::{fails, mean_abs_error, survival_of_run, windows, RunForWindows, Summary};
@@ -47,6 +49,9 @@ pub struct TrackingPhase<'a> {
     /// The model of simulator `sim` and kind `kind` ([`Scenario::model_name`], or an
     /// aggregation round's).
     pub model_of: &'a dyn Fn(&str, ModelKind) -> String,
+    /// Models trained elsewhere (`[train] pretrained`): one more row each in their simulator's
+    /// tasks, after the trained kinds'.
+    pub pretrained: &'a [Pretrained],
     /// Whether aggregation rounds follow: the tasks marked `aggregate` (whose only purpose is
     /// their on-policy windows) run only then.
     pub aggregating: bool,
@@ -182,8 +187,22 @@ pub fn tracking_phase(
         } else {
             None
         };
-        for &kind in what.kinds {
-            let model = (what.model_of)(&sim_id, kind);
+        let trained = what
+            .kinds
+            .iter()
+            .map(|&kind| ((what.model_of)(&sim_id, kind), kind));
+        let given = what
+            .pretrained
+            .iter()
+            .filter(|p| p.sim == sim_id)
+            .map(|p| (p.name.clone(), p.kind));
+        for (model, kind) in trained.chain(given).collect::<Vec<_>>() {
+            if t.error_state && !kind.is_lifted_linear() {
+                return Err(at(Error::Config(format!(
+                    "model '{model}' is a {kind} model: `error_state` (the error-state MPC) \
+                     needs a lifted-linear model (koopman or edmd)"
+                ))));
+            }
             let name = t.row(&model);
             on(Event::Phase(&format!(
                 "tracking {} references on '{sim_id}' with {name} ({kind}{})",

@@ -1,8 +1,10 @@
-//! A scenario's `[train]` table: which kinds of model to train (`model`, one or a list) and the
-//! training settings they share (`config`), checked together when the file is read.
+//! A scenario's `[train]` table: which kinds of model to train (`model`, one or a list), the
+//! training settings they share (`config`) and the models trained elsewhere (`pretrained`),
+//! checked together when the file is read.
 
 use serde::{Deserialize, Serialize};
 
+use super::pretrained::PretrainedSpec;
 use crate::error::{Error, Result};
 use crate::services::model_kind::{check_settings_for, ModelKind};
 
@@ -25,6 +27,10 @@ pub struct TrainSpec {
     /// for every kind that uses them ([`crate::services::model_kind`]).
     #[serde(default)]
     pub config: serde_json::Map<String, serde_json::Value>,
+    /// Model folders trained elsewhere, scored by the tracking tasks beside the models trained
+    /// here (one row each; [`super::pretrained`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub pretrained: Vec<PretrainedSpec>,
 }
 
 /// `model = "kind"` or `model = ["kind", …]`; an unknown kind names itself and the valid ones.

@@ -86,6 +86,15 @@ impl Scenario {
                 names.push((name, &s.id, k));
             }
         }
+        let sims: Vec<&str> = self.sims.iter().map(|s| s.id.as_str()).collect();
+        let trained: Vec<String> = names.iter().map(|(n, _, _)| n.clone()).collect();
+        super::pretrained::check(&t.pretrained, &sims, &trained)?;
+        if !t.pretrained.is_empty() && self.tracks.is_empty() {
+            return Err(Error::Config(
+                "[train] pretrained: the models trained elsewhere are rows of tracking tasks                  (`[control]` with `references`); this scenario has none"
+                    .into(),
+            ));
+        }
         let riccati = |mpc: &serde_json::Map<String, serde_json::Value>| {
             mpc.get("terminal_riccati") == Some(&serde_json::Value::Bool(true))
         };

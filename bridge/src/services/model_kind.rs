@@ -171,6 +171,12 @@ impl ModelKind {
         Ok((kind, fields))
     }
 
+    /// Whether the model is lifted-linear (koopman, edmd): what the error-state MPC and the
+    /// Riccati terminal cost need.
+    pub fn is_lifted_linear(self) -> bool {
+        matches!(self, ModelKind::Koopman | ModelKind::Edmd)
+    }
+
     /// What the MPC service controls a model of this kind with, in words.
     pub fn controller(self) -> &'static str {
         match self {
