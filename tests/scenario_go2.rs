@@ -3,8 +3,11 @@
 //! service trains the z-scored Koopman model and EDMD, the before-control hook writes held-out
 //! expert references, and the scenario engine tracks them (issue 47) with the MPC service, SPEC's
 //! formulation and the recommended error-state controller — the survival rows (replay and every
-//! model, finite), the table and plot — with the same survival per reference and the same
-//! on-policy windows as the Python loop that ran this task before.
+//! model, finite), the table and plot, the RL expert's row and the perturbation suite. Until
+//! session 27 this test also ran the Python loop that tracked this task before the engine did, on
+//! the same references and models, and compared the survival per reference and the on-policy
+//! windows row by row; that comparison had held on every CI run since session 24, and the Python
+//! loop was deleted in session 27.
 
 use std::path::PathBuf;
 use std::process::Command;
@@ -27,7 +30,7 @@ fn shrink(mut text: String, edits: &[(&str, &str)]) -> String {
 }
 
 #[test]
-fn go2_survival_scenario_tracks_in_the_engine_as_the_python_loop_did() {
+fn the_go2_toml_runs_end_to_end_in_the_engine() {
     if !root().join(".venv/bin/python").exists() {
         panic!(".venv is missing: run scripts/setup-python.sh (the README's test command does)");
     }
@@ -182,65 +185,6 @@ fn go2_survival_scenario_tracks_in_the_engine_as_the_python_loop_did() {
         "the heavier trunk changed the replay"
     );
 
-    // Before and after the loop moved into the engine: the Python loop (`legged_survival`, the
-    // scenario's hook until issue 47) on the same references and models gives the same survival
-    // per reference and the same on-policy windows, row by row.
-    let py = out.join("python-loop");
-    let run = Command::new(root().join(".venv/bin/python"))
-        .args([
-            "-m",
-            "koopbridge.experiments.go2_survival",
-            "--references-file",
-        ])
-        .arg(out.join("references/go2.npz"))
-        .args([
-            "--steps",
-            "40",
-            "--error-state",
-            "--no-plot",
-            "--no-mcap",
-            "--model",
-        ])
-        .arg(out.join("models/go2-survival-go2"))
-        .arg("--model")
-        .arg(out.join("models/go2-survival-go2-edmd"))
-        .arg("--out")
-        .arg(&py)
-        .current_dir(root())
-        .output()
-        .unwrap();
-    assert!(
-        run.status.success(),
-        "the Python loop failed:\n{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
-    let before: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(py.join("report.json")).unwrap()).unwrap();
-    assert_eq!(
-        before["floor"]["survivals"], rows[0]["survivals"],
-        "the replay row"
-    );
-    for r in &rows[1..] {
-        let name = r["row"].as_str().unwrap();
-        assert_eq!(
-            before["models"][name]["survivals"], r["survivals"],
-            "survival per reference of {name}"
-        );
-        let windows = r["onpolicy"]["windows"].as_u64().unwrap();
-        assert_eq!(before["onpolicy"][name]["windows"], windows, "{name}");
-        if windows > 0 {
-            let engine = koopman::data::Dataset::load_npz(std::path::Path::new(
-                r["onpolicy"]["path"].as_str().unwrap(),
-            ))
-            .unwrap();
-            let python =
-                koopman::data::Dataset::load_npz(&py.join(format!("onpolicy/{name}.npz"))).unwrap();
-            assert!(
-                engine.x == python.x && engine.u == python.u,
-                "the on-policy windows of {name} differ"
-            );
-        }
-    }
     // The collection ran the noisy expert the file asks for.
     let meta: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("data/go2/train.json")).unwrap()).unwrap();

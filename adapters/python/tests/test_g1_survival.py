@@ -1,9 +1,7 @@
-"""The G1's survival task on the robot-agnostic legged code (issue 30): its references are
-``g1_replay``'s, its replay floor through the real adapter (``--held locked``, over Zenoh) equals
-the in-process replay and its score, bad models are refused with the G1's sizes, and the
-scenario at CI's smoke budget runs data → train → track through the real MPC service with
-finite survival figures beside the floor — as the Python driver (``g1_scenario``) and as
-``scenarios/g1-survival.toml`` through ``koopbridge run``."""
+"""The G1's survival task (issue 30): its references (``legged_robots.references``) are
+``g1_replay``'s, the real adapter (``--held locked``, over Zenoh) replays them as ``g1_replay``
+does in-process, with the same score, and ``scenarios/g1-survival.toml`` at CI's smoke budget runs
+data → train → track through ``koopbridge run`` with finite survival figures beside the floor."""
 
 from __future__ import annotations
 
@@ -20,10 +18,10 @@ pytest.importorskip("mujoco")
 pytest.importorskip("onnxruntime")
 
 from conftest import ROOT, Child, free_endpoint, koopbridge_binary_or_skip  # noqa: E402
+from koopbridge import survival  # noqa: E402
 from koopbridge.adapters import g1_model as g  # noqa: E402
 from koopbridge.adapters.g1_sim import G1Simulator  # noqa: E402
-from koopbridge.experiments import g1_replay, g1_survival, legged_survival  # noqa: E402
-from koopbridge.experiments.go2_track import replay  # noqa: E402
+from koopbridge.experiments import g1_replay, legged_robots  # noqa: E402
 
 try:
     g.model_file(), g.policy_file()
@@ -31,16 +29,8 @@ except g.ModelError as e:  # pragma: no cover - pinned in requirements.txt
     pytest.skip(str(e), allow_module_level=True)
 
 
-def test_the_g1_command_line_defaults_to_the_23_dof_g1_at_0_10_rad():
-    a = g1_survival.parser().parse_args(["--model", "m", "--out", "o"])
-    assert (a.threshold, a.steps, a.held, a.expert) == (0.10, 200, "locked", "fastsac")
-    assert g1_survival.ROBOT.adapter_args(a) == ["--held", "locked", "--expert", "fastsac"]
-    assert (g1_survival.ROBOT.nx, g1_survival.ROBOT.nu) == (53, 23)
-
-
 def test_references_and_the_replay_floor_through_the_adapter_equal_g1_replay(tmp_path, session_id):
-    a = g1_survival.parser().parse_args(["--model", "m", "--out", "o"])
-    refs = legged_survival.references(legged_survival.G1, 2, 40, a=a)
+    refs = legged_robots.references(legged_robots.G1, 2, 40)  # the defaults: --held locked, --expert fastsac
     # g1_replay's references: its own collection code, same seed, same simulator settings.
     sim, fresh = G1Simulator(held="locked", on_fall=None), G1Simulator(held="locked", memory=0, on_fall=None)
     want = g1_replay.make_references(sim, fresh, 2, 40)
@@ -52,62 +42,17 @@ def test_references_and_the_replay_floor_through_the_adapter_equal_g1_replay(tmp
            "--held", "locked"]
     from koopbridge import Client
 
+    lay = legged_robots.G1.layout
     with Child(cmd, tmp_path / "adapter.log") as adapter, Client(session=session_id, listen=[ep]) as c:
         info = c.connect_sim("g1", timeout=90)
         assert info["env"] == "unitree-g1-locked"
-        fallen = legged_survival._fall_rule(legged_survival.G1, info)
-        for r, w in zip(refs, want, strict=True):
-            got = replay(c, "g1", r, fallen, threshold=0.10, layout=legged_survival.G1.layout)
-            s, x = g1_replay.replay(fresh, w)
-            np.testing.assert_allclose(got.x, x, rtol=0, atol=1e-12, err_msg=adapter.output())
-            assert got.survival == s and 0 < s <= 40
-
-
-def test_bad_input_a_missing_model_or_the_go2s_sizes(tmp_path, capsys):
-    out = tmp_path / "out"
-    assert g1_survival.main(["--model", str(tmp_path / "nope"), "--out", str(out)]) == 2
-    assert "g1_survival: model folder" in capsys.readouterr().err
-    assert g1_survival.main(["--model", str(tmp_path), "--out", str(out), "--threshold", "0"]) == 2
-    koopbridge_binary_or_skip()
-    from koopbridge import KoopmanModel
-
-    KoopmanModel.init(35, 12, hidden=[8], n_mult=1).save(tmp_path / "go2ish")
-    rc = g1_survival.main(["--model", str(tmp_path / "go2ish"), "--out", str(out), "--references", "1", "--steps", "3"])
-    err = capsys.readouterr().err
-    assert rc == 2 and "is 35/12-D (nx/nu, its config.json); the G1 is 53/23-D" in err, err
-
-
-def test_the_g1_scenario_at_the_smoke_budget(tmp_path):
-    """g1_scenario as CI runs it: collect (locked G1) → train (Koopman, normalised) → track 4
-    references of 40 steps through the MPC service, the replay floor beside it."""
-    koopbridge_binary_or_skip()
-    from koopbridge.experiments import g1_scenario
-
-    out = tmp_path / "run"
-    assert g1_scenario.main(["--out", str(out)]) == 0
-    s = json.loads((out / "scenario.json").read_text())
-    assert s["budget"] == "smoke" and s["settings"]["steps"] == 40 and s["settings"]["references"] == 4
-    meta = json.loads((out / "data" / "collect.json").read_text())
-    assert "locked" in json.dumps(meta)
-    (rnd,) = s["rounds"]
-    rows = {r["controller"]: r for r in rnd["table"]}
-    assert set(rows) == {"open-loop replay (floor)", "g1-both (koopman)"}
-    for r in rows.values():
-        assert r["n"] == 4 and np.isfinite(r["mean"]) and 0 <= r["min"] <= r["mean"] <= r["max"] <= 40, r
-    assert rows["open-loop replay (floor)"]["mean"] >= 30  # the locked G1's replay follows (g1_replay: 198.6 of 200)
-    assert np.isfinite(rows["g1-both (koopman)"]["test_pred"])
-    rep = json.loads((out / "round0" / "track" / "report.json").read_text())
-    assert rep["task"]["held"] == "locked" and "> 0.1 rad" in rep["task"]["metric"] and "53-D" in rep["task"]["start"]
-    m = rep["models"]["g1-both"]
-    assert m["normalised"] and sum(m["statuses"].values()) > 0 and len(m["survivals"]) == 4
-    assert m["above_floor"] + m["below_floor"] <= 4
-    for f in ("survival.png", "tracking.png", "tracking.mcap", "table.md"):
-        assert (out / "round0" / "track" / f).stat().st_size > 0
-    from mcap.reader import make_reader
-
-    with open(out / "round0" / "track" / "tracking.mcap", "rb") as f:
-        topics = {c.topic for c in make_reader(f).get_summary().channels.values()}
-    assert topics == {"/koopbridge/g1/state", "/koopbridge/g1/input", "/koopbridge/g1/reference"}
+        for r in refs:
+            s, x = g1_replay.replay(fresh, g1_replay.G1Reference(x=r.x, u=r.u, index=r.index))
+            # The recorded targets through the adapter, as far as the in-process replay went (to its end or a fall).
+            got = np.array([c.reset("g1", x0=r.x[0])] + [c.step("g1", u)[2] for u in r.u[: len(x) - 1]])
+            np.testing.assert_allclose(got, x, rtol=0, atol=1e-12, err_msg=adapter.output())
+            joints = list(range(lay.q.start, lay.q.stop))
+            assert survival(got, r.x, g1_replay.fallen_mask(got).tolist(), 0.10, joints, r.steps) == s and 0 < s <= 40
 
 
 def test_the_g1_survival_toml_through_koopbridge_run(tmp_path):

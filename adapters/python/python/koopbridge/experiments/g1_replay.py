@@ -1,12 +1,12 @@
 """The G1's open-loop replay floor (issue 30): held-out expert references, and each one's recorded
 joint targets replayed open loop from its first state on a simulator that has not seen it — the
-survival any tracking controller should beat. Survival as ``go2_track`` defines it (the steps
-before the first one whose mean joint-position error, over the state's 21 joints, exceeds the
-threshold, 0.10 rad for the G1, or whose pelvis has fallen).
+survival any tracking controller should beat. Survival is the scenario engine's metric
+(``koopbridge.survival``: the steps before the first one whose mean joint-position error, over
+the state's 21 joints, exceeds the threshold, 0.10 rad for the G1, or whose pelvis has fallen).
 
     python -m koopbridge.experiments.g1_replay [--references 50] [--steps 200] [--threshold 0.10] [--json FILE]
 
-The references are the expert's, one per episode, under the seed ``go2_track.REFERENCE_SEED``
+The references are the expert's, one per episode, under the seed ``legged_robots.REFERENCE_SEED``
 (no training episode of ``g1_data``'s seed 42 draws from it): a seeded reset, 1 s of walking
 unrecorded, then ``--steps`` recorded steps under random velocity commands over the policy's
 ranges changed every 2 s. The replay starts from ``reset(x0)`` of the reference's first state on
@@ -26,7 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from .go2_track import REFERENCE_SEED, joint_errors, survival
+from .._native import survival
+from .legged_robots import REFERENCE_SEED
 
 __all__ = ["HEIGHT_INDEX", "Q_SLICE", "THRESHOLD", "G1Reference", "fallen_mask", "main", "make_references", "replay"]
 
@@ -87,7 +88,8 @@ def replay(sim: Any, ref: G1Reference, threshold: float = THRESHOLD) -> tuple[in
         if sim.fallen:
             break
     x = np.array(xs)
-    return survival(joint_errors(x, ref.x, Q_SLICE), fallen_mask(x), len(ref.u), threshold), x
+    joints = list(range(Q_SLICE.start, Q_SLICE.stop))
+    return survival(x, ref.x, fallen_mask(x).tolist(), threshold, joints, len(ref.u)), x
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -31,8 +31,7 @@ import numpy as np
 from .._native import InvalidInput, survival
 from ..adapters.legged_collect import expert_rollouts
 from .dataset_npz import write_atomic
-from .go2_track import REFERENCE_SEED
-from .legged_survival import ROBOTS, stats
+from .legged_robots import REFERENCE_SEED, ROBOTS, stats
 from .run_report import update_report
 
 

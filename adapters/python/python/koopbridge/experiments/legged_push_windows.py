@@ -25,7 +25,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from .dataset_npz import DatasetMeta, save_dataset_npz
-from .legged_survival import ROBOTS
+from .legged_robots import ROBOTS
 
 
 def parser() -> argparse.ArgumentParser:

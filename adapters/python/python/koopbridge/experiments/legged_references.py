@@ -4,7 +4,7 @@ dataset layout with its metadata), so that the scenario engine tracks them:
 
     python -m koopbridge.experiments.legged_references --robot go2 --references 50 --steps 300 --out refs.npz
 
-The references are ``legged_survival.references``: expert rollouts under velocity commands the
+The references are ``legged_robots.references``: expert rollouts under velocity commands the
 training data never saw (seed 90042 by default), each starting in a state the adapter accepts.
 """
 
@@ -19,8 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from .dataset_npz import DatasetMeta, save_dataset_npz
-from .go2_track import REFERENCE_SEED
-from .legged_survival import ROBOTS, references
+from .legged_robots import REFERENCE_SEED, ROBOTS, references
 
 
 def parser() -> argparse.ArgumentParser:

@@ -37,8 +37,7 @@ from typing import Any
 import numpy as np
 
 from .dataset_npz import write_atomic
-from .go2_track import Reference
-from .legged_survival import ROBOTS, LeggedRobot, SetupError, references
+from .legged_robots import ROBOTS, LeggedRobot, Reference, SetupError, references
 
 __all__ = ["ResponseSample", "model_response", "prediction_by_origin", "response_along", "sim_response", "summarise", "main"]
 
