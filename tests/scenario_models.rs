@@ -212,10 +212,15 @@ fn bad_kinds_are_refused_with_the_reason() {
         &SCENARIO.replace(r#""edmd"]"#, r#""edmd", "koopman"]"#),
     );
     assert!(e.contains("'koopman' is listed twice"), "{e}");
-    // Random shooting on an NNDM has no input weight: refused before collection.
-    let e = run("shooting", &SCENARIO.replace(r#""edmd"]"#, r#""nndm"]"#));
+    // Random shooting on an NNDM has no terminal weight: refused before collection.
+    let e = run(
+        "shooting",
+        &SCENARIO
+            .replace(r#""edmd"]"#, r#""nndm"]"#)
+            .replace("r = [0.1] }", "r = [0.1], terminal = [1.0, 1.0] }"),
+    );
     assert!(
-        e.contains("with model kind 'nndm'") && e.contains("no input weight r"),
+        e.contains("with model kind 'nndm'") && e.contains("no terminal weight"),
         "{e}"
     );
     assert!(!dir.join("shooting/data/pend/train.npz").exists());

@@ -296,10 +296,52 @@ fn an_nndm_is_planned_by_random_shooting_through_the_service() {
     let stacked = SolveReply::decode(&solve(target.repeat(h), vec![]).unwrap()).unwrap();
     assert_eq!(stacked.u, first.u);
 
+    // About a plan (a feed-forward): the feed-forward itself and ff + δ, one δ ~ U(±10 % of
+    // the half-range) held over the horizon, towards the model's own rollout of the plan from
+    // the plan's state, R on u − ff; the same draws computed here.
+    let with_r =
+        serde_json::json!({"horizon": h, "q": q, "r": [0.5], "u_min": [lo], "u_max": [hi]});
+    configure(with_r).unwrap();
+    let (plan_x, ff) = ([0.25, -0.1], [0.1, -0.2, 0.3, 0.45, 0.0]);
+    let mut plan = Vec::new();
+    let mut s = plan_x.to_vec();
+    for u in ff {
+        s = model.step(&s, &[u]).unwrap();
+        plan.push(s.clone());
+    }
+    let mut rng = koopman::rng::Rng::new(SHOOTING_SEED);
+    let w = koopman::mpc::shooting::ABOUT_PLAN_SPREAD * (hi - lo) / 2.0;
+    let mut best = (f64::INFINITY, Vec::new());
+    for i in 0..SHOOTING_SAMPLES {
+        let d = if i == 0 { 0.0 } else { rng.uniform(-w, w) };
+        let seq: Vec<f64> = ff.iter().map(|u| (u + d).clamp(lo, hi)).collect();
+        let (mut s, mut cost) = (x.to_vec(), 0.0);
+        for (k, u) in seq.iter().enumerate() {
+            s = model.step(&s, &[*u]).unwrap();
+            cost += (0..2)
+                .map(|i| q[i] * (s[i] - plan[k][i]).powi(2))
+                .sum::<f64>()
+                + 0.5 * (u - ff[k]).powi(2);
+        }
+        if cost < best.0 {
+            best = (cost, seq);
+        }
+    }
+    let about = SolveReply::decode(&solve(plan_x.to_vec(), ff.to_vec()).unwrap()).unwrap();
+    for (a, b) in about.u.iter().zip(&best.1) {
+        assert!(
+            (a - b).abs() < 1e-12,
+            "remote {:?} vs independent {:?}",
+            about.u,
+            best.1
+        );
+    }
+    configure(good.clone()).unwrap();
+
     // What random shooting cannot do: typed errors, and the service keeps serving.
     assert_eq!(
-        code(solve(target.to_vec(), vec![0.0; h])),
-        ErrorCode::Unsupported
+        code(solve(target.to_vec(), vec![0.0; h - 1])),
+        ErrorCode::Dimension
     );
     assert_eq!(code(solve(vec![0.0; 3], vec![])), ErrorCode::Dimension);
     let e = format!(
@@ -309,8 +351,9 @@ fn an_nndm_is_planned_by_random_shooting_through_the_service() {
     assert!(e.contains("u_min and u_max"), "{e}");
     let e = format!(
         "{:?}",
-        configure(serde_json::json!({"u_min": [lo], "u_max": [hi], "r": [0.1]})).unwrap_err()
+        configure(serde_json::json!({"u_min": [lo], "u_max": [hi], "terminal": [1.0, 1.0]}))
+            .unwrap_err()
     );
-    assert!(e.contains("no input weight"), "{e}");
+    assert!(e.contains("no terminal weight"), "{e}");
     assert!(SolveReply::decode(&solve(target.to_vec(), vec![]).unwrap()).is_ok());
 }

@@ -35,8 +35,9 @@ impl Scenario {
 
     /// Checks `[train]` ([`super::train::TrainSpec::check`]) and what its kinds are asked to do elsewhere: no
     /// two models share a name ([`Scenario::model_name`]), and every kind can serve each
-    /// `[control]` entry (`feedforward_file`, the error-state MPC, needs a lifted-linear model:
-    /// koopman or edmd; `offset_free` is not for an NNDM's random shooting).
+    /// `[control]` entry (`feedforward_file` and `error_state`, the error-state MPC, need a
+    /// lifted-linear model or an NNDM, not a bilinear one; `offset_free` is not for an NNDM's
+    /// random shooting).
     pub(crate) fn check_train(&self) -> Result<()> {
         let Some(t) = &self.train else {
             if let Some(s) = self.sims.iter().find(|s| !s.train_config.is_empty()) {
@@ -130,11 +131,9 @@ impl Scenario {
                 {
                     "`mpc.terminal_riccati` (the Riccati cost-to-go of the lifted (A, B)) needs a \
                      lifted-linear model (koopman or edmd)"
-                } else if ctrl.feedforward_file.is_some()
-                    && matches!(k, ModelKind::Bilinear | ModelKind::Nndm)
-                {
+                } else if ctrl.feedforward_file.is_some() && !k.plans_about_feedforward() {
                     "`feedforward_file` (the error-state MPC) needs a lifted-linear model \
-                     (koopman or edmd)"
+                     (koopman or edmd) or an NNDM (random shooting about the plan)"
                 } else if ctrl.offset_free.is_some() && k == ModelKind::Nndm {
                     "`offset_free` corrects the MPC of a lifted-linear or bilinear model, not the \
                      random shooting of an NNDM"
@@ -147,14 +146,11 @@ impl Scenario {
             }
         }
         for t in self.tracks.iter().filter(|t| t.error_state) {
-            if let Some(k) = kinds
-                .iter()
-                .find(|k| matches!(k, ModelKind::Bilinear | ModelKind::Nndm))
-            {
+            if let Some(k) = kinds.iter().find(|k| !k.plans_about_feedforward()) {
                 return Err(Error::Config(format!(
                     "[control] for '{}': model kind '{k}' in [train].model cannot do this: \
                      `error_state` (the error-state MPC) needs a lifted-linear model (koopman or \
-                     edmd); track it in an entry without `error_state`",
+                     edmd) or an NNDM; track it in an entry without `error_state`",
                     self.tracked_id(t)
                 )));
             }

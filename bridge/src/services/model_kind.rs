@@ -171,10 +171,12 @@ impl ModelKind {
         Ok((kind, fields))
     }
 
-    /// Whether the model is lifted-linear (koopman, edmd): what the error-state MPC and the
-    /// Riccati terminal cost need.
-    pub fn is_lifted_linear(self) -> bool {
-        matches!(self, ModelKind::Koopman | ModelKind::Edmd)
+    /// Whether the MPC service plans about a feed-forward with a model of this kind (the
+    /// error-state MPC of `error_state` and `feedforward_file`): the Koopman MPC on a
+    /// lifted-linear model (koopman, edmd) and random shooting about the plan on an NNDM; not
+    /// the bilinear MPC.
+    pub fn plans_about_feedforward(self) -> bool {
+        !matches!(self, ModelKind::Bilinear)
     }
 
     /// What the MPC service controls a model of this kind with, in words.

@@ -82,7 +82,7 @@ impl LoadedModel {
     /// The controller of this model with `cfg`; `offset_free` for a lifted-linear or a bilinear
     /// model (a one-step NNDM with one is refused: its planner has no such correction). A
     /// one-step model gets random-shooting MPC, which needs finite input bounds and honours the
-    /// horizon and the state weight `q` only (other settings it cannot honour are refused).
+    /// horizon and the weights `q` and `r` only (other settings it cannot honour are refused).
     pub fn controller(
         &self,
         cfg: &MpcConfig,
@@ -206,9 +206,13 @@ impl ModelController {
         }
     }
 
-    /// True if the controller can plan about a feed-forward ([`ModelController::solve_about_plan`]).
+    /// True if the controller can plan about a feed-forward ([`ModelController::solve_about_plan`]):
+    /// the Koopman MPC on a lifted-linear model and random shooting on a one-step NNDM.
     pub fn takes_feedforward(&self) -> bool {
-        matches!(self, ModelController::Lifted(_))
+        matches!(
+            self,
+            ModelController::Lifted(_) | ModelController::Shooting(_)
+        )
     }
 
     /// Plans from `x` towards `reference` (nx values, or the stacked H·nx).
@@ -275,9 +279,13 @@ impl ModelController {
     }
 
     /// The error-state MPC about the plan whose state at this step is `reference` (nx values)
-    /// with feed-forward `feedforward` (H·nu values; [`MpcController::solve_about_plan`]).
+    /// with feed-forward `feedforward` (H·nu values): on a lifted-linear model
+    /// [`MpcController::solve_about_plan`]; on a one-step NNDM random shooting about the
+    /// feed-forward ([`RandomShooting::plan_sequence_about`]) towards the model's own rollout
+    /// of the plan from `reference` (so that the model's bias along the plan cancels, as in the
+    /// lifted error-state MPC).
     ///
-    /// Errors: as [`ModelController::solve`]; a controller that is not on a lifted-linear model
+    /// Errors: as [`ModelController::solve`]; a bilinear model's controller
     /// ([`ModelController::takes_feedforward`]) refuses with [`Error::InvalidArgument`].
     pub fn solve_about_plan(
         &mut self,
@@ -291,8 +299,30 @@ impl ModelController {
                 reference,
                 feedforward,
             )?)),
+            ModelController::Shooting(s) => {
+                let (nx, nu, h) = (s.model.nx(), s.model.nu(), s.planner.horizon);
+                if reference.len() != nx {
+                    return Err(Error::dimension("plan state", nx, reference.len()));
+                }
+                if feedforward.len() != h * nu {
+                    return Err(Error::dimension("feed-forward", h * nu, feedforward.len()));
+                }
+                ensure_finite("plan state", reference)?;
+                let t = Instant::now();
+                let target = rollout(s.model.as_ref(), reference, feedforward);
+                let (u, _) =
+                    s.planner
+                        .plan_sequence_about(s.model.as_ref(), x, &target, feedforward)?;
+                Ok(ModelPlan {
+                    status: PlanStatus::Solved,
+                    iterations: s.planner.samples,
+                    solve_time: t.elapsed(),
+                    u,
+                })
+            }
             other => Err(Error::InvalidArgument(format!(
-                "a feed-forward (error-state MPC) needs a lifted-linear model; this one is {}",
+                "a feed-forward (error-state MPC) needs a lifted-linear model or an NNDM; this \
+                 one is {}",
                 other.kind()
             ))),
         }
@@ -313,9 +343,23 @@ fn lifted_plan(s: super::MpcSolution) -> ModelPlan {
     }
 }
 
-/// The random-shooting planner for `model` with `cfg` (horizon, `q`, the input bounds); the
-/// settings it cannot honour (input weight, terminal weight, rate and state bounds) are refused
-/// rather than ignored.
+/// The states `x_1 .. x_H` of `model` from `x0` under the inputs `us` (H·nu values), stacked.
+fn rollout(model: &dyn OneStepModel, x0: &[f64], us: &[f64]) -> Vec<f64> {
+    let (nx, nu) = (model.nx(), model.nu());
+    let mut out = Vec::with_capacity(us.len() / nu.max(1) * nx);
+    let mut x = x0.to_vec();
+    let mut next = vec![0.0; nx];
+    for u in us.chunks_exact(nu.max(1)) {
+        model.predict(&x, u, &mut next);
+        out.extend_from_slice(&next);
+        std::mem::swap(&mut x, &mut next);
+    }
+    out
+}
+
+/// The random-shooting planner for `model` with `cfg` (horizon, `q`, `r`, the input bounds); the
+/// settings it cannot honour (terminal weight, rate and state bounds) are refused rather than
+/// ignored.
 fn shooting_planner(model: &dyn OneStepModel, cfg: &MpcConfig) -> Result<RandomShooting> {
     let (nx, nu) = (model.nx(), model.nu());
     let refuse = |what: &str| {
@@ -323,9 +367,6 @@ fn shooting_planner(model: &dyn OneStepModel, cfg: &MpcConfig) -> Result<RandomS
             "random-shooting MPC on a one-step NNDM: {what}"
         )))
     };
-    if cfg.r.as_ref().is_some_and(|r| r.iter().any(|&v| v != 0.0)) {
-        return refuse("no input weight r (the paper's cost is on the states only)");
-    }
     if cfg.terminal.is_some() || cfg.terminal_riccati || cfg.has_general_constraints() {
         return refuse(
             "no terminal weight or terminal_riccati, rate or state bounds (input bounds only)",
@@ -341,14 +382,18 @@ fn shooting_planner(model: &dyn OneStepModel, cfg: &MpcConfig) -> Result<RandomS
     if lo.len() != nu || hi.len() != nu {
         return Err(Error::dimension("input bounds", nu, lo.len().min(hi.len())));
     }
-    RandomShooting::new(
+    let planner = RandomShooting::new(
         SHOOTING_SAMPLES,
         cfg.horizon,
         q,
         lo.clone(),
         hi.clone(),
         SHOOTING_SEED,
-    )
+    )?;
+    match &cfg.r {
+        Some(r) => planner.with_input_weight(r.clone()),
+        None => Ok(planner),
+    }
 }
 
 #[cfg(test)]

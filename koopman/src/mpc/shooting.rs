@@ -45,7 +45,13 @@ impl OneStepModel for SystemAsModel<'_> {
     }
 }
 
-/// Random-shooting MPC: `samples` sequences of `horizon` inputs, cost `Σ (x_τ − r_τ)ᵀQ(x_τ − r_τ)`.
+/// How far about a feed-forward [`RandomShooting::plan_sequence_about`] samples: each input
+/// within ± this fraction of its half-range, `(u_max − u_min)/2`, of the feed-forward.
+pub const ABOUT_PLAN_SPREAD: f64 = 0.1;
+
+/// Random-shooting MPC: `samples` sequences of `horizon` inputs, cost
+/// `Σ (x_τ − r_τ)ᵀQ(x_τ − r_τ) + Σ (u_τ − u_ff,τ)ᵀR(u_τ − u_ff,τ)` (`u_ff = 0` without a plan;
+/// the paper's NNDM baseline has R = 0).
 pub struct RandomShooting {
     /// Number of sampled sequences (1000 in the paper).
     pub samples: usize,
@@ -53,6 +59,8 @@ pub struct RandomShooting {
     pub horizon: usize,
     /// Diagonal state weight (nx).
     pub q: Vec<f64>,
+    /// Diagonal input weight (nu; zeros: the paper's cost on the states only).
+    pub r: Vec<f64>,
     /// Input bounds (nu each).
     pub u_min: Vec<f64>,
     /// Upper input bounds.
@@ -89,10 +97,29 @@ impl RandomShooting {
             samples,
             horizon,
             q,
+            r: vec![0.0; u_min.len()],
             u_min,
             u_max,
             rng: Rng::new(seed),
         })
+    }
+
+    /// The same planner with input weight `r` (nu finite values ≥ 0).
+    pub fn with_input_weight(mut self, r: Vec<f64>) -> Result<Self> {
+        if r.len() != self.u_min.len() {
+            return Err(Error::dimension(
+                "input weight r",
+                self.u_min.len(),
+                r.len(),
+            ));
+        }
+        if r.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
+            return Err(Error::InvalidArgument(format!(
+                "random shooting: the input weight r needs finite values ≥ 0, got {r:?}"
+            )));
+        }
+        self.r = r;
+        Ok(self)
     }
 
     /// The best first input for state `x` and stacked reference `r` (horizon·nx values).
@@ -117,6 +144,60 @@ impl RandomShooting {
         x: &[f64],
         r: &[f64],
     ) -> Result<(Vec<f64>, f64)> {
+        self.check(model, x, r)?;
+        let nu = model.nu();
+        // Draw every sequence first (deterministic), then roll out in parallel.
+        let seqs: Vec<Vec<f64>> = (0..self.samples)
+            .map(|_| {
+                (0..self.horizon * nu)
+                    .map(|k| self.rng.uniform(self.u_min[k % nu], self.u_max[k % nu]))
+                    .collect()
+            })
+            .collect();
+        self.best(model, x, r, seqs, None)
+    }
+
+    /// Random shooting about a plan: the sequences are the feed-forward `ff` (horizon·nu values,
+    /// step-major) itself and `samples − 1` draws of `ff` + δ, one δ ~ U(± [`ABOUT_PLAN_SPREAD`]
+    /// of each input's half-range) held over the horizon (a correction held, not noise drawn
+    /// afresh at every step, which averages out over the horizon and corrects nothing), clipped
+    /// to the bounds; the cost weighs `u − ff` by R. Returns the best sequence and its cost:
+    /// never worse, by the model, than the feed-forward.
+    pub fn plan_sequence_about(
+        &mut self,
+        model: &dyn OneStepModel,
+        x: &[f64],
+        r: &[f64],
+        ff: &[f64],
+    ) -> Result<(Vec<f64>, f64)> {
+        self.check(model, x, r)?;
+        let nu = model.nu();
+        if ff.len() != self.horizon * nu {
+            return Err(Error::dimension(
+                "feed-forward",
+                self.horizon * nu,
+                ff.len(),
+            ));
+        }
+        ensure_finite("feed-forward", ff)?;
+        let clip = |k: usize, v: f64| v.clamp(self.u_min[k % nu], self.u_max[k % nu]);
+        let ff: Vec<f64> = ff.iter().enumerate().map(|(k, &v)| clip(k, v)).collect();
+        let half: Vec<f64> = (0..nu)
+            .map(|i| ABOUT_PLAN_SPREAD * (self.u_max[i] - self.u_min[i]) / 2.0)
+            .collect();
+        let mut seqs = vec![ff.clone()];
+        for _ in 1..self.samples {
+            let delta: Vec<f64> = half.iter().map(|&w| self.rng.uniform(-w, w)).collect();
+            let seq = (0..self.horizon * nu)
+                .map(|k| clip(k, ff[k] + delta[k % nu]))
+                .collect();
+            seqs.push(seq);
+        }
+        self.best(model, x, r, seqs, Some(&ff))
+    }
+
+    /// Checks the sizes of a solve's state and stacked reference, and the state's values.
+    fn check(&self, model: &dyn OneStepModel, x: &[f64], r: &[f64]) -> Result<()> {
         let (nx, nu) = (model.nx(), model.nu());
         if x.len() != nx {
             return Err(Error::dimension("state", nx, x.len()));
@@ -135,16 +216,31 @@ impl RandomShooting {
                 self.q.len(),
             ));
         }
-        ensure_finite("state", x)?;
-        // Draw every sequence first (deterministic), then roll out in parallel.
-        let seqs: Vec<Vec<f64>> = (0..self.samples)
-            .map(|_| {
-                (0..self.horizon * nu)
-                    .map(|k| self.rng.uniform(self.u_min[k % nu], self.u_max[k % nu]))
-                    .collect()
-            })
-            .collect();
-        let (horizon, q) = (self.horizon, &self.q);
+        ensure_finite("state", x)
+    }
+
+    /// The sequence of `seqs` with the least cost from `x` against the stacked `r` (inputs
+    /// weighed about `ff`, or about zero), and that cost.
+    fn best(
+        &self,
+        model: &dyn OneStepModel,
+        x: &[f64],
+        r: &[f64],
+        seqs: Vec<Vec<f64>>,
+        ff: Option<&[f64]>,
+    ) -> Result<(Vec<f64>, f64)> {
+        let (nx, nu) = (model.nx(), model.nu());
+        let (horizon, q, rw) = (self.horizon, &self.q, &self.r);
+        let weighs_inputs = rw.iter().any(|&w| w != 0.0);
+        let input_cost = |seq: &[f64]| -> f64 {
+            if !weighs_inputs {
+                return 0.0;
+            }
+            seq.iter()
+                .enumerate()
+                .map(|(k, &u)| rw[k % nu] * (u - ff.map_or(0.0, |f| f[k])).powi(2))
+                .sum()
+        };
         // Roll out chunks of sequences in parallel, each chunk one batched prediction per step.
         let costs: Vec<f64> = seqs
             .par_chunks(ROLLOUT_CHUNK)
@@ -153,7 +249,7 @@ impl RandomShooting {
                 let mut cur: Vec<f64> = x.repeat(rows);
                 let mut next = vec![0.0; rows * nx];
                 let mut inputs = vec![0.0; rows * nu];
-                let mut cost = vec![0.0; rows];
+                let mut cost: Vec<f64> = chunk.iter().map(|seq| input_cost(seq)).collect();
                 for t in 0..horizon {
                     for (dst, seq) in inputs.chunks_exact_mut(nu.max(1)).zip(chunk) {
                         dst.copy_from_slice(&seq[t * nu..(t + 1) * nu]);

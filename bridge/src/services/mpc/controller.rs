@@ -60,10 +60,10 @@ impl ServiceController {
 
     /// [`ServiceController::solve`], or with a non-empty `feedforward` (H·nu values) the
     /// error-state MPC about the plan whose state at this step is `reference` (nx values;
-    /// [`koopman::mpc::MpcController::solve_about_plan`]).
+    /// [`koopman::mpc::ModelController::solve_about_plan`]: the Koopman MPC's, or random shooting
+    /// about the plan on an NNDM).
     ///
-    /// Errors: as `solve`; a feed-forward for a model that is not lifted-linear is
-    /// `unsupported`.
+    /// Errors: as `solve`; a feed-forward for a bilinear model is `unsupported`.
     pub fn solve_with_feedforward(
         &mut self,
         x: &[f64],
@@ -76,7 +76,8 @@ impl ServiceController {
             return Err(Error::protocol(
                 ErrorCode::Unsupported,
                 format!(
-                    "a feed-forward (error-state MPC) needs a lifted-linear model; this one is {}",
+                    "a feed-forward (error-state MPC) needs a lifted-linear model or an NNDM; \
+                     this one is {}",
                     self.0.kind()
                 ),
             ));
