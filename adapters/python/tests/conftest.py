@@ -94,16 +94,10 @@ def free_endpoint() -> str:
 
 
 def koopbridge_binary() -> Path | None:
-    """The `koopbridge` CLI built by cargo (release), if any: $KOOPBRIDGE_BIN, then
-    $CARGO_TARGET_DIR/release, then target/release."""
-    cands = [os.environ.get("KOOPBRIDGE_BIN")]
-    if os.environ.get("CARGO_TARGET_DIR"):
-        cands.append(os.path.join(os.environ["CARGO_TARGET_DIR"], "release", "koopbridge"))
-    cands.append(str(ROOT / "target" / "release" / "koopbridge"))
-    for c in cands:
-        if c and os.path.isfile(c) and os.access(c, os.X_OK):
-            return Path(c)
-    return None
+    """The `koopbridge` CLI built by cargo (release), if any (``koopbridge.cli_path.find_cli``)."""
+    from koopbridge.cli_path import find_cli
+
+    return find_cli()
 
 
 def reset_state(seed: int | None, x0, n: int = 2) -> np.ndarray:

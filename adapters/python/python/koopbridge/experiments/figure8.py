@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import re
 import shutil
 import subprocess
@@ -30,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from .. import BridgeTimeout, Client
+from ..cli_path import koopbridge_cli
 from ..testing import listening_client
 from .dataset_npz import write_atomic
 from .figure8_ref import SKIP, Figure8, joint_p_command, references, tracking_error
@@ -39,20 +39,6 @@ __all__ = ["Run", "main", "parser", "run_controller", "summarise"]
 SIM_ID = "arm0"
 MPC_ID = "fig8"
 NAME = re.compile(r"^[a-z0-9_-]+$")
-
-
-def koopbridge_cli() -> str:
-    """The ``koopbridge`` CLI: ``$KOOPBRIDGE_BIN``, ``$CARGO_TARGET_DIR/release``, the
-    repository's ``target/release``, then ``PATH``."""
-    root = Path(__file__).resolve().parents[5]
-    cands = [os.environ.get("KOOPBRIDGE_BIN")]
-    if os.environ.get("CARGO_TARGET_DIR"):
-        cands.append(os.path.join(os.environ["CARGO_TARGET_DIR"], "release", "koopbridge"))
-    cands += [str(root / "target" / "release" / "koopbridge"), shutil.which("koopbridge")]
-    for c in cands:
-        if c and os.path.isfile(c) and os.access(c, os.X_OK):
-            return c
-    raise FileNotFoundError("the koopbridge CLI was not found (cargo build --release, or set KOOPBRIDGE_BIN)")
 
 
 class Run:

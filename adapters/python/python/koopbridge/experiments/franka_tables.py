@@ -31,8 +31,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from ..cli_path import koopbridge_cli
 from .dataset_npz import write_atomic
-from .figure8 import koopbridge_cli
 
 __all__ = ["PAPER", "main", "parser", "stages", "tables"]
 
