@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from koopbridge.adapters.drake_plan import Gen3Planner, Infeasible, random_goals
+from koopbridge.adapters.drake.plan import Gen3Planner, Infeasible, random_goals
 
 
 def _stats(v: list[float]) -> dict[str, float]:

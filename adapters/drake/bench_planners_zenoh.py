@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 from koopbridge import BridgeTimeout, Client, RemoteError
-from koopbridge.adapters.drake_plan import Gen3Planner, random_goals
+from koopbridge.adapters.drake.plan import Gen3Planner, random_goals
 
 
 def _free_endpoint() -> str:

@@ -18,10 +18,10 @@ import time
 import numpy as np
 
 import koopbridge
-from koopbridge.adapters.drake_collect import goal_seed
-from koopbridge.adapters.drake_model import VELOCITY_LIMITS
-from koopbridge.adapters.drake_plan import Gen3Planner, Infeasible, random_goals
-from koopbridge.adapters.drake_sim import DrakeGen3Sim
+from koopbridge.adapters.drake.collect import goal_seed
+from koopbridge.adapters.drake.model import VELOCITY_LIMITS
+from koopbridge.adapters.drake.plan import Gen3Planner, Infeasible, random_goals
+from koopbridge.adapters.drake.sim import DrakeGen3Sim
 
 
 def run(sim: DrakeGen3Sim, ref: np.ndarray, ff: np.ndarray, controller) -> tuple[np.ndarray, list[float]]:

@@ -28,7 +28,7 @@ import uuid
 import numpy as np
 
 import koopbridge
-from koopbridge.adapters.mujoco_sim import FrankaSimulator
+from koopbridge.adapters.mujoco.sim import FrankaSimulator
 from koopbridge.testing import _free_endpoint
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))

@@ -17,7 +17,7 @@ import time
 import mujoco
 import numpy as np
 
-from koopbridge.adapters.mujoco_sim import FrankaSimulator
+from koopbridge.adapters.mujoco.sim import FrankaSimulator
 from koopbridge.collect import UniformPolicy
 
 POLICY = UniformPolicy(low=(-0.12,) * 7, high=(0.12,) * 7)

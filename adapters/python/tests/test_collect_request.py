@@ -28,7 +28,7 @@ def remote_code(fn) -> str:
 
 def test_the_mujoco_adapter_serves_collect(tmp_path, session_id):
     pytest.importorskip("mujoco")
-    from koopbridge.adapters.mujoco_sim import FrankaSimulator
+    from koopbridge.adapters.mujoco.sim import FrankaSimulator
 
     ep = free_endpoint()
     cmd = [sys.executable, "-m", "koopbridge.adapters.mujoco", "--session", session_id, "--id", "arm", "--listen", ep]
@@ -66,7 +66,7 @@ def test_the_mujoco_adapter_serves_collect(tmp_path, session_id):
 
 
 def test_the_fmu_adapter_serves_collect(damped_fmu, session_id, serve_in_thread):
-    from koopbridge.adapters.fmu_sim import FmuSimulator
+    from koopbridge.adapters.fmu.sim import FmuSimulator
 
     def fmu():
         return FmuSimulator(str(damped_fmu), ["u"], ["theta", "omega"], dt=0.02, initial=["theta0", "omega0"], x0_low=[-1, -1], x0_high=[1, 1])

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from koopbridge import InvalidInput
-from koopbridge.adapters.fmu_sim import FmuSimulator
+from koopbridge.adapters.fmu.sim import FmuSimulator
 from koopbridge.collect import collect_windows, policy_from_json, window_rng
 
 

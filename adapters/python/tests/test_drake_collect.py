@@ -12,8 +12,8 @@ import zipfile
 import numpy as np
 
 from conftest import koopbridge_binary
-from koopbridge.adapters.drake_collect import goal_seed
-from koopbridge.adapters.drake_model import VELOCITY_LIMITS
+from koopbridge.adapters.drake.collect import goal_seed
+from koopbridge.adapters.drake.model import VELOCITY_LIMITS
 
 
 def _load(path):

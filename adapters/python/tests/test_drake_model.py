@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from koopbridge.adapters.drake_model import (
+from koopbridge.adapters.drake.model import (
     LINK_NAMES,
     POSITION_LIMITS,
     VELOCITY_LIMITS,

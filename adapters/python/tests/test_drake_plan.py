@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from koopbridge import InvalidInput
-from koopbridge.adapters.drake_model import CONTINUOUS, POSITION_LIMITS, VELOCITY_LIMITS
-from koopbridge.adapters.drake_plan import DimensionError, Gen3Planner, Infeasible, random_goals
+from koopbridge.adapters.drake.model import CONTINUOUS, POSITION_LIMITS, VELOCITY_LIMITS
+from koopbridge.adapters.drake.plan import DimensionError, Gen3Planner, Infeasible, random_goals
 
 
 @pytest.fixture(scope="module")

@@ -9,8 +9,8 @@ import pytest
 
 import koopbridge
 from koopbridge import InvalidInput
-from koopbridge.adapters.drake_model import VELOCITY_LIMITS, robosuite_mjcf
-from koopbridge.adapters.drake_sim import DrakeGen3Sim
+from koopbridge.adapters.drake.model import VELOCITY_LIMITS, robosuite_mjcf
+from koopbridge.adapters.drake.sim import DrakeGen3Sim
 from koopbridge.serving import SimulatorAdapter
 from koopbridge.testing import check_adapter, listening_client
 
@@ -100,7 +100,7 @@ def test_bad_input_is_typed(sim):
 
 
 def test_collect_executes_plans_into_windows(sim):
-    from koopbridge.adapters.drake_plan import Gen3Planner
+    from koopbridge.adapters.drake.plan import Gen3Planner
 
     planner = Gen3Planner()
     goals = [[0.5, 0.4, 0.0, 0.8, 0.0, 0.5, 0.0], [0.0, 2.3, 0, 0, 0, 0, 0], [-0.3, 0.2, 0.3, 0.5, -0.4, 0.2, 0.6]]

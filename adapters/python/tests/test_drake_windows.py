@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from koopbridge import InvalidInput, SimulatorAdapter, Unsupported
-from koopbridge.adapters.drake_sim import DrakeGen3Sim
-from koopbridge.adapters.drake_windows import PlannedPolicy, plan_for
+from koopbridge.adapters.drake.sim import DrakeGen3Sim
+from koopbridge.adapters.drake.windows import PlannedPolicy, plan_for
 from koopbridge.collect import PlannedPolicy as SdkPlannedPolicy
 from koopbridge.collect import collect_windows, policy_from_json
 from koopbridge.testing import listening_client
@@ -62,7 +62,7 @@ def test_dither_excites_the_commands_off_the_plan_deterministically(sim):
     # within the limits; the excitation breaks the command/velocity collinearity.
     np.testing.assert_array_equal(a.x[:, 0], plain.x[:, 0])
     d = a.u - plain.u
-    from koopbridge.adapters.drake_model import VELOCITY_LIMITS
+    from koopbridge.adapters.drake.model import VELOCITY_LIMITS
 
     assert np.all(np.abs(d) <= 0.2 + 1e-12) and np.std(d) > 0.05
     assert np.all(np.abs(a.u) <= VELOCITY_LIMITS + 1e-12)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from koopbridge.adapters.mujoco_ik import figure8
+from koopbridge.adapters.mujoco.ik import figure8
 from koopbridge.experiments import figure8_scenario as f8s
 from koopbridge.experiments.figure8_ref import joint_p_command, references
 

@@ -10,7 +10,7 @@ from fmpy import simulate_fmu
 from fmpy.validation import validate_fmu
 
 from conftest import _fmu
-from koopbridge.adapters.fmu_sim import FmuSimulator, InvalidInput
+from koopbridge.adapters.fmu.sim import FmuSimulator, InvalidInput
 
 
 @pytest.fixture(scope="session")

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from koopbridge import InvalidInput, KoopbridgeError, Unsupported
-from koopbridge.adapters.fmu_sim import FmuError, FmuSimulator
+from koopbridge.adapters.fmu.sim import FmuError, FmuSimulator
 
 
 def test_missing_file(tmp_path):

@@ -16,7 +16,7 @@ from fmpy.validation import validate_fmu
 
 from conftest import _fmu
 from koopbridge import InvalidInput
-from koopbridge.adapters.fmu_sim import FmuError, FmuSimulator
+from koopbridge.adapters.fmu.sim import FmuError, FmuSimulator
 
 IN3 = ["drive", "on", "mode", "gain", "i8", "u8", "i16", "u16", "u32", "i64", "u64"]
 ECHO3 = ["i8_out", "u8_out", "i16_out", "u16_out", "i32_out", "u32_out", "i64_out", "u64_out"]

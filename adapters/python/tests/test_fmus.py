@@ -8,7 +8,7 @@ import pytest
 from fmpy.validation import validate_fmu
 
 import koopbridge
-from koopbridge.adapters.fmu_sim import FmuSimulator
+from koopbridge.adapters.fmu.sim import FmuSimulator
 
 
 @pytest.mark.parametrize("name", ["damped_fmu", "double_fmu"])

@@ -10,7 +10,7 @@ import zipfile
 import numpy as np
 
 from conftest import koopbridge_binary_or_skip
-from koopbridge.adapters.mujoco_sim import FrankaSimulator
+from koopbridge.adapters.mujoco.sim import FrankaSimulator
 from koopbridge.collect import UniformPolicy
 from koopbridge.experiments import franka_data
 

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from conftest import koopbridge_binary_or_skip
-from koopbridge.adapters.mujoco_ik import figure8
-from koopbridge.adapters.mujoco_sim import FrankaSimulator
+from koopbridge.adapters.mujoco.ik import figure8
+from koopbridge.adapters.mujoco.sim import FrankaSimulator
 from koopbridge.experiments import figure8 as fig8
 from koopbridge.experiments import franka_data
 from koopbridge.experiments.figure8_ref import joint_p_command, references, tracking_error

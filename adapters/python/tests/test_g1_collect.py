@@ -14,9 +14,9 @@ pytest.importorskip("onnxruntime")
 
 import koopbridge  # noqa: E402
 from koopbridge import SimulatorAdapter  # noqa: E402
-from koopbridge.adapters import g1_model as g  # noqa: E402
-from koopbridge.adapters.g1_sim import G1Simulator  # noqa: E402
-from koopbridge.adapters.legged_policy import next_phase  # noqa: E402
+from koopbridge.adapters.legged.g1 import model as g  # noqa: E402
+from koopbridge.adapters.legged.g1.sim import G1Simulator  # noqa: E402
+from koopbridge.adapters.legged.policy import next_phase  # noqa: E402
 from koopbridge.collect import UniformPolicy  # noqa: E402
 from koopbridge.testing import listening_client  # noqa: E402
 

@@ -16,8 +16,8 @@ pytest.importorskip("mujoco")
 pytest.importorskip("onnxruntime")
 
 from koopbridge import InvalidInput  # noqa: E402
-from koopbridge.adapters import g1_model as g  # noqa: E402
-from koopbridge.adapters.g1_sim import G1Simulator  # noqa: E402
+from koopbridge.adapters.legged.g1 import model as g  # noqa: E402
+from koopbridge.adapters.legged.g1.sim import G1Simulator  # noqa: E402
 
 try:
     g.model_file(), g.policy_file()
@@ -79,7 +79,7 @@ def test_missing_model_policy_and_packages(tmp_path, monkeypatch):
     with pytest.raises(g.ModelError, match=r"G1 policy file .*junk\.onnx: no readable kp/kd/dof_names metadata"):
         G1Simulator(policy=str(junk))
     # An ONNX model without the metadata (the Go2's policy): named.
-    from koopbridge.adapters import go2_model
+    from koopbridge.adapters.legged.go2 import model as go2_model
 
     try:
         go2_policy = go2_model.package_files()[1]

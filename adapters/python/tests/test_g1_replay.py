@@ -14,8 +14,8 @@ import pytest
 pytest.importorskip("mujoco")
 pytest.importorskip("onnxruntime")
 
-from koopbridge.adapters import g1_model as g  # noqa: E402
-from koopbridge.adapters.g1_sim import G1Simulator  # noqa: E402
+from koopbridge.adapters.legged.g1 import model as g  # noqa: E402
+from koopbridge.adapters.legged.g1.sim import G1Simulator  # noqa: E402
 from koopbridge.experiments import g1_replay  # noqa: E402
 
 try:

@@ -16,9 +16,9 @@ mujoco = pytest.importorskip("mujoco")
 ort = pytest.importorskip("onnxruntime")
 
 from koopbridge import SimulatorAdapter  # noqa: E402
-from koopbridge.adapters import g1_model as g  # noqa: E402
-from koopbridge.adapters.g1_sim import G1Simulator  # noqa: E402
-from koopbridge.adapters.legged_collect import ExpertPolicy  # noqa: E402
+from koopbridge.adapters.legged.collect import ExpertPolicy  # noqa: E402
+from koopbridge.adapters.legged.g1 import model as g  # noqa: E402
+from koopbridge.adapters.legged.g1.sim import G1Simulator  # noqa: E402
 from koopbridge.testing import check_adapter, listening_client  # noqa: E402
 
 try:

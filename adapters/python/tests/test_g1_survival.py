@@ -19,8 +19,8 @@ pytest.importorskip("onnxruntime")
 
 from conftest import ROOT, Child, free_endpoint, koopbridge_binary_or_skip  # noqa: E402
 from koopbridge import survival  # noqa: E402
-from koopbridge.adapters import g1_model as g  # noqa: E402
-from koopbridge.adapters.g1_sim import G1Simulator  # noqa: E402
+from koopbridge.adapters.legged.g1 import model as g  # noqa: E402
+from koopbridge.adapters.legged.g1.sim import G1Simulator  # noqa: E402
 from koopbridge.experiments import g1_replay, legged_robots  # noqa: E402
 
 try:

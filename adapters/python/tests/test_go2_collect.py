@@ -15,9 +15,9 @@ pytest.importorskip("onnxruntime")
 
 import koopbridge  # noqa: E402
 from koopbridge import SimulatorAdapter  # noqa: E402
-from koopbridge.adapters import go2_model as g  # noqa: E402
-from koopbridge.adapters.go2_sim import Go2Simulator  # noqa: E402
-from koopbridge.adapters.legged_collect import ExpertPolicy  # noqa: E402
+from koopbridge.adapters.legged.collect import ExpertPolicy  # noqa: E402
+from koopbridge.adapters.legged.go2 import model as g  # noqa: E402
+from koopbridge.adapters.legged.go2.sim import Go2Simulator  # noqa: E402
 from koopbridge.collect import UniformPolicy  # noqa: E402
 from koopbridge.testing import listening_client  # noqa: E402
 

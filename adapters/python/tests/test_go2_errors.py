@@ -15,8 +15,8 @@ pytest.importorskip("mujoco")
 pytest.importorskip("onnxruntime")
 
 from koopbridge import InvalidInput  # noqa: E402
-from koopbridge.adapters import go2_model as g  # noqa: E402
-from koopbridge.adapters.go2_sim import Go2Simulator  # noqa: E402
+from koopbridge.adapters.legged.go2 import model as g  # noqa: E402
+from koopbridge.adapters.legged.go2.sim import Go2Simulator  # noqa: E402
 
 try:
     g.package_files()

@@ -11,7 +11,7 @@ import pytest
 
 mujoco = pytest.importorskip("mujoco")
 
-from koopbridge.adapters.legged import (  # noqa: E402
+from koopbridge.adapters.legged.common import (  # noqa: E402
     FallRule,
     LeggedLayout,
     PdDrive,
@@ -21,7 +21,7 @@ from koopbridge.adapters.legged import (  # noqa: E402
     quat_to_matrix,
     tilt,
 )
-from koopbridge.adapters.legged_policy import ObservationLayout  # noqa: E402
+from koopbridge.adapters.legged.policy import ObservationLayout  # noqa: E402
 
 ARM = """<mujoco><compiler angle="radian"/><option gravity="0 0 0" timestep="0.001"/><worldbody>
 <body name="base"><freejoint/><geom size="0.1" mass="1"/>
@@ -98,8 +98,8 @@ def test_layout_errors_name_what_is_missing():
 
 def test_the_observation_layout():
     pytest.importorskip("onnxruntime")
-    from koopbridge.adapters import go2_model as g
-    from koopbridge.adapters.legged_policy import OnnxExpert
+    from koopbridge.adapters.legged.go2 import model as g
+    from koopbridge.adapters.legged.policy import OnnxExpert
 
     try:
         path = g.package_files()[1]

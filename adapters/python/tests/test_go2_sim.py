@@ -14,9 +14,9 @@ mujoco = pytest.importorskip("mujoco")
 ort = pytest.importorskip("onnxruntime")
 
 from koopbridge import SimulatorAdapter  # noqa: E402
-from koopbridge.adapters import go2_model as g  # noqa: E402
-from koopbridge.adapters.go2_sim import Go2Simulator  # noqa: E402
-from koopbridge.adapters.legged_collect import ExpertPolicy  # noqa: E402
+from koopbridge.adapters.legged.collect import ExpertPolicy  # noqa: E402
+from koopbridge.adapters.legged.go2 import model as g  # noqa: E402
+from koopbridge.adapters.legged.go2.sim import Go2Simulator  # noqa: E402
 from koopbridge.testing import check_adapter, listening_client  # noqa: E402
 
 try:
@@ -136,7 +136,7 @@ class BareGo2:
 
 
 def test_expert_collection_reproduces_a_bare_loop(sim):
-    """Window i of the expert collection as the module docstring of legged_collect says: the
+    """Window i of the expert collection as the module docstring of legged.collect says: the
     episode generator default_rng([seed, e, 1]) draws the reset seed, then a command every
     command_every seconds; warm-up unrecorded; windows back to back."""
     policy = ExpertPolicy(warmup=0.1, windows_per_episode=3, command_every=0.1)

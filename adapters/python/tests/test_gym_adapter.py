@@ -22,7 +22,7 @@ pytest.importorskip("mujoco")
 import koopbridge  # noqa: E402
 from conftest import ROOT, Child, free_endpoint, koopbridge_binary_or_skip  # noqa: E402
 from koopbridge import InvalidInput, SimulatorAdapter, Unsupported  # noqa: E402
-from koopbridge.adapters.gym_sim import GymError, GymSimulator  # noqa: E402
+from koopbridge.adapters.gym.sim import GymError, GymSimulator  # noqa: E402
 from koopbridge.testing import check_adapter, listening_client, sample_inputs  # noqa: E402
 
 ENVS = ("InvertedPendulum-v5", "Reacher-v5")

@@ -49,7 +49,7 @@ def test_double_pendulum_scenario_runs_at_a_smoke_budget(tmp_path):
 
 
 def test_lqr_yardstick_matches_closed_forms():
-    from koopbridge.adapters.gym_sim import GymSimulator
+    from koopbridge.adapters.gym.sim import GymSimulator
     from koopbridge.experiments.gym_lqr import dlqr, linearise
 
     # dlqr on a scalar system: the Riccati fixed point p = q + a²p − (abp)²/(r + b²p) in closed form.

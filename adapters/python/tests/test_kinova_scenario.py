@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from koopbridge.adapters.drake_collect import goal_seed
-from koopbridge.adapters.drake_plan import Gen3Planner, Infeasible
-from koopbridge.adapters.drake_planner import handler
+from koopbridge.adapters.drake.collect import goal_seed
+from koopbridge.adapters.drake.plan import Gen3Planner, Infeasible
+from koopbridge.adapters.drake.planner import handler
 from koopbridge.experiments import kinova_scenario as ks
 
 
@@ -89,7 +89,7 @@ def test_report_scores_the_closed_loop_against_feed_forward_and_lqr(tmp_path, pl
     import json
 
     from koopbridge import KoopmanModel
-    from koopbridge.adapters.drake_sim import DrakeGen3Sim
+    from koopbridge.adapters.drake.sim import DrakeGen3Sim
 
     ref = ks.plan_reference(handler(planner), [(1, np.array([0.3, 0.2, 0.0, 0.4, 0.0, 0.3, 0.0]))], 0.001, 0.05, np.zeros(7))
     np.save(tmp_path / ks.REFERENCE, ref["x"])

@@ -21,8 +21,8 @@ from koopbridge.testing import listening_client  # noqa: E402
 
 
 def _go2() -> Any:
-    from koopbridge.adapters import go2_model
-    from koopbridge.adapters.go2_sim import Go2Simulator
+    from koopbridge.adapters.legged.go2 import model as go2_model
+    from koopbridge.adapters.legged.go2.sim import Go2Simulator
 
     try:
         go2_model.package_files()
@@ -32,8 +32,8 @@ def _go2() -> Any:
 
 
 def _g1() -> Any:
-    from koopbridge.adapters import g1_model
-    from koopbridge.adapters.g1_sim import G1Simulator
+    from koopbridge.adapters.legged.g1 import model as g1_model
+    from koopbridge.adapters.legged.g1.sim import G1Simulator
 
     try:
         g1_model.model_file(), g1_model.policy_file()
@@ -82,7 +82,7 @@ def test_unstable_simulation_is_a_failure_and_a_reset_recovers(robot, tmp_path, 
     wild = x.copy()
     wild[_joint_velocities(sim)] = 1e9  # joint velocities no integrator survives
     sim.reset(x0=wild)
-    with pytest.raises(koopbridge.adapters.legged.SimFailure, match=r"unstable at step 0 .*reset to go on"):
+    with pytest.raises(koopbridge.adapters.legged.common.SimFailure, match=r"unstable at step 0 .*reset to go on"):
         sim.step(_stand(sim))
     with pytest.raises(InvalidInput, match="reset needed after a failure"):
         sim.step(_stand(sim))

@@ -1,4 +1,4 @@
-"""The RL expert's own row of a legged tracking task (``legged_collect.expert_rollouts``,
+"""The RL expert's own row of a legged tracking task (``legged.collect.expert_rollouts``,
 ``experiments.legged_expert_row``): the collected pass is the reference (the expert collection's
 window) bit for bit; every run starts at the reference's first state and is deterministic, a
 push changes nothing before its step, a heavier body changes the run; the survival metric is the engine's (checked on hand-made runs);
@@ -15,9 +15,9 @@ pytest.importorskip("mujoco")
 pytest.importorskip("onnxruntime")
 
 from koopbridge import survival  # noqa: E402
-from koopbridge.adapters import go2_model as g  # noqa: E402
-from koopbridge.adapters.go2_sim import Go2Simulator  # noqa: E402
-from koopbridge.adapters.legged_collect import ExpertPolicy, expert_rollouts  # noqa: E402
+from koopbridge.adapters.legged.collect import ExpertPolicy, expert_rollouts  # noqa: E402
+from koopbridge.adapters.legged.go2 import model as g  # noqa: E402
+from koopbridge.adapters.legged.go2.sim import Go2Simulator  # noqa: E402
 from koopbridge.experiments import legged_expert_row  # noqa: E402
 
 try:

@@ -13,8 +13,8 @@ pytest.importorskip("mujoco")
 pytest.importorskip("onnxruntime")
 
 from koopbridge import InvalidInput, SimulatorAdapter, Unsupported  # noqa: E402
-from koopbridge.adapters import go2_model as g  # noqa: E402
-from koopbridge.adapters.go2_sim import Go2Simulator  # noqa: E402
+from koopbridge.adapters.legged.go2 import model as g  # noqa: E402
+from koopbridge.adapters.legged.go2.sim import Go2Simulator  # noqa: E402
 from koopbridge.testing import listening_client  # noqa: E402
 
 try:

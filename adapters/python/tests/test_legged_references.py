@@ -15,7 +15,7 @@ import pytest
 
 from conftest import Child, free_endpoint
 from koopbridge import survival
-from koopbridge.adapters.go2_model import FALL
+from koopbridge.adapters.legged.go2.model import FALL
 from koopbridge.experiments import legged_references
 from koopbridge.experiments.legged_robots import GO2, GO2_LAYOUT, REFERENCE_SEED, ROBOTS, make_references, references, stats
 
@@ -47,7 +47,7 @@ def _mean_joint_error(x: np.ndarray, ref: np.ndarray) -> np.ndarray:
 def _sim_or_skip() -> None:
     pytest.importorskip("mujoco")
     pytest.importorskip("onnxruntime")
-    from koopbridge.adapters import go2_model as g
+    from koopbridge.adapters.legged.go2 import model as g
 
     try:
         g.package_files()
@@ -109,7 +109,7 @@ def test_a_fall_ends_survival_by_height_or_tilt_and_the_cap_holds():
 def test_the_references_are_the_collecting_simulators_rollouts_and_a_fresh_adapter_replays_them(tmp_path, session_id):
     _sim_or_skip()
     from koopbridge import Client
-    from koopbridge.adapters.go2_sim import Go2Simulator
+    from koopbridge.adapters.legged.go2.sim import Go2Simulator
 
     skipped: list[dict[str, object]] = []
     refs = references(GO2, 2, 25, seed=7, skipped=skipped)

@@ -17,7 +17,7 @@ pytest.importorskip("mujoco")
 
 import koopbridge  # noqa: E402
 from conftest import Child, free_endpoint  # noqa: E402
-from koopbridge.adapters.mujoco_sim import FrankaSimulator  # noqa: E402
+from koopbridge.adapters.mujoco.sim import FrankaSimulator  # noqa: E402
 
 MODULE = [sys.executable, "-m", "koopbridge.adapters.mujoco"]
 

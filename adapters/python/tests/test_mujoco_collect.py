@@ -11,8 +11,8 @@ pytest.importorskip("mujoco")
 
 import koopbridge  # noqa: E402
 from koopbridge import InvalidInput, SimulatorAdapter  # noqa: E402
-from koopbridge.adapters.mujoco_model import HOME  # noqa: E402
-from koopbridge.adapters.mujoco_sim import FrankaSimulator  # noqa: E402
+from koopbridge.adapters.mujoco.model import HOME  # noqa: E402
+from koopbridge.adapters.mujoco.sim import FrankaSimulator  # noqa: E402
 from koopbridge.collect import UniformPolicy, collect_windows, policy_from_json  # noqa: E402
 from koopbridge.testing import listening_client  # noqa: E402
 
@@ -77,7 +77,7 @@ def test_policies_from_json_and_bad_requests(sim):
 
 
 def test_generic_collection_through_any_simulator(damped_fmu):
-    from koopbridge.adapters.fmu_sim import FmuSimulator
+    from koopbridge.adapters.fmu.sim import FmuSimulator
 
     fmu = FmuSimulator(str(damped_fmu), ["u"], ["theta", "omega"], dt=0.02, initial=["theta0", "omega0"], x0_low=[-1, -1], x0_high=[1, 1])
     try:

@@ -14,9 +14,9 @@ pytest.importorskip("mujoco")
 
 import koopbridge  # noqa: E402
 from koopbridge import InvalidInput, SimulatorAdapter  # noqa: E402
-from koopbridge.adapters import mujoco_model  # noqa: E402
-from koopbridge.adapters.mujoco_model import ModelError  # noqa: E402
-from koopbridge.adapters.mujoco_sim import FrankaSimulator, SimFailure  # noqa: E402
+from koopbridge.adapters.mujoco import model as mujoco_model  # noqa: E402
+from koopbridge.adapters.mujoco.model import ModelError  # noqa: E402
+from koopbridge.adapters.mujoco.sim import FrankaSimulator, SimFailure  # noqa: E402
 from koopbridge.testing import listening_client  # noqa: E402
 
 

@@ -11,8 +11,8 @@ pytest.importorskip("mujoco")
 from test_mujoco_sim import dh_position  # noqa: E402
 
 from koopbridge import InvalidInput  # noqa: E402
-from koopbridge.adapters.mujoco_ik import dls_ik, figure8  # noqa: E402
-from koopbridge.adapters.mujoco_sim import FrankaSimulator  # noqa: E402
+from koopbridge.adapters.mujoco.ik import dls_ik, figure8  # noqa: E402
+from koopbridge.adapters.mujoco.sim import FrankaSimulator  # noqa: E402
 
 
 def test_figure8_is_specs_lemniscate():

@@ -9,8 +9,8 @@ import pytest
 
 mujoco = pytest.importorskip("mujoco")
 
-from koopbridge.adapters.mujoco_model import HOME, PandaOptions  # noqa: E402
-from koopbridge.adapters.mujoco_sim import FrankaSimulator  # noqa: E402
+from koopbridge.adapters.mujoco.model import HOME, PandaOptions  # noqa: E402
+from koopbridge.adapters.mujoco.sim import FrankaSimulator  # noqa: E402
 from koopbridge.testing import check_adapter  # noqa: E402
 
 # Franka Emika's published kinematics (Craig's modified DH: a, d, alpha per joint; the

@@ -14,7 +14,7 @@ import pytest
 import koopbridge
 from conftest import reset_state
 from koopbridge import InvalidInput, SimInfo, SimulatorAdapter, Unsupported
-from koopbridge.adapters.fmu_sim import FmuSimulator
+from koopbridge.adapters.fmu.sim import FmuSimulator
 from koopbridge.testing import check_adapter, listening_client
 
 

@@ -34,9 +34,9 @@ def walk(sim: Any, steps: int) -> np.ndarray:
 @pytest.mark.parametrize("robot", ["go2", "g1"])
 def test_a_legged_state_poses_the_robot_as_the_simulator_holds_it(robot):
     if robot == "go2":
-        from koopbridge.adapters.go2_sim import Go2Simulator as Sim
+        from koopbridge.adapters.legged.go2.sim import Go2Simulator as Sim
     else:
-        from koopbridge.adapters.g1_sim import G1Simulator as Sim
+        from koopbridge.adapters.legged.g1.sim import G1Simulator as Sim
     sim = Sim()
     x = walk(sim, 5)
     poser = robot_for(info_of(sim))
@@ -53,7 +53,7 @@ def test_a_legged_state_poses_the_robot_as_the_simulator_holds_it(robot):
 
 
 def test_the_arm_state_poses_the_franka_as_the_simulator_holds_it():
-    from koopbridge.adapters.mujoco_sim import FrankaSimulator
+    from koopbridge.adapters.mujoco.sim import FrankaSimulator
 
     sim = FrankaSimulator()
     x = walk(sim, 5)

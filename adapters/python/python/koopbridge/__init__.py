@@ -12,8 +12,9 @@
 - ``Client``: the querying side (simulators, MPC solves and configuration, training jobs, the
   model store, raw queries), all through the Rust ``bridge`` crate;
 - ``ReferenceSystem``: the built-in Rust reference dynamics;
-- ``koopbridge.adapters.fmu``, ``koopbridge.adapters.mujoco``: the FMU and MuJoCo adapters
-  (``python -m koopbridge.adapters.fmu --help``).
+- ``koopbridge.adapters``: the simulator adapters, one subpackage per family (``fmu``,
+  ``mujoco``, ``legged.go2``, ``legged.g1``, ``drake``, ``gym``; ``python -m
+  koopbridge.adapters.fmu --help``); ``koopbridge.experiments``: the paper's experiments.
 
 Errors: every one is a ``KoopbridgeError``; ``BridgeTimeout`` is also a built-in
 ``TimeoutError``, ``RemoteError`` carries the reply's ``code``.

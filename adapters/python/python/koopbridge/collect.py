@@ -32,7 +32,7 @@ __all__ = [
 
 #: Policy kinds that only a simulator with its own ``collect`` runs (``SimulatorPolicy``): a
 #: legged robot's expert walking policy, alone or with Gaussian noise on its joint targets
-#: (``koopbridge.adapters.legged_collect``).
+#: (``koopbridge.adapters.legged.collect``).
 SIMULATOR_POLICY_KINDS = ("expert", "expert+noise")
 
 
@@ -107,7 +107,7 @@ class PlannedPolicy:
     """Windows cut from trajectories the simulator plans itself (``{"kind": "planned",
     "windows_per_plan": K}``, PROTOCOL.md §7): not an input draw per window, so only a
     simulator with a planner runs it in its own ``collect`` (the Drake Gen3 simulator,
-    ``koopbridge.adapters.drake_windows``); ``collect_windows`` and every other simulator answer
+    ``koopbridge.adapters.drake.windows``); ``collect_windows`` and every other simulator answer
     ``Unsupported``. ``windows_per_plan`` ≥ 1; ``dither`` ≥ 0: ``U(±dither)`` added to every
     planned command (drawn from ``(seed, window)``, clipped to the input bounds), the
     excitation that lets a model tell a command's effect from the state's (without it the

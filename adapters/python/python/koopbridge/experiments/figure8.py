@@ -146,7 +146,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if any(b not in ("zero", "p") for b in baselines):
         print(f"figure8: --baselines {a.baselines!r}: expected zero, p or none", file=sys.stderr)
         return 2
-    from ..adapters.mujoco_sim import FrankaSimulator
+    from ..adapters.mujoco.sim import FrankaSimulator
 
     sim = FrankaSimulator()
     t = time.perf_counter()

@@ -35,8 +35,8 @@ __all__ = ["closed_loop_of", "main", "parser", "plan_of", "simulator"]
 def simulator(state: str = "ee,q,qd", u_limit: float = 0.3) -> Any:
     """The ``FrankaSimulator`` the scenario's adapter runs (robosuite's Panda, SPEC actuation
     with the command clip ``u_limit``)."""
-    from ..adapters.mujoco_model import PandaOptions
-    from ..adapters.mujoco_sim import FrankaSimulator
+    from ..adapters.mujoco.model import PandaOptions
+    from ..adapters.mujoco.sim import FrankaSimulator
 
     return FrankaSimulator(state=state, options=PandaOptions(u_limit=u_limit))
 

@@ -33,7 +33,7 @@ COMMAND_RANGE = 0.12
 
 
 def _sim(state: str):  # type: ignore[no-untyped-def]
-    from ..adapters.mujoco_sim import FrankaSimulator
+    from ..adapters.mujoco.sim import FrankaSimulator
 
     return FrankaSimulator(state=state)
 
@@ -141,7 +141,7 @@ def _write_splits(a: argparse.Namespace, x: np.ndarray, u: np.ndarray, cuts: dic
         state_names=list(info.state_names),
         input_names=list(info.input_names),
         seed=a.seed,
-        source=f"koopbridge.adapters.mujoco_sim collect (MuJoCo {mujoco.__version__}, {os.path.basename(info.extra['mujoco']['model_file'])})",
+        source=f"koopbridge.adapters.mujoco.sim collect (MuJoCo {mujoco.__version__}, {os.path.basename(info.extra['mujoco']['model_file'])})",
         policy=f"uniform random input U(±{COMMAND_RANGE}) each step; reset home + U(±0.2) clipped to the joint limits",
     )
     for name, (lo, hi) in cuts.items():

@@ -22,7 +22,7 @@ __all__ = ["ROBOT", "main"]
 ROBOT = DataRobot(
     name="g1_data",
     prog="python -m koopbridge.experiments.g1_data",
-    simulator="koopbridge.adapters.g1_sim:G1Simulator",
+    simulator="koopbridge.adapters.legged.g1.sim:G1Simulator",
     expert="holosoma's G1 walking policy under U([-1,-1,-1],[1,1,1]) velocity commands every 2 s "
     "(waist roll/pitch and wrist pitch/yaw held at the default pose)",
 )

@@ -49,8 +49,8 @@ class G1Reference:
 
 
 def fallen_mask(x: np.ndarray) -> np.ndarray:
-    """Whether each state's pelvis has fallen (``g1_model.FALL``); non-finite rows count as fallen."""
-    from ..adapters.g1_model import FALL
+    """Whether each state's pelvis has fallen (``legged.g1.model.FALL``); non-finite rows count as fallen."""
+    from ..adapters.legged.g1.model import FALL
 
     return np.array([not np.all(np.isfinite(r)) or FALL.fallen(r[QUAT_SLICE], float(r[HEIGHT_INDEX])) for r in np.asarray(x)], dtype=bool)
 
@@ -105,7 +105,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if a.references < 1 or a.steps < 1 or not a.threshold > 0:
         print("g1_replay: --references and --steps must be >= 1 and --threshold > 0", file=sys.stderr)
         return 2
-    from ..adapters.g1_sim import G1Simulator
+    from ..adapters.legged.g1.sim import G1Simulator
 
     def sim(memory: int = 4096) -> G1Simulator:
         return G1Simulator(policy_name=a.expert, held=a.held, memory=memory, on_fall=None)

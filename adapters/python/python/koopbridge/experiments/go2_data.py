@@ -21,7 +21,7 @@ __all__ = ["ROBOT", "main"]
 ROBOT = DataRobot(
     name="go2_data",
     prog="python -m koopbridge.experiments.go2_data",
-    simulator="koopbridge.adapters.go2_sim:Go2Simulator",
+    simulator="koopbridge.adapters.legged.go2.sim:Go2Simulator",
     expert="the rl_sar expert under U([-0.5,-0.3,-0.8],[1,0.3,0.8]) velocity commands every 2 s",
 )
 

@@ -29,7 +29,7 @@ def bare_loop(model: Any, policy_path: str, steps: int, seed: int = 0) -> tuple[
     import mujoco
     import onnxruntime as ort
 
-    from ..adapters import go2_model as g
+    from ..adapters.legged.go2 import model as g
 
     o = ort.SessionOptions()
     o.intra_op_num_threads = o.inter_op_num_threads = 1
@@ -96,7 +96,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--repeat", type=int, default=3, help="measurements of each, the best one counts (default: %(default)s)")
     p.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
     a = p.parse_args(argv)
-    from ..adapters.go2_sim import Go2Simulator
+    from ..adapters.legged.go2.sim import Go2Simulator
     from ..collect import policy_from_json
 
     sim = Go2Simulator()

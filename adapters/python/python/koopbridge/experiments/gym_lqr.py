@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from ..adapters.gym_sim import GymSimulator
+from ..adapters.gym.sim import GymSimulator
 
 #: The scenario engine's goal (koopman::mpc::metrics::GoalSpec::default).
 ANGLE_TOL, RATE_TOL, HOLD = 0.05, 0.1, 50

@@ -43,8 +43,8 @@ REFERENCE, FEEDFORWARD, PLANS = "kinova-reference.npy", "kinova-feedforward.npy"
 def held_out_goals(seed: int, n: int, planner: Any) -> list[tuple[int, np.ndarray]]:
     """``n`` collision-free goals (2 cm margin, as the collection draws them) with their seeds:
     goal i from ``goal_seed(seed, "test", HELD_OUT_SESSION + i)``."""
-    from ..adapters.drake_collect import goal_seed
-    from ..adapters.drake_plan import random_goals
+    from ..adapters.drake.collect import goal_seed
+    from ..adapters.drake.plan import random_goals
 
     out = []
     for i in range(n):
@@ -85,7 +85,7 @@ def plan_reference(ask: Any, goals: Sequence[tuple[int, np.ndarray]], dt: float,
 
 def _reference(a: argparse.Namespace) -> int:
     from .. import BridgeTimeout, Client, RemoteError
-    from ..adapters.drake_plan import Gen3Planner
+    from ..adapters.drake.plan import Gen3Planner
 
     out = Path(a.out)
     goals = held_out_goals(a.seed, a.goals, Gen3Planner())
@@ -149,7 +149,7 @@ def tracking_errors(x: np.ndarray, ref: np.ndarray) -> dict[str, Any]:
 
 
 def _run(sim: Any, x0: np.ndarray, steps: int, command: Any) -> np.ndarray:
-    from ..adapters.drake_model import VELOCITY_LIMITS
+    from ..adapters.drake.model import VELOCITY_LIMITS
 
     x = sim.reset(x0=x0)
     xs = [x]
@@ -169,7 +169,7 @@ def _padded(a: np.ndarray, n: int, fill: np.ndarray | None = None) -> np.ndarray
 
 def _report(a: argparse.Namespace) -> int:
     from .. import KoopmanModel
-    from ..adapters.drake_sim import DrakeGen3Sim
+    from ..adapters.drake.sim import DrakeGen3Sim
 
     out = Path(a.out)
     rep_path = out / "report.json"
@@ -201,7 +201,7 @@ def _report(a: argparse.Namespace) -> int:
     disturbed, dis, replay = None, {}, None
     if ctrl.get("mpc"):
         from .. import Mpc
-        from ..adapters.drake_model import VELOCITY_LIMITS
+        from ..adapters.drake.model import VELOCITY_LIMITS
         from .plan_loop import corrected_plan
 
         mpc_cfg = dict(ctrl["mpc"])

@@ -1,7 +1,7 @@
 """The RL expert's own row of a legged scenario's tracking tasks (how hard each task is, issue 44
 §3): for every tracking task of ``OUT/report.json`` that has a survival metric (the aggregation
 task aside) and each of its references, the expert walks the reference's episode again — the
-same start, warm-up and velocity commands (``legged_collect.expert_rollouts``) — from the
+same start, warm-up and velocity commands (``legged.collect.expert_rollouts``) — from the
 reference's first state with the reset request the scenario engine sent that task's rows (its
 perturbation: the push drawn for that reference, the heavier body, the lower friction), scored
 by the engine's own survival metric (``koopbridge._native.survival``). Adds ``expert`` to
@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from .._native import InvalidInput, survival
-from ..adapters.legged_collect import expert_rollouts
+from ..adapters.legged.collect import expert_rollouts
 from .dataset_npz import write_atomic
 from .legged_robots import REFERENCE_SEED, ROBOTS, stats
 from .run_report import update_report

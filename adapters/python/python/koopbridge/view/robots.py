@@ -140,17 +140,17 @@ def robot_for(info: dict[str, Any]) -> RobotPoser | None:
     extra = info.get("extra") if isinstance(info.get("extra"), dict) else {}
     try:
         if env == "unitree-go2":
-            from ..adapters import go2_model
+            from ..adapters.legged.go2 import model as go2_model
 
             go2 = go2_model.build_go2()
             return RobotPoser(go2.model, _legged(go2.model, names, go2.layout.base_qpos))
         if env.startswith("unitree-g1"):
-            from ..adapters import g1_model
+            from ..adapters.legged.g1 import model as g1_model
 
             g1 = g1_model.build_g1(held="locked" if env.endswith("-locked") else "servo")
             return RobotPoser(g1.model, _legged(g1.model, names, g1.layout.base_qpos))
         if env.startswith("franka") and all(f"q{i}" in names for i in range(1, 8)):
-            from ..adapters import mujoco_model
+            from ..adapters.mujoco import model as mujoco_model
 
             arm = mujoco_model.build_panda()
             return RobotPoser(arm.model, _indexed(arm.model, names, [f"q{i}" for i in range(1, 8)]))
