@@ -113,14 +113,8 @@ impl SimClient {
                 {
                     self.wait_unroutable("reset", &mut unroutable)
                 }
-                Err(Error::Timeout { who, what, .. }) => {
-                    return Err(Error::Timeout {
-                        who,
-                        what,
-                        after_ms: began.elapsed().as_millis() as u64,
-                    })
-                }
-                r => break r?,
+                Err(e) => return Err(whole_wait(e, began)),
+                Ok(b) => break b,
             }
         };
         let r = StepReply::decode(&b)?;
@@ -223,14 +217,7 @@ impl SimClient {
                     );
                     pending = self.start_step(u)?;
                 }
-                Err(Error::Timeout { who, what, .. }) => {
-                    return Err(Error::Timeout {
-                        who,
-                        what,
-                        after_ms: began.elapsed().as_millis() as u64,
-                    })
-                }
-                Err(e) => return Err(e),
+                Err(e) => return Err(whole_wait(e, began)),
             }
         }
     }
@@ -239,6 +226,18 @@ impl SimClient {
     pub fn step(&mut self, u: &[f64], live: Option<&Liveliness>) -> Result<StepReply> {
         let p = self.start_step(u)?;
         self.finish_step(p, u, live)
+    }
+}
+
+/// `e`, a timeout naming the whole wait since `began` (its retries and resends included).
+fn whole_wait(e: Error, began: Instant) -> Error {
+    match e {
+        Error::Timeout { who, what, .. } => Error::Timeout {
+            who,
+            what,
+            after_ms: began.elapsed().as_millis() as u64,
+        },
+        e => e,
     }
 }
 

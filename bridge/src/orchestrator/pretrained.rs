@@ -53,17 +53,22 @@ pub fn install(
         };
         let (sim, info) = (&sc.sims[j].id, infos[j]);
         let path = reference_path(&p.path, ph);
-        let config = path.join("config.json");
-        let text = std::fs::read_to_string(&config).map_err(|e| {
-            bad(format!(
-                "{} is not a model folder ({}: {e})",
-                path.display(),
-                config.display()
-            ))
-        })?;
-        let c: serde_json::Value =
-            serde_json::from_str(&text).map_err(|e| bad(format!("{}: {e}", config.display())))?;
+        let c = koopman::model::store::read_config(&path)
+            .map_err(|e| bad(format!("{} is not a model folder ({e})", path.display())))?;
         let kind = ModelKind::parse(c["kind"].as_str().unwrap_or("koopman")).map_err(bad)?;
+        if let Some(t) = sc
+            .tracks
+            .iter()
+            .find(|t| t.error_state && sc.tracked_id(t) == sim && !kind.plans_about_feedforward())
+        {
+            return Err(bad(format!(
+                "a {kind} model cannot be a row of the `error_state` task{} (the error-state \
+                 MPC needs a lifted-linear model or an NNDM)",
+                t.label
+                    .as_ref()
+                    .map_or(String::new(), |l| format!(" '{l}'"))
+            )));
+        }
         let dims = (c["nx"].as_u64(), c["nu"].as_u64());
         if dims != (Some(info.nx() as u64), Some(info.nu() as u64)) {
             return Err(bad(format!(
@@ -92,25 +97,17 @@ pub fn install(
     Ok(out)
 }
 
-/// Copies the files of model folder `from` to `to` (replacing it): into a temporary sibling
-/// first, renamed into place, so that a reader never sees half a model.
-fn copy_model(from: &Path, to: &Path) -> std::io::Result<()> {
-    let parent = to.parent().expect("a store path has a parent");
-    std::fs::create_dir_all(parent)?;
-    let name = to.file_name().and_then(|n| n.to_str()).unwrap_or("model");
-    let tmp = parent.join(format!(".{name}.installing"));
-    if tmp.exists() {
-        std::fs::remove_dir_all(&tmp)?;
-    }
-    std::fs::create_dir(&tmp)?;
-    for e in std::fs::read_dir(from)? {
-        let e = e?;
-        if e.file_type()?.is_file() {
-            std::fs::copy(e.path(), tmp.join(e.file_name()))?;
+/// Copies the files of model folder `from` to `to`, replacing it atomically
+/// ([`koopman::fsutil::write_dir_atomic`]): a reader never sees half a model.
+fn copy_model(from: &Path, to: &Path) -> koopman::Result<()> {
+    let io = |p: &Path, e| koopman::Error::io(p, e);
+    koopman::fsutil::write_dir_atomic(to, |tmp| {
+        for e in std::fs::read_dir(from).map_err(|e| io(from, e))? {
+            let e = e.map_err(|e| io(from, e))?;
+            if e.file_type().is_ok_and(|t| t.is_file()) {
+                std::fs::copy(e.path(), tmp.join(e.file_name())).map_err(|x| io(&e.path(), x))?;
+            }
         }
-    }
-    if to.exists() {
-        std::fs::remove_dir_all(to)?;
-    }
-    std::fs::rename(&tmp, to)
+        Ok(())
+    })
 }

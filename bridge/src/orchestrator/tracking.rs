@@ -197,12 +197,6 @@ pub fn tracking_phase(
             .filter(|p| p.sim == sim_id)
             .map(|p| (p.name.clone(), p.kind));
         for (model, kind) in trained.chain(given).collect::<Vec<_>>() {
-            if t.error_state && !kind.plans_about_feedforward() {
-                return Err(at(Error::Config(format!(
-                    "model '{model}' is a {kind} model: `error_state` (the error-state MPC) \
-                     needs a lifted-linear model (koopman or edmd) or an NNDM"
-                ))));
-            }
             let name = t.row(&model);
             on(Event::Phase(&format!(
                 "tracking {} references on '{sim_id}' with {name} ({kind}{})",

@@ -68,10 +68,8 @@ def task_name(t: dict[str, Any]) -> str:
     return str(t.get("label") or "nominal")
 
 
-def run(a: argparse.Namespace) -> dict[str, Any]:
-    """Runs the expert on every scored task; returns the ``expert`` entry of report.json."""
-    out = Path(a.out)
-    report = json.loads((out / "report.json").read_text())
+def run(a: argparse.Namespace, report: dict[str, Any]) -> dict[str, Any]:
+    """Runs the expert on every scored task of ``report``; returns its ``expert`` entry."""
     tasks = scored_tasks(report)
     with np.load(tasks[0]["references_file"]) as z:
         refs = np.asarray(z["x"], float)
@@ -137,8 +135,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Runs, writes; returns the exit code (2: bad input)."""
     a = parser().parse_args(argv)
     try:
-        expert = run(a)
         report = json.loads((Path(a.out) / "report.json").read_text())
+        expert = run(a, report)
         md = table(report, expert)
     except (Refused, OSError, KeyError, ValueError) as e:
         print(f"legged_expert_row: {e}", file=sys.stderr)
