@@ -335,17 +335,23 @@ pub fn collect_regions(
             let ws = window_seed(seed, split, j, i);
             let first = match box_of(j) {
                 Some(xb) => s
-                    .reset(&ResetRequest {
-                        seed: None,
-                        x0: Some(window_x0(ws, xb)),
-                        perturbation: None,
-                    })
+                    .reset_watched(
+                        &ResetRequest {
+                            seed: None,
+                            x0: Some(window_x0(ws, xb)),
+                            perturbation: None,
+                        },
+                        live,
+                    )
                     .map_err(|e| x0_unsupported(&s.id, e))?,
-                None => s.reset(&ResetRequest {
-                    seed: Some(ws),
-                    x0: None,
-                    perturbation: None,
-                })?,
+                None => s.reset_watched(
+                    &ResetRequest {
+                        seed: Some(ws),
+                        x0: None,
+                        perturbation: None,
+                    },
+                    live,
+                )?,
             };
             out[j].x.extend_from_slice(&first.x);
             rngs.push(Rng::new(ws ^ 0x5EED_u64));

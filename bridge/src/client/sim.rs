@@ -99,19 +99,31 @@ impl SimClient {
 
     /// Resets; returns the first state.
     pub fn reset(&mut self, req: &ResetRequest) -> Result<StepReply> {
+        self.reset_watched(req, None)
+    }
+
+    /// Resets, as [`SimClient::reset`]; with `live`, a simulator that loses its liveliness
+    /// token ends the wait at once with [`Error::Gone`] (a reset re-sent while the simulator is
+    /// unroutable would otherwise wait out the step timeout for a simulator that died).
+    pub fn reset_watched(
+        &mut self,
+        req: &ResetRequest,
+        live: Option<&Liveliness>,
+    ) -> Result<StepReply> {
         let key = self.client.keys.sim(&self.id, SimLeaf::Reset)?;
         let body = serde_json::to_vec(req).map_err(|e| Error::Config(e.to_string()))?;
         let began = Instant::now();
         let mut unroutable = 0;
         let b = loop {
-            match self
+            let watch = live.map(|l| (l, Role::Sim, self.id.as_str()));
+            let pending = self
                 .client
-                .query(&key, body.clone(), self.timeout, &self.who())
-            {
+                .start(&key, body.clone(), self.timeout, &self.who())?;
+            match pending.wait(watch) {
                 Err(Error::Timeout { after_ms, .. })
                     if self.may_resend_unroutable(began, after_ms, unroutable) =>
                 {
-                    self.wait_unroutable("reset", &mut unroutable)
+                    self.wait_unroutable("reset", &mut unroutable, live)?
                 }
                 Err(e) => return Err(whole_wait(e, began)),
                 Ok(b) => break b,
@@ -144,8 +156,16 @@ impl SimClient {
         ended_early && began.elapsed() + unroutable_backoff(unroutable) < self.timeout
     }
 
-    /// Sleeps resend no. `unroutable`'s backoff (warning on the first) and counts it.
-    fn wait_unroutable(&self, what: &str, unroutable: &mut u32) {
+    /// Sleeps resend no. `unroutable`'s backoff (warning on the first) and counts it. With
+    /// `live`, ends early with [`Error::Gone`] once the simulator's liveliness token is withdrawn:
+    /// a simulator that died is unroutable too, and its token may be withdrawn only after the
+    /// query that found no route has ended.
+    fn wait_unroutable(
+        &self,
+        what: &str,
+        unroutable: &mut u32,
+        live: Option<&Liveliness>,
+    ) -> Result<()> {
         if *unroutable == 0 {
             tracing::warn!(
                 "{} is not routable for {what} {}; re-sending until it is (for up to {:?})",
@@ -154,8 +174,18 @@ impl SimClient {
                 self.timeout
             );
         }
-        std::thread::sleep(unroutable_backoff(*unroutable));
+        let until = Instant::now() + unroutable_backoff(*unroutable);
         *unroutable += 1;
+        loop {
+            if live.is_some_and(|l| l.is_gone(Role::Sim, &self.id)) {
+                return Err(Error::Gone(self.who()));
+            }
+            let left = until.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Ok(());
+            }
+            std::thread::sleep(left.min(Duration::from_millis(10)));
+        }
     }
 
     /// Waits for a step started by [`SimClient::start_step`]; a request that found no route is
@@ -205,7 +235,7 @@ impl SimClient {
                 Err(Error::Timeout { after_ms, .. })
                     if self.may_resend_unroutable(began, after_ms, unroutable) =>
                 {
-                    self.wait_unroutable("step", &mut unroutable);
+                    self.wait_unroutable("step", &mut unroutable, live)?;
                     pending = self.start_step(u)?;
                 }
                 Err(Error::Timeout { .. }) if attempt < self.retries => {
@@ -383,5 +413,48 @@ mod tests {
             }
             other => panic!("expected a timeout, got {other:?}"),
         }
+    }
+
+    /// A simulator that dies is unroutable too: once its liveliness token is withdrawn the
+    /// resending of `request` stops and it fails as gone, long before the step timeout (a killed
+    /// adapter used to hold a run for the whole step timeout).
+    fn request_to_a_dying_simulator_fails_as_gone(
+        prefix: &str,
+        request: impl FnOnce(&mut SimClient, &Liveliness) -> Result<StepReply>,
+    ) {
+        let s = open_session(&ZenohOptions::default()).unwrap();
+        let c = Client::new(s.clone(), Keys::new(prefix).unwrap());
+        let live = Liveliness::new(&c).unwrap();
+        let token = s
+            .liveliness()
+            .declare_token(c.keys.alive(Role::Sim, "dying").unwrap())
+            .wait()
+            .unwrap();
+        live.wait_for(&[(Role::Sim, "dying".into())], Duration::from_secs(5))
+            .unwrap();
+        let withdraw = std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(1200));
+            token.undeclare().wait().unwrap();
+        });
+        let mut sim = bare_sim_client(&c, "dying", Duration::from_secs(10));
+        let t = Instant::now();
+        let r = request(&mut sim, &live);
+        withdraw.join().unwrap();
+        assert!(matches!(r, Err(Error::Gone(_))), "{r:?}");
+        assert!(t.elapsed() < Duration::from_secs(3), "{:?}", t.elapsed());
+    }
+
+    #[test]
+    fn a_step_to_a_simulator_whose_token_is_withdrawn_fails_as_gone_at_once() {
+        request_to_a_dying_simulator_fails_as_gone("dying-sim-step", |sim, live| {
+            sim.step(&[0.5], Some(live))
+        });
+    }
+
+    #[test]
+    fn a_reset_of_a_simulator_whose_token_is_withdrawn_fails_as_gone_at_once() {
+        request_to_a_dying_simulator_fails_as_gone("dying-sim-reset", |sim, live| {
+            sim.reset_watched(&ResetRequest::default(), Some(live))
+        });
     }
 }

@@ -170,14 +170,23 @@ pub struct ControlRun<'a> {
 }
 
 impl<'a> ControlRun<'a> {
-    /// Resets `sim` to the task's `x0` (and declares the state publisher when asked).
-    pub fn start(client: &Client, sim: &'a mut SimClient, task: ControlTask<'a>) -> Result<Self> {
+    /// Resets `sim` to the task's `x0` (and declares the state publisher when asked); a
+    /// simulator that loses its liveliness token in `live` meanwhile ends it as gone.
+    pub fn start(
+        client: &Client,
+        live: &Liveliness,
+        sim: &'a mut SimClient,
+        task: ControlTask<'a>,
+    ) -> Result<Self> {
         let info = sim.info.sim.clone();
-        let first = sim.reset(&ResetRequest {
-            seed: None,
-            x0: Some(task.x0.to_vec()),
-            perturbation: task.perturbation.cloned(),
-        })?;
+        let first = sim.reset_watched(
+            &ResetRequest {
+                seed: None,
+                x0: Some(task.x0.to_vec()),
+                perturbation: task.perturbation.cloned(),
+            },
+            Some(live),
+        )?;
         let publisher = if task.publish {
             use zenoh::Wait;
             Some(
@@ -502,7 +511,7 @@ pub fn closed_loop(
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<ControlReport> {
     let steps = task.steps;
-    let mut run = ControlRun::start(client, sim, task.clone())?;
+    let mut run = ControlRun::start(client, live, sim, task.clone())?;
     for k in 0..steps {
         run.step(client, live)?;
         progress(k + 1, steps);

@@ -69,7 +69,7 @@ pub fn control_loop(
     let total = jobs.iter().map(|(_, t)| t.steps).max().unwrap_or(0);
     let mut runs: Vec<ControlRun<'_>> = jobs
         .into_iter()
-        .map(|(s, t)| ControlRun::start(client, s, t))
+        .map(|(s, t)| ControlRun::start(client, live, s, t))
         .collect::<Result<_>>()?;
     let sims: Vec<String> = runs.iter().map(|r| r.sim_id().to_string()).collect();
     let mut macro_us = Vec::with_capacity(total);

@@ -356,7 +356,7 @@ fn run_task(
     x: &[Vec<f64>],
 ) -> Result<Scored> {
     let (steps, replay) = (task.steps, task.replay.is_some());
-    let mut run = ControlRun::start(client, sim, task)?;
+    let mut run = ControlRun::start(client, live, sim, task)?;
     for k in 0..steps {
         let u = run.decide(client, live)?;
         match run.apply(u.clone(), live) {
