@@ -15,7 +15,7 @@
 # WINDOWS (training windows; validation and test a tenth each) and/or ITERATIONS are set in the
 # environment — use a fresh OUT per budget, e.g.
 #   WINDOWS=20000 ITERATIONS=10000 scripts/franka-regulariser-table.sh /tmp/franka-reg-20k
-# At the end: the table (python -m koopbridge.experiments.franka_regulariser table --runs OUT).
+# At the end: the table (python -m koopbridge_experiments.franka_regulariser table --runs OUT).
 set -euo pipefail
 OUT=${1:?usage: $0 OUT [SEEDS] [ROWS]}
 SEEDS=${2:-"17382 17383 17384"}
@@ -38,7 +38,7 @@ for seed in $SEEDS; do
       dest="$OUT/$row-s$seed-$q"
       if [[ -f $dest/report.json ]]; then echo "skip $dest (done)"; continue; fi
       mkdir -p "$dest"
-      (cd "$ROOT" && "$PY" -m koopbridge.experiments.franka_regulariser variant \
+      (cd "$ROOT" && "$PY" -m koopbridge_experiments.franka_regulariser variant \
         --row "$row" --seed "$seed" --q "$q" "${BUDGET[@]}" --out "$dest/scenario.toml")
       rm -f "$OUT/work/report.json" "$OUT/work/figure8.png"
       echo "== $(date -u +%H:%M:%S) $row seed $seed $q"
@@ -52,4 +52,4 @@ for seed in $SEEDS; do
     done
   done
 done
-(cd "$ROOT" && "$PY" -m koopbridge.experiments.franka_regulariser table --runs "$OUT" --json "$OUT/table.json")
+(cd "$ROOT" && "$PY" -m koopbridge_experiments.franka_regulariser table --runs "$OUT" --json "$OUT/table.json")

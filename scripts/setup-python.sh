@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Sets up koopbridge's Python side: the venv .venv at the repository root with the pinned
 # requirements.txt, the project's FMUs (adapters/fmu/build/*.fmu), and the pyo3 module
-# `koopbridge` built by maturin (release) and installed into the venv. Idempotent; fast when
+# `koopbridge` built by maturin (release) and installed into the venv, and the paper's experiments
+# (experiments/, on the venv's path; not in the wheel). Idempotent; fast when
 # nothing changed. Uses $CARGO_TARGET_DIR when set, else the workspace's target/ (so the Rust
 # dependencies built by `cargo build --release` are reused). PYTHON picks the interpreter.
 set -euo pipefail
@@ -39,4 +40,9 @@ PYTHON="$venv_py" adapters/fmu/build.sh
 echo "setup-python: building and installing the koopbridge Python module (maturin, release)"
 VIRTUAL_ENV=$root/.venv PATH="$root/.venv/bin:$PATH" \
   "$root/.venv/bin/maturin" develop --release --quiet -m adapters/python/Cargo.toml
-"$venv_py" -c 'import koopbridge; print("setup-python: koopbridge", koopbridge.__version__, "ready in .venv")'
+
+# The paper's experiments (experiments/koopbridge_experiments) are not in the wheel: the venv finds
+# them through a path file, as an editable install would.
+site=$("$venv_py" -c 'import sysconfig; print(sysconfig.get_path("purelib"))')
+echo "$root/experiments" > "$site/koopbridge_experiments.pth"
+"$venv_py" -c 'import koopbridge, koopbridge_experiments; print("setup-python: koopbridge", koopbridge.__version__, "and its experiments ready in .venv")'

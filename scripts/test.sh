@@ -10,15 +10,16 @@ echo "== cargo clippy"
 cargo clippy --release --workspace --all-targets -- -D warnings
 echo "== module import circles (koopman/, bridge/, the CLI)"
 python3 scripts/check-module-cycles.py koopman/src bridge/src src
-echo "== module import circles (the Python package)"
-python3 scripts/check-python-cycles.py adapters/python/python/koopbridge
+echo "== module import circles (the Python package and the paper's experiments)"
+python3 scripts/check-python-cycles.py adapters/python/python/koopbridge experiments/koopbridge_experiments
 if [ -x scripts/setup-python.sh ]; then
   echo "== python environment"
   scripts/setup-python.sh
 fi
 if [ -x .venv/bin/ruff ]; then
-  echo "== ruff (adapters/python, config in adapters/python/pyproject.toml)"
+  echo "== ruff (adapters/python, config in adapters/python/pyproject.toml; experiments/ruff.toml)"
   .venv/bin/ruff check adapters/python
+  .venv/bin/ruff check experiments
   echo "== stubtest (_native.pyi against the built module)"
   .venv/bin/python -m mypy.stubtest koopbridge._native
 fi

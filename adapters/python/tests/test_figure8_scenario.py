@@ -13,8 +13,8 @@ import pytest
 
 from conftest import ROOT
 from koopbridge.adapters.mujoco.ik import figure8
-from koopbridge.experiments import figure8_scenario as f8s
-from koopbridge.experiments.figure8_ref import joint_p_command, references
+from koopbridge_experiments import figure8_scenario as f8s
+from koopbridge_experiments.figure8_ref import joint_p_command, references
 
 SCENARIO = ROOT / "scenarios" / "franka-figure8.toml"
 U_LIMIT = 1.0

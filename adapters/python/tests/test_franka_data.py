@@ -12,7 +12,7 @@ import numpy as np
 from conftest import koopbridge_binary_or_skip
 from koopbridge.adapters.mujoco.sim import FrankaSimulator
 from koopbridge.collect import UniformPolicy
-from koopbridge.experiments import franka_data
+from koopbridge_experiments import franka_data
 
 
 def _load(path):

@@ -14,9 +14,9 @@ import pytest
 from conftest import koopbridge_binary_or_skip
 from koopbridge.adapters.mujoco.ik import figure8
 from koopbridge.adapters.mujoco.sim import FrankaSimulator
-from koopbridge.experiments import figure8 as fig8
-from koopbridge.experiments import franka_data
-from koopbridge.experiments.figure8_ref import joint_p_command, references, tracking_error
+from koopbridge_experiments import figure8 as fig8
+from koopbridge_experiments import franka_data
+from koopbridge_experiments.figure8_ref import joint_p_command, references, tracking_error
 
 
 def test_references_start_offset_and_error_metric():

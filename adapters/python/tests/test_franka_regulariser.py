@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from koopbridge.experiments import franka_coverage, franka_regulariser
-from koopbridge.experiments.dataset_npz import DatasetMeta, save_dataset_npz
+from koopbridge_experiments import franka_coverage, franka_regulariser
+from koopbridge_experiments.dataset_npz import DatasetMeta, save_dataset_npz
 
 ROOT = Path(__file__).resolve().parents[3]
 NAMES = ["ee_x", "ee_y", "ee_z"] + [f"q{i}" for i in range(1, 8)] + [f"qd{i}" for i in range(1, 8)]
@@ -56,7 +56,7 @@ def test_coverage_matches_a_brute_force_count(tmp_path, capsys):
 
 def test_coverage_of_the_figure8_reference_by_data_around_it(tmp_path):
     pytest.importorskip("mujoco")
-    from koopbridge.experiments import figure8_scenario
+    from koopbridge_experiments import figure8_scenario
 
     ref_path = tmp_path / "ref.npy"
     assert figure8_scenario.main(["reference", "--u-limit", "1.0", "--steps", "301", "--out", str(ref_path)]) == 0

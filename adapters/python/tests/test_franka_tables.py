@@ -1,4 +1,4 @@
-"""The Franka tables driver (``koopbridge.experiments.franka_tables``) end to end at a tiny
+"""The Franka tables driver (``koopbridge_experiments.franka_tables``) end to end at a tiny
 budget: it collects SPEC's data, trains every row through ``koopbridge sweep``/``train``, tracks
 the figure-8 through the bridge with each model (the NNDM by random shooting in the MPC service),
 writes both tables, and a rerun finds every stage done."""
@@ -18,7 +18,7 @@ pytest.importorskip("mujoco")
 
 def test_franka_tables_runs_every_stage_and_resumes(tmp_path, capsys):
     koopbridge_binary_or_skip()
-    from koopbridge.experiments import franka_tables
+    from koopbridge_experiments import franka_tables
 
     out = tmp_path / "ft"
     args = ["--out", str(out), "--windows", "600", "--table-samples", "400", "--samples", "200,400",

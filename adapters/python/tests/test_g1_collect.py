@@ -108,7 +108,7 @@ def test_dataset_script_writes_the_trainers_layout(tmp_path):
     import json
     import zipfile
 
-    from koopbridge.experiments import g1_data
+    from koopbridge_experiments import g1_data
 
     out = tmp_path / "g1"
     args = ["--out", str(out), "--windows", "18", "--train", "12", "--val", "3", "--steps", "4", "--windows-per-episode", "3", "--block", "6",

@@ -16,7 +16,7 @@ pytest.importorskip("onnxruntime")
 
 from koopbridge.adapters.legged.g1 import model as g  # noqa: E402
 from koopbridge.adapters.legged.g1.sim import G1Simulator  # noqa: E402
-from koopbridge.experiments import g1_replay  # noqa: E402
+from koopbridge_experiments import g1_replay  # noqa: E402
 
 try:
     g.model_file(), g.policy_file()

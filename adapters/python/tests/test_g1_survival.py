@@ -21,7 +21,7 @@ from conftest import ROOT, Child, free_endpoint, koopbridge_binary_or_skip  # no
 from koopbridge import survival  # noqa: E402
 from koopbridge.adapters.legged.g1 import model as g  # noqa: E402
 from koopbridge.adapters.legged.g1.sim import G1Simulator  # noqa: E402
-from koopbridge.experiments import g1_replay, legged_robots  # noqa: E402
+from koopbridge_experiments import g1_replay, legged_robots  # noqa: E402
 
 try:
     g.model_file(), g.policy_file()

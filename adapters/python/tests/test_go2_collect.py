@@ -102,7 +102,7 @@ def test_uniform_targets_through_a_zenoh_collect_request(sim, session_id, serve_
 
 
 def test_dataset_script_writes_the_trainers_layout(tmp_path):
-    from koopbridge.experiments import go2_data
+    from koopbridge_experiments import go2_data
 
     out = tmp_path / "go2"
     args = ["--out", str(out), "--windows", "36", "--train", "24", "--val", "6", "--steps", "4", "--windows-per-episode", "6", "--block", "12"]

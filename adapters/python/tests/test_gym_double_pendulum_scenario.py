@@ -2,7 +2,7 @@
 plant) at a smoke budget from a scenario file outside the repository: the windows start in the
 box around upright with inputs within U(±0.1), EDMD's dictionary degree is the one with the
 lowest validation error of those it tried, and both models' closed loops are finite. The
-classical yardstick (``koopbridge.experiments.gym_lqr``) is checked against closed forms."""
+classical yardstick (``koopbridge_experiments.gym_lqr``) is checked against closed forms."""
 
 from __future__ import annotations
 
@@ -50,7 +50,7 @@ def test_double_pendulum_scenario_runs_at_a_smoke_budget(tmp_path):
 
 def test_lqr_yardstick_matches_closed_forms():
     from koopbridge.adapters.gym.sim import GymSimulator
-    from koopbridge.experiments.gym_lqr import dlqr, linearise
+    from koopbridge_experiments.gym_lqr import dlqr, linearise
 
     # dlqr on a scalar system: the Riccati fixed point p = q + a²p − (abp)²/(r + b²p) in closed form.
     a, b, q, r = 1.3, 0.5, 2.0, 0.7

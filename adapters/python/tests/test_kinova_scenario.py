@@ -11,7 +11,7 @@ import pytest
 from koopbridge.adapters.drake.collect import goal_seed
 from koopbridge.adapters.drake.plan import Gen3Planner, Infeasible
 from koopbridge.adapters.drake.planner import handler
-from koopbridge.experiments import kinova_scenario as ks
+from koopbridge_experiments import kinova_scenario as ks
 
 
 @pytest.fixture(scope="module")

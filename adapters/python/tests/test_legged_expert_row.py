@@ -18,7 +18,7 @@ from koopbridge import survival  # noqa: E402
 from koopbridge.adapters.legged.collect import ExpertPolicy, expert_rollouts  # noqa: E402
 from koopbridge.adapters.legged.go2 import model as g  # noqa: E402
 from koopbridge.adapters.legged.go2.sim import Go2Simulator  # noqa: E402
-from koopbridge.experiments import legged_expert_row  # noqa: E402
+from koopbridge_experiments import legged_expert_row  # noqa: E402
 
 try:
     g.package_files()

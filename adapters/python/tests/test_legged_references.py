@@ -16,8 +16,8 @@ import pytest
 from conftest import Child, free_endpoint
 from koopbridge import survival
 from koopbridge.adapters.legged.go2.model import FALL
-from koopbridge.experiments import legged_references
-from koopbridge.experiments.legged_robots import GO2, GO2_LAYOUT, REFERENCE_SEED, ROBOTS, make_references, references, stats
+from koopbridge_experiments import legged_references
+from koopbridge_experiments.legged_robots import GO2, GO2_LAYOUT, REFERENCE_SEED, ROBOTS, make_references, references, stats
 
 L = 10
 JOINTS = list(range(GO2_LAYOUT.q.start, GO2_LAYOUT.q.stop))  # the Go2's 12 joint positions
@@ -153,7 +153,7 @@ def test_legged_references_writes_the_references_file(tmp_path, capsys):
         np.testing.assert_array_equal(z["u"], np.stack([r.u for r in want]))
     meta = json.loads(out.with_suffix(".json").read_text())
     assert (meta["n"], meta["steps"], meta["nx"], meta["nu"], meta["seed"]) == (2, 20, 35, 12, 7)
-    assert meta["env"] == "unitree-go2" and meta["source"] == "koopbridge.experiments.legged_references"
+    assert meta["env"] == "unitree-go2" and meta["source"] == "koopbridge_experiments.legged_references"
     assert "default_rng([7, i, 1])" in meta["policy"] and "rollouts [0, 1]" in meta["policy"]
     assert "2 Go2 references of 20 steps" in capsys.readouterr().err
 

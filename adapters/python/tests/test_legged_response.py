@@ -1,4 +1,4 @@
-"""The legged input-response diagnosis (koopbridge.experiments.legged_response) against closed forms:
+"""The legged input-response diagnosis (koopbridge_experiments.legged_response) against closed forms:
 a linear simulator's central differences are A^(h-1)·B exactly (one-sided at a bound), a Koopman
 model's response is P·A^(h-1)·B of its own matrices, the agreement figures of a scaled copy are
 known, and the constant share drops when the response changes with the state."""
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from koopbridge import KoopmanModel
-from koopbridge.experiments.legged_response import ResponseSample, main, model_response, sim_response, summarise
+from koopbridge_experiments.legged_response import ResponseSample, main, model_response, sim_response, summarise
 
 
 class LinearSim:

@@ -14,7 +14,8 @@
 - ``ReferenceSystem``: the built-in Rust reference dynamics;
 - ``koopbridge.adapters``: the simulator adapters, one subpackage per family (``fmu``,
   ``mujoco``, ``legged.go2``, ``legged.g1``, ``drake``, ``gym``; ``python -m
-  koopbridge.adapters.fmu --help``); ``koopbridge.experiments``: the paper's experiments.
+  koopbridge.adapters.fmu --help``). The paper's experiments are not in the wheel: they are
+  the repository's ``experiments/`` (``koopbridge_experiments``, in the development venv).
 
 Errors: every one is a ``KoopbridgeError``; ``BridgeTimeout`` is also a built-in
 ``TimeoutError``, ``RemoteError`` carries the reply's ``code``.

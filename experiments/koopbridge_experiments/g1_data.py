@@ -4,7 +4,7 @@ trained ranges (±1 m/s, ±1 m/s, ±1 rad/s, changed every 2 s; SPEC's size by d
 windows of T = 15, data seed 42, split 140k/20k/20k), written as ``DIR/{train,val,test}.npz``
 for ``koopbridge train --data DIR``.
 
-    python -m koopbridge.experiments.g1_data --out DIR [--windows 180000] [--procs 2] [--held locked] [--noise 0.05] [--push 0.5]
+    python -m koopbridge_experiments.g1_data --out DIR [--windows 180000] [--procs 2] [--held locked] [--noise 0.05] [--push 0.5]
 
 Blocks, resumption and splits: ``legged_data``.
 """
@@ -21,7 +21,7 @@ __all__ = ["ROBOT", "main"]
 #: The G1 as ``legged_data`` sees it.
 ROBOT = DataRobot(
     name="g1_data",
-    prog="python -m koopbridge.experiments.g1_data",
+    prog="python -m koopbridge_experiments.g1_data",
     simulator="koopbridge.adapters.legged.g1.sim:G1Simulator",
     expert="holosoma's G1 walking policy under U([-1,-1,-1],[1,1,1]) velocity commands every 2 s "
     "(waist roll/pitch and wrist pitch/yaw held at the default pose)",

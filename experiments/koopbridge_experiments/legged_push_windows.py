@@ -8,8 +8,8 @@ replay. ``koopbridge eval --model DIR --data FILE`` then gives any model's predi
 them (EDMD and the neural Koopman model alike), so a model's error after a push can be set
 against its error on the same states unpushed:
 
-    python -m koopbridge.experiments.legged_push_windows --references OUT/references/go2.npz --push 1.0 --out pushed.npz
-    python -m koopbridge.experiments.legged_push_windows --references OUT/references/go2.npz --push 0 --out nominal.npz
+    python -m koopbridge_experiments.legged_push_windows --references OUT/references/go2.npz --push 1.0 --out pushed.npz
+    python -m koopbridge_experiments.legged_push_windows --references OUT/references/go2.npz --push 0 --out nominal.npz
     koopbridge eval --model OUT/models/go2-survival-go2 --data pushed.npz
 
 A window ends at the first fall (the adapter's fall test): only windows whose every state is
@@ -30,7 +30,7 @@ from .legged_robots import ROBOTS
 
 def parser() -> argparse.ArgumentParser:
     """The command line."""
-    p = argparse.ArgumentParser(prog="python -m koopbridge.experiments.legged_push_windows", description=(__doc__ or "").split("\n\n")[0],
+    p = argparse.ArgumentParser(prog="python -m koopbridge_experiments.legged_push_windows", description=(__doc__ or "").split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--robot", choices=sorted(ROBOTS), default="go2", help="the legged robot (default: %(default)s)")
     p.add_argument("--references", required=True, help="a references .npz (legged_references' output)")
@@ -76,7 +76,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("legged_push_windows: no window: every replay fell before its windows", file=sys.stderr)
         return 2
     meta = DatasetMeta(env=str(info.get("env", robot.env)), dt=float(info.get("dt", 0.02)), state_names=list(info["state_names"]),
-                       input_names=list(info["input_names"]), seed=a.seed, source="koopbridge.experiments.legged_push_windows",
+                       input_names=list(info["input_names"]), seed=a.seed, source="koopbridge_experiments.legged_push_windows",
                        policy=f"replay of {a.references}; push {a.push} m/s at step {a.push_step}; windows from {a.after} steps after")
     save_dataset_npz(a.out, np.stack(xs), np.stack(us), meta)
     print(f"legged_push_windows: {len(xs)} windows of {a.window} steps from {len(X)} references -> {a.out}", file=sys.stderr)

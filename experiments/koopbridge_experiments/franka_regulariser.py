@@ -4,8 +4,8 @@ NNDM), one training seed and one MPC weighting (SPEC's Q = I, or the scenario's 
 and ``table`` gathers the runs' SPEC figure-8 errors (``report.json``'s ``figure8``) into a
 Markdown table with the mean and spread over seeds.
 
-    python -m koopbridge.experiments.franka_regulariser variant --row both --seed 17382 --q spec --out V.toml
-    python -m koopbridge.experiments.franka_regulariser table --runs OUT
+    python -m koopbridge_experiments.franka_regulariser variant --row both --seed 17382 --q spec --out V.toml
+    python -m koopbridge_experiments.franka_regulariser table --runs OUT
 
 ``scripts/franka-regulariser-table.sh`` drives both around ``koopbridge run``.
 """
@@ -90,7 +90,7 @@ def variant(text: str, row: str, seed: int, q: str, windows: int | None = None, 
         out = _MPC.sub("mpc = { horizon = 15 }\n", out)
     out = out.replace(_AFTER, _AFTER + " --no-error-state")
     budget = "" if windows is None and iterations is None else f", budget windows={windows or 'default'} iterations={iterations or 'default'}"
-    out = f"# Variant for issue 26 §4: row {row}, seed {seed}, {QS[q]}{budget} (koopbridge.experiments.franka_regulariser).\n" + out
+    out = f"# Variant for issue 26 §4: row {row}, seed {seed}, {QS[q]}{budget} (koopbridge_experiments.franka_regulariser).\n" + out
     tomllib.loads(out)  # still a valid TOML file
     return out
 
@@ -142,7 +142,7 @@ def table(runs: Path) -> tuple[str, dict[str, Any]]:
 
 def parser() -> argparse.ArgumentParser:
     """The command line (subcommands ``variant`` and ``table``)."""
-    p = argparse.ArgumentParser(prog="python -m koopbridge.experiments.franka_regulariser", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m koopbridge_experiments.franka_regulariser", description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="cmd", required=True)
     v = sub.add_parser("variant", help="write a variant of the figure-8 scenario for one row, seed and weighting")
     v.add_argument("--scenario", default="scenarios/franka-figure8.toml", help="the scenario to vary (default: %(default)s)")

@@ -68,7 +68,7 @@ def collect_block(simulator: str, policy: dict[str, Any], seed: int, start: int,
     """Collects windows ``start .. start + n - 1`` with the ``simulator`` (``"module:Class"``
     with ``options``, one per process) into the block file ``path`` (atomically); returns the
     path, the seconds spent collecting and the falls (restarts) on the way."""
-    from ..collect import policy_from_json
+    from koopbridge.collect import policy_from_json
 
     sim = _sim(simulator, target_margin, options)
     falls = sim.falls

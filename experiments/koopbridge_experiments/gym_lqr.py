@@ -8,7 +8,7 @@ as the scenario engine's (``GoalSpec``: |angle| ≤ 0.05, every other component 
 steps), the same input bounds. It steps ``GymSimulator`` directly: a baseline that needs no model,
 not a controller of the bridge.
 
-    python -m koopbridge.experiments.gym_lqr --env InvertedDoublePendulum-v5 \\
+    python -m koopbridge_experiments.gym_lqr --env InvertedDoublePendulum-v5 \\
         --q 1 10 10 0.1 0.1 0.1 --r 1 --tilts 0.02 0.05 0.1 0.2 0.3
 
 prints, per tilt, the step the goal was reached from (or the step the environment ended the episode: a pole fell)
@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from ..adapters.gym.sim import GymSimulator
+from koopbridge.adapters.gym.sim import GymSimulator
 
 #: The scenario engine's goal (koopman::mpc::metrics::GoalSpec::default).
 ANGLE_TOL, RATE_TOL, HOLD = 0.05, 0.1, 50

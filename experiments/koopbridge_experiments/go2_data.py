@@ -3,7 +3,7 @@
 windows of T = 15, data seed 42, split 140k/20k/20k), written as ``DIR/{train,val,test}.npz``
 for ``koopbridge train --data DIR``.
 
-    python -m koopbridge.experiments.go2_data --out DIR [--windows 180000] [--procs 2] [--noise 0.05] [--push 0.5]
+    python -m koopbridge_experiments.go2_data --out DIR [--windows 180000] [--procs 2] [--noise 0.05] [--push 0.5]
 
 Blocks, resumption and splits: ``legged_data``.
 """
@@ -20,7 +20,7 @@ __all__ = ["ROBOT", "main"]
 #: The Go2 as ``legged_data`` sees it.
 ROBOT = DataRobot(
     name="go2_data",
-    prog="python -m koopbridge.experiments.go2_data",
+    prog="python -m koopbridge_experiments.go2_data",
     simulator="koopbridge.adapters.legged.go2.sim:Go2Simulator",
     expert="the rl_sar expert under U([-0.5,-0.3,-0.8],[1,0.3,0.8]) velocity commands every 2 s",
 )

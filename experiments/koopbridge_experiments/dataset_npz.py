@@ -13,7 +13,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ..collect import Windows
+from koopbridge.collect import Windows
 
 __all__ = ["DatasetMeta", "load_block", "save_dataset_npz", "write_atomic"]
 

@@ -6,9 +6,9 @@ joint follower and the error-state Koopman MPC about the reference's plan (its j
 as feed-forward; the run's model, in-process) on the same simulator, adds the result to
 ``report.json`` and draws ``figure8.png``.
 
-    python -m koopbridge.experiments.figure8_scenario reference --out OUT/figure8-reference.npy [--steps 3001] [--feedforward OUT/figure8-feedforward.npy]
-    python -m koopbridge.experiments.figure8_scenario x0 [--u-limit 1.0]
-    python -m koopbridge.experiments.figure8_scenario report --out OUT [--sim arm0] [--u-limit 1.0]
+    python -m koopbridge_experiments.figure8_scenario reference --out OUT/figure8-reference.npy [--steps 3001] [--feedforward OUT/figure8-feedforward.npy]
+    python -m koopbridge_experiments.figure8_scenario x0 [--u-limit 1.0]
+    python -m koopbridge_experiments.figure8_scenario report --out OUT [--sim arm0] [--u-limit 1.0]
 
 The simulator options (``--state``, ``--u-limit``) must be those of the scenario's adapter: the
 references, the start and the baselines are computed on a ``FrankaSimulator`` built with them.
@@ -35,8 +35,8 @@ __all__ = ["closed_loop_of", "main", "parser", "plan_of", "simulator"]
 def simulator(state: str = "ee,q,qd", u_limit: float = 0.3) -> Any:
     """The ``FrankaSimulator`` the scenario's adapter runs (robosuite's Panda, SPEC actuation
     with the command clip ``u_limit``)."""
-    from ..adapters.mujoco.model import PandaOptions
-    from ..adapters.mujoco.sim import FrankaSimulator
+    from koopbridge.adapters.mujoco.model import PandaOptions
+    from koopbridge.adapters.mujoco.sim import FrankaSimulator
 
     return FrankaSimulator(state=state, options=PandaOptions(u_limit=u_limit))
 
@@ -86,7 +86,8 @@ def _error_state(sim: Any, task: Figure8, model: str, u_limit: float, horizon: i
     the reference's plan (``plan_of``: its joint velocities as feed-forward); in-process. With a
     ``position_gain`` (1/s) the plan is first corrected by a position loop: its velocities (the
     inputs and the planned state's q̇ alike) minus gain · (q − q_ref)."""
-    from .. import Mpc
+    from koopbridge import Mpc
+
     from .plan_loop import corrected_plan
 
     off = 3 if sim.with_ee else 0
@@ -162,7 +163,7 @@ def report(out: Path, sim_id: str, state: str, u_limit: float, plot: bool = True
 
 def parser() -> argparse.ArgumentParser:
     """The command line (subcommands ``reference``, ``x0``, ``report``)."""
-    p = argparse.ArgumentParser(prog="python -m koopbridge.experiments.figure8_scenario", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m koopbridge_experiments.figure8_scenario", description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="cmd", required=True)
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--state", default="ee,q,qd", help="the adapter's --state (default: %(default)s)")

@@ -8,8 +8,8 @@ runs the MPC (in-process, the service's settings), the feed-forward and the LQR 
 whose actuators realise only ``--command-gain`` (0.9) of each command (``disturbed``: what
 feedback corrects), adds the result to ``report.json`` and draws ``kinova.png``.
 
-    python -m koopbridge.experiments.kinova_scenario reference --out OUT --session S --connect EP [--goals 2]
-    python -m koopbridge.experiments.kinova_scenario report --out OUT [--sim gen3]
+    python -m koopbridge_experiments.kinova_scenario reference --out OUT --session S --connect EP [--goals 2]
+    python -m koopbridge_experiments.kinova_scenario report --out OUT [--sim gen3]
 
 ``reference`` writes ``OUT/kinova-reference.npy`` (row k: the planned state at step k, 1 kHz, the
 plans chained from the upright arm with a hold at each goal), ``OUT/kinova-feedforward.npy``
@@ -43,8 +43,8 @@ REFERENCE, FEEDFORWARD, PLANS = "kinova-reference.npy", "kinova-feedforward.npy"
 def held_out_goals(seed: int, n: int, planner: Any) -> list[tuple[int, np.ndarray]]:
     """``n`` collision-free goals (2 cm margin, as the collection draws them) with their seeds:
     goal i from ``goal_seed(seed, "test", HELD_OUT_SESSION + i)``."""
-    from ..adapters.drake.collect import goal_seed
-    from ..adapters.drake.plan import random_goals
+    from koopbridge.adapters.drake.collect import goal_seed
+    from koopbridge.adapters.drake.plan import random_goals
 
     out = []
     for i in range(n):
@@ -84,8 +84,8 @@ def plan_reference(ask: Any, goals: Sequence[tuple[int, np.ndarray]], dt: float,
 
 
 def _reference(a: argparse.Namespace) -> int:
-    from .. import BridgeTimeout, Client, RemoteError
-    from ..adapters.drake.plan import Gen3Planner
+    from koopbridge import BridgeTimeout, Client, RemoteError
+    from koopbridge.adapters.drake.plan import Gen3Planner
 
     out = Path(a.out)
     goals = held_out_goals(a.seed, a.goals, Gen3Planner())
@@ -149,7 +149,7 @@ def tracking_errors(x: np.ndarray, ref: np.ndarray) -> dict[str, Any]:
 
 
 def _run(sim: Any, x0: np.ndarray, steps: int, command: Any) -> np.ndarray:
-    from ..adapters.drake.model import VELOCITY_LIMITS
+    from koopbridge.adapters.drake.model import VELOCITY_LIMITS
 
     x = sim.reset(x0=x0)
     xs = [x]
@@ -168,8 +168,8 @@ def _padded(a: np.ndarray, n: int, fill: np.ndarray | None = None) -> np.ndarray
 
 
 def _report(a: argparse.Namespace) -> int:
-    from .. import KoopmanModel
-    from ..adapters.drake.sim import DrakeGen3Sim
+    from koopbridge import KoopmanModel
+    from koopbridge.adapters.drake.sim import DrakeGen3Sim
 
     out = Path(a.out)
     rep_path = out / "report.json"
@@ -200,8 +200,9 @@ def _report(a: argparse.Namespace) -> int:
     # mismatch none of them was told about: what feedback corrects).
     disturbed, dis, replay = None, {}, None
     if ctrl.get("mpc"):
-        from .. import Mpc
-        from ..adapters.drake.model import VELOCITY_LIMITS
+        from koopbridge import Mpc
+        from koopbridge.adapters.drake.model import VELOCITY_LIMITS
+
         from .plan_loop import corrected_plan
 
         mpc_cfg = dict(ctrl["mpc"])
@@ -313,7 +314,7 @@ def _plot(path: Path, ref: np.ndarray, runs: dict[str, np.ndarray], shown: str, 
 
 def parser() -> argparse.ArgumentParser:
     """The command line (subcommands ``reference`` and ``report``)."""
-    p = argparse.ArgumentParser(prog="python -m koopbridge.experiments.kinova_scenario", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m koopbridge_experiments.kinova_scenario", description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("reference", help="plan held-out goals through the planner, write the reference")
     r.add_argument("--out", required=True, help="the run's output folder")

@@ -6,7 +6,7 @@ by which the reference leaves the range, and the distance (rad, Euclidean over t
 from each reference sample to the nearest data state (median and largest: how densely the data
 cover the path, which the box alone does not say).
 
-    python -m koopbridge.experiments.franka_coverage --data DIR --reference F.npy [--json OUT.json]
+    python -m koopbridge_experiments.franka_coverage --data DIR --reference F.npy [--json OUT.json]
 
 ``DIR`` holds ``train.npz`` (``koopbridge train --data`` layout, ``x (n, T+1, nx)``) or is such a
 file; the joint positions are the state's ``q1..q7`` (found by the dataset's ``state_names``,
@@ -101,7 +101,7 @@ def _markdown(name: str, c: dict[str, Any]) -> str:
 
 def parser() -> argparse.ArgumentParser:
     """The command line."""
-    p = argparse.ArgumentParser(prog="python -m koopbridge.experiments.franka_coverage", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m koopbridge_experiments.franka_coverage", description=__doc__.split("\n\n")[0])
     p.add_argument("--data", required=True, action="append", help="dataset folder (with train.npz) or .npz; repeatable")
     p.add_argument("--reference", required=True, help="the joint reference .npy (figure8_scenario reference --out F.npy)")
     p.add_argument("--json", help="also write the figures here")

@@ -2,7 +2,7 @@
 (``[control] references = "FILE.npz"`` in a scenario: ``x`` (N, T+1, nx), ``u`` (N, T, nu), the
 dataset layout with its metadata), so that the scenario engine tracks them:
 
-    python -m koopbridge.experiments.legged_references --robot go2 --references 50 --steps 300 --out refs.npz
+    python -m koopbridge_experiments.legged_references --robot go2 --references 50 --steps 300 --out refs.npz
 
 The references are ``legged_robots.references``: expert rollouts under velocity commands the
 training data never saw (seed 90042 by default), each starting in a state the adapter accepts.
@@ -24,7 +24,7 @@ from .legged_robots import REFERENCE_SEED, ROBOTS, references
 
 def parser() -> argparse.ArgumentParser:
     """The command line."""
-    p = argparse.ArgumentParser(prog="python -m koopbridge.experiments.legged_references", description=(__doc__ or "").split("\n\n")[0],
+    p = argparse.ArgumentParser(prog="python -m koopbridge_experiments.legged_references", description=(__doc__ or "").split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--robot", choices=sorted(ROBOTS), required=True, help="the legged robot")
     p.add_argument("--references", type=int, default=50, help="how many references (default: %(default)s)")
@@ -53,7 +53,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     meta = DatasetMeta(env=str(info.get("env", robot.env)), dt=float(info.get("dt", 0.02)),
                        state_names=list(info.get("state_names", [f"x{i}" for i in range(x.shape[2])])),
                        input_names=list(info.get("input_names", [f"u{i}" for i in range(u.shape[2])])), seed=a.seed,
-                       source="koopbridge.experiments.legged_references", policy=robot.held_out.format(seed=a.seed) +
+                       source="koopbridge_experiments.legged_references", policy=robot.held_out.format(seed=a.seed) +
                        f"; rollouts {[r.index for r in refs]}" + (f"; skipped {json.dumps(skipped)}" if skipped else ""))
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     save_dataset_npz(a.out, x, u, meta)

@@ -4,11 +4,11 @@ task aside) and each of its references, the expert walks the reference's episode
 same start, warm-up and velocity commands (``legged.collect.expert_rollouts``) — from the
 reference's first state with the reset request the scenario engine sent that task's rows (its
 perturbation: the push drawn for that reference, the heavier body, the lower friction), scored
-by the engine's own survival metric (``koopbridge._native.survival``). Adds ``expert`` to
+by the engine's own survival metric (``koopbridge.survival``). Adds ``expert`` to
 ``report.json`` and writes ``OUT/tracking/expert.md`` (the expert beside replay and every model
 row):
 
-    python -m koopbridge.experiments.legged_expert_row --robot go2 --out results/go2-survival
+    python -m koopbridge_experiments.legged_expert_row --robot go2 --out results/go2-survival
 
 As a scenario's ``after-control`` hook it runs with the run's references; by hand, on any run
 folder whose tracking tasks used references of ``legged_references`` (same ``--seed``, same
@@ -28,8 +28,9 @@ from typing import Any
 
 import numpy as np
 
-from .._native import InvalidInput, survival
-from ..adapters.legged.collect import expert_rollouts
+from koopbridge import InvalidInput, survival
+from koopbridge.adapters.legged.collect import expert_rollouts
+
 from .dataset_npz import write_atomic
 from .legged_robots import REFERENCE_SEED, ROBOTS, stats
 from .run_report import update_report
@@ -41,7 +42,7 @@ class Refused(Exception):
 
 def parser() -> argparse.ArgumentParser:
     """The command line."""
-    p = argparse.ArgumentParser(prog="python -m koopbridge.experiments.legged_expert_row", description=(__doc__ or "").split("\n\n")[0],
+    p = argparse.ArgumentParser(prog="python -m koopbridge_experiments.legged_expert_row", description=(__doc__ or "").split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--robot", choices=sorted(ROBOTS), required=True, help="the legged robot")
     p.add_argument("--out", required=True, help="the run's folder (holds report.json; tracking/expert.md is written there)")

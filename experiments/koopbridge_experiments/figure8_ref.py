@@ -8,8 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..adapters.mujoco.ik import FIGURE8_START_OFFSET, dls_ik, figure8
-from ..adapters.mujoco.sim import FrankaSimulator
+from koopbridge.adapters.mujoco.ik import FIGURE8_START_OFFSET, dls_ik, figure8
+from koopbridge.adapters.mujoco.sim import FrankaSimulator
 
 __all__ = ["Figure8", "SKIP", "joint_p_command", "references", "tracking_error"]
 

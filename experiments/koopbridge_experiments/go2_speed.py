@@ -3,7 +3,7 @@ nothing else) against the same expert collected through the Go2 simulator's ``co
 code a Zenoh ``collect`` request runs), in-process and, when the bridge carries the ``expert``
 kind, through a real Zenoh ``collect`` request; control steps per second, best of ``--repeat``.
 
-    python -m koopbridge.experiments.go2_speed [--steps 3000] [--repeat 3] [--json FILE]
+    python -m koopbridge_experiments.go2_speed [--steps 3000] [--repeat 3] [--json FILE]
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ def bare_loop(model: Any, policy_path: str, steps: int, seed: int = 0) -> tuple[
     import mujoco
     import onnxruntime as ort
 
-    from ..adapters.legged.go2 import model as g
+    from koopbridge.adapters.legged.go2 import model as g
 
     o = ort.SessionOptions()
     o.intra_op_num_threads = o.inter_op_num_threads = 1
@@ -74,8 +74,8 @@ def bare_loop(model: Any, policy_path: str, steps: int, seed: int = 0) -> tuple[
 def _zenoh_collect(sim: Any, policy: dict[str, Any], windows: int, T: int) -> float | None:
     """Seconds for one Zenoh ``collect`` request of ``windows`` windows; None when the bridge
     does not carry the policy kind."""
-    from ..serving import SimulatorAdapter
-    from ..testing import ServedOnThread, listening_client
+    from koopbridge.serving import SimulatorAdapter
+    from koopbridge.testing import ServedOnThread, listening_client
 
     adapter, session = SimulatorAdapter(sim), "speed" + uuid.uuid4().hex[:8]
     client, ep = listening_client(session)
@@ -91,13 +91,13 @@ def _zenoh_collect(sim: Any, policy: dict[str, Any], windows: int, T: int) -> fl
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Runs the measurements and prints them (and writes ``--json``); returns the exit code."""
-    p = argparse.ArgumentParser(prog="python -m koopbridge.experiments.go2_speed", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m koopbridge_experiments.go2_speed", description=__doc__.split("\n\n")[0])
     p.add_argument("--steps", type=int, default=3000, help="control steps per measurement, a multiple of 15 (default: %(default)s)")
     p.add_argument("--repeat", type=int, default=3, help="measurements of each, the best one counts (default: %(default)s)")
     p.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
     a = p.parse_args(argv)
-    from ..adapters.legged.go2.sim import Go2Simulator
-    from ..collect import policy_from_json
+    from koopbridge.adapters.legged.go2.sim import Go2Simulator
+    from koopbridge.collect import policy_from_json
 
     sim = Go2Simulator()
     T = 15

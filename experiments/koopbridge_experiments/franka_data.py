@@ -2,7 +2,7 @@
 U(±0.2) starts, U(±0.12) commands every step, data seed 42, T = 15, windows split 140k/20k/20k,
 written as ``DIR/{train,val,test}.npz`` for ``koopbridge train --data DIR``.
 
-    python -m koopbridge.experiments.franka_data --windows 180000 --out data/franka-aligned [--procs 2]
+    python -m koopbridge_experiments.franka_data --windows 180000 --out data/franka-aligned [--procs 2]
 
 Windows are collected in blocks (``DIR/.blocks/block-NNNNNN.npz``, each written atomically), so
 an interrupted run resumes where it stopped; window ``i`` depends only on ``(seed, i)``. Windows
@@ -23,7 +23,8 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from ..collect import UniformPolicy
+from koopbridge.collect import UniformPolicy
+
 from .dataset_npz import DatasetMeta, load_block, save_dataset_npz
 
 __all__ = ["collect_block", "main", "parser"]
@@ -33,7 +34,7 @@ COMMAND_RANGE = 0.12
 
 
 def _sim(state: str):  # type: ignore[no-untyped-def]
-    from ..adapters.mujoco.sim import FrankaSimulator
+    from koopbridge.adapters.mujoco.sim import FrankaSimulator
 
     return FrankaSimulator(state=state)
 
@@ -56,8 +57,8 @@ def collect_block(state: str, seed: int, start: int, n: int, T: int, path: str) 
 
 
 def parser() -> argparse.ArgumentParser:
-    """The command line of ``python -m koopbridge.experiments.franka_data``."""
-    p = argparse.ArgumentParser(prog="python -m koopbridge.experiments.franka_data", description=__doc__.split("\n\n")[0])
+    """The command line of ``python -m koopbridge_experiments.franka_data``."""
+    p = argparse.ArgumentParser(prog="python -m koopbridge_experiments.franka_data", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", required=True, help="output folder (train.npz, val.npz, test.npz + sidecars)")
     p.add_argument("--windows", type=int, default=180_000, help="total windows (default: %(default)s)")
     p.add_argument("--train", type=int, help="train windows (default: 7/9 of --windows)")

@@ -4,7 +4,7 @@ survival any tracking controller should beat. Survival is the scenario engine's 
 (``koopbridge.survival``: the steps before the first one whose mean joint-position error, over
 the state's 21 joints, exceeds the threshold, 0.10 rad for the G1, or whose pelvis has fallen).
 
-    python -m koopbridge.experiments.g1_replay [--references 50] [--steps 200] [--threshold 0.10] [--json FILE]
+    python -m koopbridge_experiments.g1_replay [--references 50] [--steps 200] [--threshold 0.10] [--json FILE]
 
 The references are the expert's, one per episode, under the seed ``legged_robots.REFERENCE_SEED``
 (no training episode of ``g1_data``'s seed 42 draws from it): a seeded reset, 1 s of walking
@@ -26,7 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from .._native import survival
+from koopbridge import survival
+
 from .legged_robots import REFERENCE_SEED
 
 __all__ = ["HEIGHT_INDEX", "Q_SLICE", "THRESHOLD", "G1Reference", "fallen_mask", "main", "make_references", "replay"]
@@ -50,7 +51,7 @@ class G1Reference:
 
 def fallen_mask(x: np.ndarray) -> np.ndarray:
     """Whether each state's pelvis has fallen (``legged.g1.model.FALL``); non-finite rows count as fallen."""
-    from ..adapters.legged.g1.model import FALL
+    from koopbridge.adapters.legged.g1.model import FALL
 
     return np.array([not np.all(np.isfinite(r)) or FALL.fallen(r[QUAT_SLICE], float(r[HEIGHT_INDEX])) for r in np.asarray(x)], dtype=bool)
 
@@ -58,7 +59,7 @@ def fallen_mask(x: np.ndarray) -> np.ndarray:
 def make_references(sim: Any, probe: Any, n: int, steps: int, seed: int = REFERENCE_SEED) -> list[G1Reference]:
     """The first ``n`` expert rollouts of ``steps`` transitions (module docstring) collected on
     ``sim`` whose first state the memoryless ``probe`` accepts as ``reset(x0)``."""
-    from .._native import InvalidInput
+    from koopbridge import InvalidInput
 
     if n < 1 or steps < 1:
         raise ValueError(f"references: need n >= 1 and steps >= 1, got {n}, {steps}")
@@ -94,7 +95,7 @@ def replay(sim: Any, ref: G1Reference, threshold: float = THRESHOLD) -> tuple[in
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Prints (and with ``--json`` writes) the replay floor over the references; returns the exit code."""
-    p = argparse.ArgumentParser(prog="python -m koopbridge.experiments.g1_replay", description=(__doc__ or "").split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m koopbridge_experiments.g1_replay", description=(__doc__ or "").split("\n\n")[0])
     p.add_argument("--references", type=int, default=50, help="held-out expert references (default: %(default)s)")
     p.add_argument("--steps", type=int, default=200, help="transitions per reference (default: %(default)s)")
     p.add_argument("--threshold", type=float, default=THRESHOLD, help="mean joint-position error that ends survival, rad (default: %(default)s)")
@@ -105,7 +106,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if a.references < 1 or a.steps < 1 or not a.threshold > 0:
         print("g1_replay: --references and --steps must be >= 1 and --threshold > 0", file=sys.stderr)
         return 2
-    from ..adapters.legged.g1.sim import G1Simulator
+    from koopbridge.adapters.legged.g1.sim import G1Simulator
 
     def sim(memory: int = 4096) -> G1Simulator:
         return G1Simulator(policy_name=a.expert, held=a.held, memory=memory, on_fall=None)

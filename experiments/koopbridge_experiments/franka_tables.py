@@ -4,7 +4,7 @@ the +both m-sweep and α_m, and the figure-8 tracking table (each model's MPC th
 the MuJoCo adapter in lockstep, the MPC service deciding every step), written as ``tables.md``
 and ``tables.json`` beside the paper's figures.
 
-    python -m koopbridge.experiments.franka_tables --out results/franka-tables [--iterations 60000]
+    python -m koopbridge_experiments.franka_tables --out results/franka-tables [--iterations 60000]
 
 Every stage skips what is already there and the trainings resume from their checkpoints, so an
 interrupted run (a closed session, a reboot) continues where it stopped when run again. At SPEC's
@@ -31,7 +31,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from ..cli_path import koopbridge_cli
+from koopbridge.cli_path import koopbridge_cli
+
 from .dataset_npz import write_atomic
 
 __all__ = ["PAPER", "main", "parser", "stages", "tables"]
@@ -79,7 +80,7 @@ def stages(a: argparse.Namespace) -> list[Stage]:
     run = lambda m, reg: sweep / "runs" / _sweep_name(data, m, reg, a.iterations) / "metrics.json"  # noqa: E731
     s = [
         Stage("data: SPEC's Franka dataset (MuJoCo collect, U(±0.12), seed 42)", [data / f"{k}.npz" for k in ("train", "val", "test")],
-              [py, "-m", "koopbridge.experiments.franka_data", "--windows", str(a.windows), "--out", str(data),
+              [py, "-m", "koopbridge_experiments.franka_data", "--windows", str(a.windows), "--out", str(data),
                "--procs", str(a.trainers)]),
         Stage(f"prediction: Koopman base/+ctrl/+cov/+both at m = {a.table_samples}", [run(a.table_samples, reg) for reg in VARIANTS],
               [*common, "--samples", str(a.table_samples), "--regularisers", ",".join(VARIANTS)]),
@@ -92,7 +93,7 @@ def stages(a: argparse.Namespace) -> list[Stage]:
     for label, folder, extra in _columns(a):
         for name, model in _tracked(a).items():
             s.append(Stage(f"tracking: figure-8 with {name}, {label}", [folder / name / "report.json"],
-                           [py, "-m", "koopbridge.experiments.figure8", "--model", str(model), "--out", str(folder / name),
+                           [py, "-m", "koopbridge_experiments.figure8", "--model", str(model), "--out", str(folder / name),
                             "--baselines", "zero,p" if name == "edmd" else "none", "--steps", str(a.steps), *extra]))
     # The m-sweep last: both tables are complete before its four extra trainings start.
     s += [Stage("prediction: the +both m-sweep", [run(m, "both") for m in ms],
@@ -194,8 +195,8 @@ def _markdown(t: dict[str, Any]) -> str:
 
 
 def parser() -> argparse.ArgumentParser:
-    """The command line of ``python -m koopbridge.experiments.franka_tables``."""
-    p = argparse.ArgumentParser(prog="python -m koopbridge.experiments.franka_tables", description=__doc__.split("\n\n")[0],
+    """The command line of ``python -m koopbridge_experiments.franka_tables``."""
+    p = argparse.ArgumentParser(prog="python -m koopbridge_experiments.franka_tables", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 2)[2])
     p.add_argument("--out", required=True, help="the tables' folder (sweep/, models/, figure8/, tables.md, tables.json)")
     p.add_argument("--data", help="SPEC's Franka dataset folder, collected there if missing (default: OUT/data)")

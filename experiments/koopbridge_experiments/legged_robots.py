@@ -78,9 +78,9 @@ def make_references(n: int, steps: int, seed: int = REFERENCE_SEED, *, warmup: f
     refused 2 of the first 50 expert starts); the refused ones are appended to ``skipped``.
     Another robot: ``sim`` (collecting), ``probe`` (a memoryless simulator judging the starts)
     and ``policy`` (its expert's settings with one window per episode) given."""
-    from .._native import InvalidInput
-    from ..adapters.legged.collect import ExpertPolicy
-    from ..adapters.legged.go2.sim import Go2Simulator
+    from koopbridge import InvalidInput
+    from koopbridge.adapters.legged.collect import ExpertPolicy
+    from koopbridge.adapters.legged.go2.sim import Go2Simulator
 
     if n < 1 or steps < 1:
         raise ValueError(f"references: need n >= 1 and steps >= 1, got {n}, {steps}")
@@ -106,25 +106,25 @@ def make_references(n: int, steps: int, seed: int = REFERENCE_SEED, *, warmup: f
 
 
 def _go2_sim(a: argparse.Namespace | None, memory: int) -> Any:
-    from ..adapters.legged.go2.sim import Go2Simulator
+    from koopbridge.adapters.legged.go2.sim import Go2Simulator
 
     return Go2Simulator(on_fall=None, memory=memory)
 
 
 def _go2_policy(sim: Any) -> Any:
-    from ..adapters.legged.collect import ExpertPolicy
+    from koopbridge.adapters.legged.collect import ExpertPolicy
 
     return ExpertPolicy(windows_per_episode=1, warmup=1.0, command_every=2.0)
 
 
 def _go2_fall() -> Any:
-    from ..adapters.legged.go2.model import FALL
+    from koopbridge.adapters.legged.go2.model import FALL
 
     return FALL
 
 
 def _g1_sim(a: argparse.Namespace | None, memory: int) -> Any:
-    from ..adapters.legged.g1.sim import G1Simulator
+    from koopbridge.adapters.legged.g1.sim import G1Simulator
 
     held, expert = (a.held, a.expert) if a is not None else ("locked", "fastsac")
     return G1Simulator(policy_name=expert, held=held, memory=memory, on_fall=None)
@@ -135,7 +135,7 @@ def _g1_policy(sim: Any) -> Any:
 
 
 def _g1_fall() -> Any:
-    from ..adapters.legged.g1.model import FALL
+    from koopbridge.adapters.legged.g1.model import FALL
 
     return FALL
 

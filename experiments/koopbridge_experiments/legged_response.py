@@ -67,7 +67,7 @@ def _perturbed(U: np.ndarray, i: int, delta: float, lo: np.ndarray, hi: np.ndarr
 def _rollout(sim: Any, x: np.ndarray, U: np.ndarray) -> np.ndarray:
     """The simulator's states ``x_1 .. x_H`` under ``U`` from the remembered state ``x`` (NaN
     rows after a step the simulator refuses)."""
-    from .. import KoopbridgeError
+    from koopbridge import KoopbridgeError
 
     sim.reset(x0=x)
     out = np.full((len(U), len(x)), np.nan)
@@ -232,9 +232,9 @@ def _plot(path: Path, results: dict[str, Any]) -> None:
 
 def parser() -> argparse.ArgumentParser:
     """The command line."""
-    p = argparse.ArgumentParser(prog="python -m koopbridge.experiments.legged_response", description=__doc__.split("\n\n")[0],
+    p = argparse.ArgumentParser(prog="python -m koopbridge_experiments.legged_response", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter,
-                                epilog="example: python -m koopbridge.experiments.legged_response --robot go2 --model models/go2-both "
+                                epilog="example: python -m koopbridge_experiments.legged_response --robot go2 --model models/go2-both "
                                 "--references 10 --windows data/go2/test.npz --windows results/go2-survival/onpolicy/go2-both.npz --out OUT")
     p.add_argument("--robot", choices=sorted(ROBOTS), default="go2", help="the legged robot (default: %(default)s)")
     p.add_argument("--model", action="append", required=True, metavar="DIR", help="a Koopman model folder (repeatable)")
@@ -251,7 +251,7 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Runs the command line; 2 on bad input."""
-    from .. import KoopmanModel
+    from koopbridge import KoopmanModel
 
     a = parser().parse_args(argv)
     robot = ROBOTS[a.robot]

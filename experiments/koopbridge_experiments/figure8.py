@@ -3,7 +3,7 @@ lockstep in a child process, the Rust MPC service (``koopbridge serve mpc models
 every step, configured through ``Client.configure_mpc``; compared with zero input and a
 joint-space P controller over the same adapter. Writes ``report.json`` and ``figure8.png``.
 
-    python -m koopbridge.experiments.figure8 --model models/franka-edmd --out results/franka-figure8 [--steps 3001]
+    python -m koopbridge_experiments.figure8 --model models/franka-edmd --out results/franka-figure8 [--steps 3001]
 
 ``--model DIR`` is a trained model folder; its parent is the MPC service's model store and its
 name (``[a-z0-9_-]``) the model it loads. The service picks the controller by the model's kind:
@@ -28,9 +28,10 @@ from typing import Any
 
 import numpy as np
 
-from .. import BridgeTimeout, Client
-from ..cli_path import koopbridge_cli
-from ..testing import listening_client
+from koopbridge import BridgeTimeout, Client
+from koopbridge.cli_path import koopbridge_cli
+from koopbridge.testing import listening_client
+
 from .dataset_npz import write_atomic
 from .figure8_ref import SKIP, Figure8, joint_p_command, references, tracking_error
 
@@ -110,8 +111,8 @@ def summarise(run: Run, task: Figure8, u_limit: float = 0.3) -> dict[str, Any]:
 
 
 def parser() -> argparse.ArgumentParser:
-    """The command line of ``python -m koopbridge.experiments.figure8``."""
-    p = argparse.ArgumentParser(prog="python -m koopbridge.experiments.figure8", description=__doc__.split("\n\n")[0])
+    """The command line of ``python -m koopbridge_experiments.figure8``."""
+    p = argparse.ArgumentParser(prog="python -m koopbridge_experiments.figure8", description=__doc__.split("\n\n")[0])
     p.add_argument("--model", required=True, help="trained model folder (its parent is used as the model store)")
     p.add_argument("--out", default="results/franka-figure8", help="folder for report.json and figure8.png (default: %(default)s)")
     p.add_argument("--steps", type=int, default=3001, help="points of the figure-8, k = 0..steps-1 (SPEC: 3001)")
@@ -146,7 +147,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if any(b not in ("zero", "p") for b in baselines):
         print(f"figure8: --baselines {a.baselines!r}: expected zero, p or none", file=sys.stderr)
         return 2
-    from ..adapters.mujoco.sim import FrankaSimulator
+    from koopbridge.adapters.mujoco.sim import FrankaSimulator
 
     sim = FrankaSimulator()
     t = time.perf_counter()
