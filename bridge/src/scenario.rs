@@ -29,7 +29,9 @@ pub mod train;
 mod train_names;
 
 pub use collect::{CollectSpec, Policy};
-pub use control::{ControlSpec, PerturbationSpec, PositionLoopSpec, QFromData, SurvivalSpec};
+pub use control::{
+    ControlSpec, Controller, PerturbationSpec, PositionLoopSpec, QFromData, SurvivalSpec,
+};
 pub use extras::{CommandLine, HookPhase, HookSpec, ParticipantRole, ParticipantSpec};
 pub use pretrained::PretrainedSpec;
 pub use track::TrackSpec;
@@ -307,41 +309,19 @@ impl Scenario {
                     )));
                 }
             }
-            if ctrl.reference.is_some() == ctrl.reference_file.is_some() {
-                return Err(Error::Config(format!(
-                    "[control] for '{}' needs exactly one of `reference` and `reference_file`",
-                    self.controlled_id(ctrl)
-                )));
-            }
-            if ctrl.feedforward_file.is_some() && ctrl.reference_file.is_none() {
-                return Err(Error::Config(format!(
-                    "[control] for '{}': `feedforward_file` needs the `reference_file` it realises",
-                    self.controlled_id(ctrl)
-                )));
-            }
-            if let Some(pl) = &ctrl.position_loop {
-                if ctrl.feedforward_file.is_none() {
-                    return Err(Error::Config(format!(
-                        "[control] for '{}': `position_loop` corrects a plan and needs `feedforward_file`",
-                        self.controlled_id(ctrl)
-                    )));
-                }
-                if !(pl.gain.is_finite() && pl.gain >= 0.0) {
-                    return Err(Error::Config(format!(
-                        "[control] for '{}': position_loop.gain must be finite and ≥ 0, got {}",
-                        self.controlled_id(ctrl),
-                        pl.gain
-                    )));
-                }
-            }
-            if self.control[..i]
+            ctrl.check_loop(self.controlled_id(ctrl))?;
+            let id = self.controlled_id(ctrl);
+            if let Some(o) = self.control[..i]
                 .iter()
-                .any(|o| self.controlled_id(o) == self.controlled_id(ctrl))
+                .find(|o| self.controlled_id(o) == id)
             {
-                return Err(Error::Config(format!(
-                    "simulator '{}' has two [[control]] entries (one per simulator; name each with `sim`)",
-                    self.controlled_id(ctrl)
-                )));
+                if o.label.is_none() || ctrl.label.is_none() || o.label == ctrl.label {
+                    return Err(Error::Config(format!(
+                        "simulator '{id}' has several [[control]] entries: give each a distinct \
+                         `label` (they run one after another, each from its own x0), or name \
+                         another simulator with `sim`"
+                    )));
+                }
             }
         }
         extras::validate(&self.hooks, &self.participants)?;

@@ -41,6 +41,8 @@ QS = {"spec": "SPEC Q = I", "qd001": "q̇ weight 0.01"}
 _TRAIN = re.compile(r"^\[train\]\nconfig = \{ (?P<cfg>[^}]*) \}\n", re.M)
 _MPC = re.compile(r"^mpc = \{ horizon = 15, q = \[[^\]]*\] \}\n", re.M)
 _AFTER = "figure8_scenario report --u-limit 1.0 --sim arm0 --out {out}"
+#: A labelled error-state [[control]] entry of the scenario, with the comment lines right above it.
+_ERROR_STATE_ENTRY = re.compile(r'(?:^#[^\n]*\n)*^\[\[control\]\]\nlabel = "error-state[^"]*"\n(?:[^\n\[][^\n]*\n)*\n?', re.M)
 
 
 _WINDOWS = re.compile(r"^(?P<key>train|val|test)_windows = \d+\n", re.M)
@@ -48,8 +50,8 @@ _WINDOWS = re.compile(r"^(?P<key>train|val|test)_windows = \d+\n", re.M)
 
 def variant(text: str, row: str, seed: int, q: str, windows: int | None = None, iterations: int | None = None) -> str:
     """The scenario ``text`` (``scenarios/franka-figure8.toml``) for ``row``, training seed
-    ``seed`` and weighting ``q``; the after-control hook skips the error-state rows (not part of
-    the table). ``windows`` (training windows; validation and test get a tenth each) and
+    ``seed`` and weighting ``q``, without the error-state [[control]] entries (not part of the
+    table; an NNDM would plan them by random shooting, 0.8 s a step). ``windows`` (training windows; validation and test get a tenth each) and
     ``iterations`` replace the default budget's, when given (``[full]`` is left as it is). Raises
     ``ValueError`` when the file no longer has the expected shape or a budget is not positive."""
     for name, v in (("windows", windows), ("iterations", iterations)):
@@ -60,8 +62,9 @@ def variant(text: str, row: str, seed: int, q: str, windows: int | None = None, 
     if q not in QS:
         raise ValueError(f"unknown weighting {q!r}; valid: {', '.join(QS)}")
     m = _TRAIN.search(text)
-    if m is None or len(_MPC.findall(text)) != 1 or text.count(_AFTER) != 1:
-        raise ValueError("the scenario no longer has the [train] config / [control] mpc / after-control hook lines this variant edits")
+    if m is None or len(_MPC.findall(text)) != 1 or text.count(_AFTER) != 1 or not _ERROR_STATE_ENTRY.search(text):
+        raise ValueError("the scenario no longer has the [train] config / [control] mpc / error-state [[control]] entries / after-control hook "
+                         "lines this variant edits")
     kind, extra = ROWS[row]
     base_cfg = m.group("cfg")
     if iterations is not None:
@@ -88,7 +91,7 @@ def variant(text: str, row: str, seed: int, q: str, windows: int | None = None, 
         out = out[:collect] + block + out[end:]
     if q == "spec":
         out = _MPC.sub("mpc = { horizon = 15 }\n", out)
-    out = out.replace(_AFTER, _AFTER + " --no-error-state")
+    out = _ERROR_STATE_ENTRY.sub("", out)
     budget = "" if windows is None and iterations is None else f", budget windows={windows or 'default'} iterations={iterations or 'default'}"
     out = f"# Variant for issue 26 §4: row {row}, seed {seed}, {QS[q]}{budget} (koopbridge_experiments.franka_regulariser).\n" + out
     tomllib.loads(out)  # still a valid TOML file

@@ -273,6 +273,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         // The first entry's plot keeps the name of a one-simulator run.
         let png = if i == 0 {
             out_dir.join("control.png")
+        } else if let Some(label) = &c.label {
+            out_dir.join(format!("control-{label}.png"))
         } else if kinds > 1 {
             out_dir.join(format!("control-{}.png", c.model))
         } else {
@@ -285,10 +287,10 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         println!(
             "  control of '{}'{}: final error {:.4}, tracking RMS {:.4}, time to goal {}, not solved {}, solve median {:.0} µs, round trip median {:.0} µs",
             c.sim,
-            if kinds > 1 {
-                format!(" with model '{}'", c.model)
-            } else {
-                String::new()
+            match (&c.label, kinds > 1) {
+                (Some(label), _) => format!(" ({label})"),
+                (None, true) => format!(" with model '{}'", c.model),
+                (None, false) => String::new(),
             },
             c.final_error,
             c.tracking_rms_total,

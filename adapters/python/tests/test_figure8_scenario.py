@@ -1,7 +1,7 @@
 """The figure-8 steps of scenarios/franka-figure8.toml: the reference file is the task's
-full-state reference, the scenario's x0 is the task's start, and the report step scores a closed
-loop with SPEC's error, written out independently, for trajectories whose error is known (the
-in-process baselines run again as the "closed loop")."""
+full-state reference and the plan file its velocities, the scenario's x0 is the task's start, and
+the report step scores every closed loop of report.json with SPEC's error, written out
+independently, for trajectories whose error is known."""
 
 from __future__ import annotations
 
@@ -36,38 +36,65 @@ def test_scenario_x0_is_the_tasks_start_and_the_clip_is_the_same_everywhere(caps
     sc = tomllib.loads(SCENARIO.read_text())
     assert f8s.main(["x0", "--u-limit", "1.0"]) == 0
     want = json.loads(capsys.readouterr().out)
-    np.testing.assert_allclose(sc["control"]["x0"], want, atol=1e-9)
+    np.testing.assert_allclose(sc["control_defaults"]["x0"], want, atol=1e-9)
     (sim,) = sc["sims"]
     assert sim["command"][sim["command"].index("--u-limit") + 1] == "1.0"
     assert all("--u-limit 1.0" in h["command"] for h in sc["hooks"])
-    assert len(sc["control"]["mpc"]["q"]) == 17
+    rows = {c["label"]: c for c in sc["control"]}
+    assert len(rows["koopman-mpc"]["mpc"]["q"]) == 17
+    # The joint follower's position loop is the greedy follower's gain 1/dt.
+    dt = f8s.simulator(u_limit=U_LIMIT).options.dt
+    assert rows["joint-follower"]["position_loop"]["gain"] == pytest.approx(1.0 / dt)
 
 
-@pytest.mark.parametrize("as_list", [False, True])
-def test_report_scores_a_closed_loop_with_specs_error(tmp_path, as_list):
-    steps = 160
-    sim = f8s.simulator(u_limit=U_LIMIT)
-    task = references(sim, steps)
-    # A "closed loop" that is the greedy joint follower, run here independently of the module.
-    x = sim.reset(x0=task.x0)
+def test_the_plan_is_the_references_velocities_and_its_feedforward_ends_at_rest(tmp_path):
+    ref, plan, ff = (tmp_path / f"{n}.npy" for n in ("ref", "plan", "ff"))
+    args = ["reference", "--u-limit", "1.0", "--steps", "130", "--out", str(ref)]
+    assert f8s.main([*args, "--plan", str(plan), "--feedforward", str(ff), "--horizon", "15"]) == 0
+    r, p, u = np.load(ref), np.load(plan), np.load(ff)
+    assert p.shape == (130, 17) and u.shape == (129 + 15, 7)
+    dt = f8s.simulator(u_limit=U_LIMIT).options.dt
+    np.testing.assert_allclose(u[:129], (r[1:, 3:10] - r[:-1, 3:10]) / dt, rtol=1e-12)  # under the clip here
+    assert np.all(u[129:] == 0)
+    np.testing.assert_array_equal(p[:, :10], r[:, :10])
+    np.testing.assert_allclose(p[1:, 10:], u[:129], rtol=1e-12)
+    assert f8s.main([*args, "--plan", str(plan)]) == 2  # the two go together
+
+
+def _follow(sim, task, x0, steps: int, gain: float) -> tuple[np.ndarray, np.ndarray]:
+    """The greedy joint follower with ``gain`` (0: zero input), written out here."""
+    x = sim.reset(x0=x0)
     xs, us = [x], []
     for k in range(steps - 1):
-        u = joint_p_command(x[3:10], task.q[k + 1], 50.0, U_LIMIT)
+        u = joint_p_command(x[3:10], task.q[k + 1], gain, U_LIMIT)
         x = sim.step(u)
         xs.append(x)
         us.append(u)
-    xs = np.array(xs)
-    entry = dict(sim="arm0", model="m", x=xs.tolist(), u=np.array(us).tolist())
-    (tmp_path / "report.json").write_text(json.dumps(dict(name="t", control=[entry] if as_list else entry)))
-    # The closed loop is not a model's: no error-state row (it needs the run's model).
-    assert f8s.main(["report", "--u-limit", "1.0", "--out", str(tmp_path), "--no-error-state"]) == 0
+    return np.array(xs), np.array(us)
+
+
+@pytest.mark.parametrize("as_list", [False, True])
+def test_report_scores_every_closed_loop_with_specs_error(tmp_path, as_list):
+    steps = 160
+    sim = f8s.simulator(u_limit=U_LIMIT)
+    task = references(sim, steps)
+    loops = {"koopman-mpc": _follow(sim, task, task.x0, steps, 50.0), "zero-input": _follow(sim, task, task.x0, steps, 0.0)}
+    entries = [dict(sim="arm0", model="m", label=None if name == "koopman-mpc" else name, x=x.tolist(), u=u.tolist())
+               for name, (x, u) in loops.items()]
+    entries.append(dict(sim="other", model="m", x=[], u=[]))  # another simulator's: not scored
+    body = dict(name="t", controls=entries) if as_list else dict(name="t", control=entries[0])
+    (tmp_path / "report.json").write_text(json.dumps(body))
+    assert f8s.main(["report", "--u-limit", "1.0", "--out", str(tmp_path)]) == 0
     rep = json.loads((tmp_path / "report.json").read_text())
-    assert rep["name"] == "t" and rep["control"]  # the orchestrator's report is kept
+    assert rep["name"] == "t"  # the orchestrator's report is kept
     e = rep["figure8"]["errors"]
-    want = np.sqrt(sum((xs[k, 1] - task.targets[k, 1]) ** 2 + (xs[k, 2] - task.targets[k, 2]) ** 2 for k in range(100, steps)))
-    assert e["koopman-mpc"] == pytest.approx(want, rel=1e-5)
-    assert e["joint-follower"] == pytest.approx(e["koopman-mpc"], rel=1e-5)  # the same controller
-    assert e["zero-input"] > 5 * e["joint-follower"]
+    assert set(e) == (set(loops) if as_list else {"koopman-mpc"})
+    for name in e:
+        xs = loops[name][0]
+        want = np.sqrt(sum((xs[k, 1] - task.targets[k, 1]) ** 2 + (xs[k, 2] - task.targets[k, 2]) ** 2 for k in range(100, steps)))
+        assert e[name] == pytest.approx(want, rel=1e-9), name
+    if as_list:
+        assert e["zero-input"] > 5 * e["koopman-mpc"]
     assert (tmp_path / "figure8.png").read_bytes()[:4] == b"\x89PNG"
 
 

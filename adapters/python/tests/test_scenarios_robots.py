@@ -24,7 +24,8 @@ def _tiny(name: str, repo_tmp, control_steps: int, iterations: int = 150, **subs
     for key, value in subs.items():
         text, n = re.subn(rf"^{key} = \d+", f"{key} = {value}", text, count=1, flags=re.M)
         assert n == 1, key
-    head, sep, tail = text.partition("reference_file =")
+    # The closed loops' steps: [control]'s, or [control_defaults]' shared by the entries.
+    head, sep, tail = text.partition("\n[control")
     tail, n = re.subn(r"^steps = \d+", f"steps = {control_steps}", tail, count=1, flags=re.M)
     assert sep and n == 1, "[control] steps"
     text = head + sep + tail
@@ -50,12 +51,62 @@ def test_franka_figure8_scenario_tracks_better_than_zero_input(tmp_path, repo_tm
     rep = _run(exe, sc, tmp_path / "out")
     e = rep["figure8"]["errors"]
     assert np.isfinite(e["koopman-mpc"]) and e["koopman-mpc"] < e["zero-input"], e
-    # The error-state MPC about the reference's plan, same model (in-process): far better
-    # (0.70 vs 4.40 at this budget).
+    # The error-state MPC about the reference's plan, same model (through the MPC service, a
+    # labelled [[control]] entry): far better (0.71 vs 4.40 at this budget).
     assert e["error-state-mpc"] < 0.5 * e["koopman-mpc"], e
-    assert e["error-state-mpc+position-loop"] < 0.5 * e["error-state-mpc"], e  # 0.046 vs 0.70
+    assert e["error-state-mpc-position-loop"] < 0.5 * e["error-state-mpc"], e  # 0.053 vs 0.71
+    assert e["joint-follower"] < 0.01, e  # 0.0014: the baseline the engine ran needs no model
     assert rep["figure8"]["steps"] == 600
     assert (tmp_path / "out" / "figure8.png").read_bytes()[:4] == b"\x89PNG"
+    _rows_match_in_process_loops(rep, tmp_path / "out")
+
+
+def _rows_match_in_process_loops(rep: dict, out) -> None:
+    """Every row the engine ran (zero input, the joint follower as a position loop about the
+    plan, the error-state MPC through the service with and without the loop) is the loop written
+    out here in-process — the baselines by hand, the MPC with ``koopbridge.Mpc`` on the run's
+    model, ``plan_loop.corrected_plan`` — from the same start: the same states to 1e-9."""
+    from koopbridge import Mpc
+    from koopbridge_experiments import figure8_scenario as f8s
+    from koopbridge_experiments.figure8_ref import joint_p_command, references
+    from koopbridge_experiments.plan_loop import corrected_plan
+
+    rows = {c["label"]: c for c in rep["controls"]}
+    sim = f8s.simulator(u_limit=1.0)
+    x0 = np.asarray(rows["koopman-mpc"]["x"][0])
+    steps = len(rows["koopman-mpc"]["u"])
+    task = references(sim, steps + 1)
+    plan, uff = f8s.plan_of(sim, task, 1.0)
+    uff_h = np.concatenate([uff, np.zeros((15, 7))])
+    model = str(out / "models" / rows["error-state-mpc"]["model"])
+
+    def loop(command) -> np.ndarray:
+        x = sim.reset(x0=x0)
+        xs = [x]
+        for k in range(steps):
+            x = sim.step(command(k, x))
+            xs.append(x)
+        return np.array(xs)
+
+    def error_state(gain: float):
+        # A fresh MPC per row, as the service's is configured afresh for each (with R = 0 the
+        # plan need not be unique, and a solver warm-started elsewhere may pick another one).
+        mpc = Mpc(model, horizon=15, u_min=[-1.0] * 7, u_max=[1.0] * 7)
+
+        def command(k, x):
+            r, ff = corrected_plan(x, plan[k], uff_h[k : k + 15], slice(3, 10), slice(10, 17), gain, 1.0)
+            return np.asarray(mpc.solve(x, r, feedforward=ff)["u"])[0]
+
+        return command
+
+    want = {
+        "zero-input": loop(lambda k, x: np.zeros(7)),
+        "joint-follower": loop(lambda k, x: joint_p_command(x[3:10], task.q[k + 1], 50.0, 1.0)),
+        "error-state-mpc": loop(error_state(0.0)),
+        "error-state-mpc-position-loop": loop(error_state(30.0)),
+    }
+    for name, x in want.items():
+        np.testing.assert_allclose(np.asarray(rows[name]["x"]), x, atol=1e-9, err_msg=name)
 
 
 def test_kinova_drake_scenario_tracks_held_out_plans(tmp_path, repo_tmp):

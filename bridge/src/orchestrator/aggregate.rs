@@ -351,6 +351,8 @@ mod tests {
         ControlReport {
             sim: "pend".into(),
             model: "m-agg1".into(),
+            label: None,
+            controller: Default::default(),
             state_names: vec!["x".into()],
             input_names: vec!["u".into()],
             dt: 0.1,

@@ -16,14 +16,21 @@ use crate::codec::{SolveReply, SolveRequest, SolveStatus, StateMsg, StepStatus};
 use crate::error::{Error, ErrorCode, Result};
 use crate::keyexpr::{Role, SimLeaf};
 use crate::messages::{ResetRequest, SimInfo};
+use crate::scenario::Controller;
 
 /// Closed-loop control result.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct ControlReport {
     /// Simulator id.
     pub sim: String,
-    /// Model name.
+    /// Model name (the model a baseline controller's run was compared with; it did not use it).
     pub model: String,
+    /// The entry's `label` (its row's name; the plot `control-{label}.png`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub label: Option<String>,
+    /// What decided the inputs: the MPC service, or a baseline (`feedforward`, `zero-input`).
+    #[serde(default)]
+    pub controller: Controller,
     /// State names.
     pub state_names: Vec<String>,
     /// Input names.
@@ -142,6 +149,10 @@ pub struct ControlTask<'a> {
     /// Apply these inputs open loop (row k at step k, the last past the end) instead of asking
     /// the MPC service: the replay row of a tracking task.
     pub replay: Option<&'a [Vec<f64>]>,
+    /// What decides the inputs when nothing is replayed (a baseline needs no MPC service).
+    pub controller: Controller,
+    /// The row's name in the report.
+    pub label: Option<&'a str>,
     /// The perturbation of the episode, sent with the reset (the simulator applies it).
     pub perturbation: Option<&'a crate::messages::Perturbation>,
     /// Where its states are shown to a viewer (published only while one subscribes).
@@ -273,16 +284,27 @@ impl<'a> ControlRun<'a> {
         self.apply(u, live)
     }
 
-    /// The input of the current step: the replayed one, or the MPC service's first planned input
-    /// for the current state (and the reference window of this step).
+    /// The input of the current step: the replayed one, a baseline controller's, or the MPC
+    /// service's first planned input for the current state (and the reference window of this
+    /// step).
     pub fn decide(&mut self, client: &Client, live: &Liveliness) -> Result<Vec<f64>> {
         let k = self.us.len();
         if let Some(inputs) = self.task.replay {
-            let u = inputs[k.min(inputs.len() - 1)].clone();
-            self.decided = Some((u.clone(), None));
-            return Ok(u);
+            return Ok(self.decided_alone(inputs[k.min(inputs.len() - 1)].clone()));
         }
         let (r, h) = (self.task.reference, self.task.horizon);
+        let nu = self.info.nu();
+        match self.task.controller {
+            Controller::Mpc => {}
+            Controller::ZeroInput => return Ok(self.decided_alone(vec![0.0; nu])),
+            Controller::Feedforward => {
+                let (mut state, mut u) = (r.window(k, 1), r.feedforward(k, 1));
+                if let Some(pl) = self.task.position_loop {
+                    pl.correct(&self.xs[k], &mut state, &mut u);
+                }
+                return Ok(self.decided_alone(u));
+            }
+        }
         let (mut reference, mut feedforward) = (r.window(k, h), r.feedforward(k, h));
         if let (Some(pl), Reference::Plan { .. }) = (self.task.position_loop, r) {
             pl.correct(&self.xs[k], &mut reference, &mut feedforward);
@@ -298,7 +320,6 @@ impl<'a> ControlRun<'a> {
         let b = p.wait(Some((live, Role::Mpc, self.task.mpc_id)))?;
         self.rt_us.push(t.elapsed().as_secs_f64() * 1e6);
         let r = SolveReply::decode(&b)?;
-        let nu = self.info.nu();
         if r.u.len() < nu {
             return Err(Error::protocol(
                 ErrorCode::Dimension,
@@ -315,6 +336,12 @@ impl<'a> ControlRun<'a> {
         let u = r.u[..nu].to_vec();
         self.decided = Some((u.clone(), Some(r)));
         Ok(u)
+    }
+
+    /// `u`, decided without the MPC service (a replay or a baseline controller).
+    fn decided_alone(&mut self, u: Vec<f64>) -> Vec<f64> {
+        self.decided = Some((u.clone(), None));
+        u
     }
 
     /// Shows the state the last input was decided at to a viewer (once the step has come back:
@@ -398,6 +425,8 @@ impl<'a> ControlRun<'a> {
         ControlReport {
             sim: self.sim.id.clone(),
             model: self.task.model.to_string(),
+            label: self.task.label.map(str::to_string),
+            controller: self.task.controller,
             state_names: info.state_names.clone(),
             input_names: info.input_names.clone(),
             dt: info.dt,
@@ -418,7 +447,8 @@ impl<'a> ControlRun<'a> {
             not_solved_by_status: self.not_solved,
             offset_free: None,
             mpc: None,
-            error_state: matches!(r, Reference::Plan { .. }),
+            error_state: self.task.controller == Controller::Mpc
+                && matches!(r, Reference::Plan { .. }),
             position_loop: self.task.position_loop.map(|p| p.spec().clone()),
             step_flags: self.flags,
             x: self.xs,

@@ -1,6 +1,7 @@
-//! The control phase of a run: every `[control]` entry's model configured on the MPC service,
-//! its reference read, and all controlled simulators stepped in one lockstep loop
-//! ([`control_loop`]); optionally each of them alone too, for the loop's slowdown figure.
+//! The control phase of a run: every `[control]` entry's reference read, its model configured on
+//! the MPC service, and the controlled simulators stepped in lockstep loops ([`control_loop`]):
+//! every simulator's first entry in one loop, its labelled further entries in the rounds after;
+//! optionally each of the first loop's simulators alone too, for the loop's slowdown figure.
 
 use std::time::Duration;
 
@@ -12,7 +13,7 @@ use super::reference::{reference_of, Reference};
 use super::{ControlReport, ControlTask, Event, SERVICES_ID};
 use crate::client::{Client, Liveliness, SimClient};
 use crate::error::{Error, Result};
-use crate::scenario::Scenario;
+use crate::scenario::{Controller, Scenario};
 use crate::services::mpc::{configure, ConfigureRequest};
 
 /// One control entry made ready: which simulator, which model, what to track.
@@ -41,7 +42,10 @@ pub struct ControlPhase<'a> {
 }
 
 /// Runs the control phase of `sc`: returns one report per `[control]` entry (in order) and the
-/// loop's figures. `clients[j]` is `sc.sims[j]`'s client.
+/// loop's figures. `clients[j]` is `sc.sims[j]`'s client. A simulator's first entries of all
+/// simulators step in one lockstep loop (round 0, whose figures are the loop's); a simulator's
+/// second, third... entries (labelled rows: another controller, another plan) run in the rounds
+/// after it, each round's MPC models configured just before it.
 pub fn control_phase(
     sc: &Scenario,
     client: &Client,
@@ -55,41 +59,53 @@ pub fn control_phase(
     for ctrl in &sc.control {
         let j = controlled_sim(sc, ctrl);
         let info = &clients[j].info.sim;
-        let model = (what.model_of)(&sc.sims[j].id);
-        let mpc = mpc_config(info, &ctrl.mpc)?;
         let at =
             |e: Error| Error::Config(format!("[control] for simulator '{}': {e}", sc.sims[j].id));
+        let mpc = mpc_config(info, &ctrl.mpc)?;
         let reference = reference_of(ctrl, info.nx(), info.nu(), ph).map_err(at)?;
         let position_loop = match &ctrl.position_loop {
             Some(s) => Some(position_loop_of(s, info, &mpc).map_err(|e| at(Error::Config(e)))?),
             None => None,
         };
-        let req = ConfigureRequest {
-            model: model.clone(),
-            mpc: Some(mpc.clone()),
-            offset_free: ctrl.offset_free.clone(),
-        };
-        configure(client, SERVICES_ID, &req, Duration::from_secs(60))?;
         prepared.push(Prepared {
             sim: j,
-            model,
+            model: (what.model_of)(&sc.sims[j].id),
             reference,
             mpc,
             position_loop,
         });
     }
+    let rounds = rounds_of(&prepared.iter().map(|p| p.sim).collect::<Vec<_>>());
+    let configure_round = |which: &[usize]| -> Result<()> {
+        for &i in which {
+            let (p, ctrl) = (&prepared[i], &sc.control[i]);
+            if ctrl.controller == Controller::Mpc {
+                let req = ConfigureRequest {
+                    model: p.model.clone(),
+                    mpc: Some(p.mpc.clone()),
+                    offset_free: ctrl.offset_free.clone(),
+                };
+                configure(client, SERVICES_ID, &req, Duration::from_secs(60))?;
+            }
+        }
+        Ok(())
+    };
     let run = |clients: &mut [SimClient],
                which: &[usize],
                publish: bool,
                on: &mut dyn FnMut(Event<'_>)|
      -> Result<(Vec<ControlReport>, LoopReport)> {
-        // Disjoint &mut borrows of the controlled clients, in the order of `which`.
+        // Disjoint &mut borrows of the controlled clients, in the order of `which` (a round
+        // holds at most one entry per simulator).
         let mut slots: Vec<Option<&mut SimClient>> = clients.iter_mut().map(Some).collect();
         let (mut jobs, mut ids) = (Vec::new(), Vec::new());
         for &i in which {
             let (p, ctrl) = (&prepared[i], &sc.control[i]);
             let Some(c) = slots[p.sim].take() else {
-                continue;
+                return Err(Error::Config(format!(
+                    "simulator '{}' twice in one control round",
+                    sc.sims[p.sim].id
+                )));
             };
             ids.push(sc.sims[p.sim].id.as_str());
             jobs.push((
@@ -104,10 +120,12 @@ pub fn control_phase(
                     steps: ctrl.steps,
                     publish,
                     replay: None,
+                    controller: ctrl.controller,
+                    label: ctrl.label.as_deref(),
                     perturbation: None,
                     view: Some(super::view::StepView {
                         view: what.view,
-                        row: &p.model,
+                        row: ctrl.label.as_deref().unwrap_or(&p.model),
                         episode: None,
                     }),
                 },
@@ -129,17 +147,38 @@ pub fn control_phase(
             &mut yield_to,
         )
     };
-    let all: Vec<usize> = (0..prepared.len()).collect();
-    let (mut reports, mut figures) = run(clients, &all, what.publish, on)?;
-    for ((r, p), ctrl) in reports.iter_mut().zip(&prepared).zip(&sc.control) {
-        r.mpc = Some(p.mpc.clone());
-        r.offset_free = ctrl.offset_free.clone();
+    let mut reports: Vec<Option<ControlReport>> = vec![None; prepared.len()];
+    let mut figures = None;
+    for (r, which) in rounds.iter().enumerate() {
+        if r > 0 {
+            let rows: Vec<&str> = which
+                .iter()
+                .map(|&i| sc.control[i].label.as_deref().unwrap_or("?"))
+                .collect();
+            on(Event::Phase(&format!(
+                "closed-loop control: {}",
+                rows.join(", ")
+            )));
+        }
+        configure_round(which)?;
+        let (got, loop_report) = run(clients, which, what.publish, on)?;
+        for (&i, mut report) in which.iter().zip(got) {
+            report.mpc = Some(prepared[i].mpc.clone());
+            report.offset_free = sc.control[i].offset_free.clone();
+            reports[i] = Some(report);
+        }
+        if r == 0 {
+            figures = Some(loop_report);
+        }
     }
-    if what.baseline && prepared.len() > 1 {
+    let mut figures = figures.unwrap_or_default();
+    let first = rounds.first().cloned().unwrap_or_default();
+    if what.baseline && first.len() > 1 {
         on(Event::Phase(
             "each controlled simulator alone in the loop (baseline)",
         ));
-        for &i in &all {
+        configure_round(&first)?;
+        for &i in &first {
             // Not published: the recordings are of the loop of all.
             let (_, alone) = run(clients, &[i], false, on)?;
             figures
@@ -154,5 +193,34 @@ pub fn control_phase(
         figures.slowdown_vs_slowest_alone =
             Some(slowest / figures.macro_steps_per_second.max(1e-9));
     }
-    Ok((reports, figures))
+    Ok((reports.into_iter().flatten().collect(), figures))
+}
+
+/// The rounds of control entries driving simulators `sims` (entry i drives `sims[i]`): round r
+/// holds every simulator's (r+1)-th entry, in entry order.
+fn rounds_of(sims: &[usize]) -> Vec<Vec<usize>> {
+    let mut rounds: Vec<Vec<usize>> = Vec::new();
+    for (i, &sim) in sims.iter().enumerate() {
+        let r = sims[..i].iter().filter(|&&o| o == sim).count();
+        if rounds.len() <= r {
+            rounds.resize_with(r + 1, Vec::new);
+        }
+        rounds[r].push(i);
+    }
+    rounds
+}
+
+#[cfg(test)]
+mod tests {
+    use super::rounds_of;
+
+    #[test]
+    fn a_simulators_later_entries_run_in_later_rounds_in_entry_order() {
+        assert_eq!(rounds_of(&[0, 1]), vec![vec![0, 1]]);
+        assert_eq!(
+            rounds_of(&[0, 0, 1, 0, 1]),
+            vec![vec![0, 2], vec![1, 4], vec![3]]
+        );
+        assert!(rounds_of(&[]).is_empty());
+    }
 }

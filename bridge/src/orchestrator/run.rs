@@ -114,6 +114,12 @@ pub fn run_scenario_with(
                 .into(),
         ));
     }
+    if extras.aggregate > 0 && sc.control.iter().any(|c| c.label.is_some()) {
+        return Err(Error::Config(
+            "--aggregate retrains each simulator's model on its one [control] loop; labelled              [control] entries (several rows per simulator) are for comparing controllers: run              them without --aggregate"
+                .into(),
+        ));
+    }
     let kinds = sc.train.as_ref().map(|t| t.kinds()).unwrap_or_default();
     if extras.aggregate > 0 && !sc.control.is_empty() && kinds.len() > 1 {
         return Err(Error::Config(format!(

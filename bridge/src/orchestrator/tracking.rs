@@ -336,6 +336,8 @@ fn run_one(
             Row::Replay(u) => Some(u),
             _ => None,
         },
+        controller: crate::scenario::Controller::Mpc,
+        label: None,
         perturbation: how.perturbation,
         view: Some(StepView {
             view: how.view,

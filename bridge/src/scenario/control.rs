@@ -53,9 +53,13 @@ pub struct ControlSpec {
     /// A tracking task plans about each reference with its inputs as feed-forward.
     #[serde(default)]
     pub error_state: bool,
-    /// A tracking task's row suffix (`{model}+{label}`).
+    /// The row's name: a tracking task's row suffix (`{model}+{label}`); a single closed loop's
+    /// name in the report (needed, and distinct, when a simulator has several entries).
     #[serde(default)]
     pub label: Option<String>,
+    /// What decides a single closed loop's inputs ([`Controller`]; default the MPC service).
+    #[serde(default)]
+    pub controller: Controller,
     /// Whether a tracking task runs the replay row (default true).
     #[serde(default)]
     pub replay: Option<bool>,
@@ -82,6 +86,79 @@ pub struct ControlSpec {
     /// `disturbance` or `integral`), `radius`, `gain` (nx values), `angles`.
     #[serde(default)]
     pub offset_free: Option<koopman::mpc::OffsetFreeConfig>,
+}
+
+impl ControlSpec {
+    /// Checks the keys of a single closed loop (not a tracking task) driving simulator `sim`:
+    /// one reference, what a plan, a position loop and a baseline controller need, the label.
+    pub fn check_loop(&self, sim: &str) -> crate::error::Result<()> {
+        let bad = |m: String| {
+            Err(crate::error::Error::Config(format!(
+                "[control] for '{sim}': {m}"
+            )))
+        };
+        if self.reference.is_some() == self.reference_file.is_some() {
+            return bad("needs exactly one of `reference` and `reference_file`".into());
+        }
+        if self.feedforward_file.is_some() && self.reference_file.is_none() {
+            return bad("`feedforward_file` needs the `reference_file` it realises".into());
+        }
+        if let Some(pl) = &self.position_loop {
+            if self.feedforward_file.is_none() {
+                return bad("`position_loop` corrects a plan and needs `feedforward_file`".into());
+            }
+            if !(pl.gain.is_finite() && pl.gain >= 0.0) {
+                return bad(format!(
+                    "position_loop.gain must be finite and ≥ 0, got {}",
+                    pl.gain
+                ));
+            }
+        }
+        if self.controller == Controller::Feedforward && self.feedforward_file.is_none() {
+            return bad(
+                "controller = \"feedforward\" applies the plan's inputs and needs `feedforward_file`"
+                    .into(),
+            );
+        }
+        if self.controller != Controller::Mpc && self.offset_free.is_some() {
+            return bad(format!(
+                "`offset_free` corrects the MPC; controller = \"{}\" has none",
+                self.controller.name()
+            ));
+        }
+        if let Some(l) = &self.label {
+            crate::keyexpr::validate_chunk("[control].label", l)?;
+        }
+        Ok(())
+    }
+}
+
+/// What decides a single closed loop's inputs: the MPC service, or a baseline that needs no
+/// model, run by the same loop on the same simulator (tracking tasks always use the MPC; their
+/// baseline is the replay row).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Controller {
+    /// The MPC service with the trained model (the default).
+    #[default]
+    Mpc,
+    /// The plan's inputs (`feedforward_file`) open loop — corrected by `position_loop` when it
+    /// is given (a joint P loop about the plan; gain 1/dt about a reference's velocities is the
+    /// greedy joint follower).
+    Feedforward,
+    /// Zero input at every step (what the plant does left alone).
+    ZeroInput,
+}
+
+impl Controller {
+    /// The name a scenario file and report.json use (`mpc`, `feedforward`, `zero-input`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Controller::Mpc => "mpc",
+            Controller::Feedforward => "feedforward",
+            Controller::ZeroInput => "zero-input",
+        }
+    }
 }
 
 /// A position loop on a plan: which state components are the joint positions and which their
@@ -225,4 +302,66 @@ pub(super) fn one_or_many<'de, D: serde::Deserializer<'de>>(
         _ => ControlSpec::deserialize(v).map(|c| vec![c]),
     }
     .map_err(serde::de::Error::custom)
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::scenario::{Controller, Scenario};
+
+    /// A scenario with the `[[control]]` entries `entries` (TOML) for simulator `pend`.
+    fn with(entries: &str) -> crate::error::Result<Scenario> {
+        Scenario::parse(&format!(
+            "name = \"demo\"\n[[sims]]\nid = \"pend\"\nenv = \"damped-pendulum\"\n\
+             [collect]\ntrain_windows = 10\nval_windows = 2\ntest_windows = 2\n\
+             [train]\nconfig = {{ iterations = 5 }}\n{entries}"
+        ))
+    }
+
+    const MPC: &str = "[[control]]\nx0 = [1.0, 0.0]\nreference = [0.0, 0.0]\nsteps = 5\n";
+    const PLAN: &str = "[[control]]\nx0 = [1.0, 0.0]\nreference_file = \"r.npy\"\n\
+                        feedforward_file = \"u.npy\"\nsteps = 5\n";
+
+    #[test]
+    fn a_simulators_several_entries_need_distinct_labels() {
+        let e = with(&format!("{MPC}{MPC}")).unwrap_err().to_string();
+        assert!(e.contains("distinct `label`"), "{e}");
+        let one = format!("{MPC}label = \"a\"\n{MPC}label = \"a\"\n");
+        assert!(with(&one).unwrap_err().to_string().contains("distinct"));
+        let two = format!("{MPC}{MPC}label = \"b\"\n");
+        assert!(with(&two).is_err(), "the first entry needs its label too");
+        let s = with(&format!("{MPC}label = \"a\"\n{MPC}label = \"b\"\n")).unwrap();
+        assert_eq!(s.control.len(), 2);
+        let e = with(&format!("{MPC}label = \"a b\"\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("label"), "{e}");
+    }
+
+    #[test]
+    fn a_baseline_controller_gets_what_it_needs_and_nothing_of_the_mpc() {
+        let s = with(&format!("{MPC}controller = \"zero-input\"\n")).unwrap();
+        assert_eq!(s.control[0].controller, Controller::ZeroInput);
+        assert_eq!(with(MPC).unwrap().control[0].controller, Controller::Mpc);
+        let e = with(&format!("{MPC}controller = \"feedforward\"\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("needs `feedforward_file`"), "{e}");
+        let s = with(&format!("{PLAN}controller = \"feedforward\"\n")).unwrap();
+        assert_eq!(s.control[0].controller, Controller::Feedforward);
+        let e = with(&format!(
+            "{MPC}controller = \"zero-input\"\noffset_free = {{ mode = \"integral\" }}\n"
+        ))
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("offset_free"), "{e}");
+        assert!(with(&format!("{MPC}controller = \"pid\"\n")).is_err());
+        // A tracking task's baseline is its replay row.
+        let e = with("[[control]]\nreferences = \"r.npz\"\ncontroller = \"zero-input\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("`controller` is not a key of a tracking task"),
+            "{e}"
+        );
+    }
 }

@@ -52,7 +52,6 @@ impl TrackSpec {
         let Some(references) = &c.references else {
             let only = [
                 ("survival", c.survival.is_some()),
-                ("label", c.label.is_some()),
                 ("continue_after_failure", c.continue_after_failure),
                 ("error_state", c.error_state),
                 ("replay", c.replay.is_some()),
@@ -80,6 +79,10 @@ impl TrackSpec {
             ("feedforward_file", c.feedforward_file.is_some()),
             ("position_loop", c.position_loop.is_some()),
             ("offset_free", c.offset_free.is_some()),
+            (
+                "controller",
+                c.controller != super::control::Controller::Mpc,
+            ),
         ];
         if let Some((k, _)) = not_here.iter().find(|(_, set)| *set) {
             return bad(format!(
