@@ -36,7 +36,7 @@ fn scenario(dir: &std::path::Path) -> std::path::PathBuf {
          [[control]]\nlabel = \"mpc\"\nreference = [0.0, 0.0]\n\
          [[control]]\nlabel = \"zero\"\ncontroller = \"zero-input\"\nreference = [0.0, 0.0]\n\
          [[control]]\nlabel = \"ff\"\ncontroller = \"feedforward\"\nreference_file = \"{plan}\"\n\
-         feedforward_file = \"{ff}\"\n\
+         feedforward_file = \"{ff}\"\nmpc = {{ u_min = [-1.0], u_max = [1.0] }}\n\
          [[control]]\nlabel = \"ff-loop\"\ncontroller = \"feedforward\"\nreference_file = \"{plan}\"\n\
          feedforward_file = \"{ff}\"\nposition_loop = {{ position = [0], velocity = [1], gain = 20.0 }}\n\
          mpc = {{ u_min = [-2.0], u_max = [2.0] }}\n",
@@ -76,8 +76,10 @@ fn labelled_rows_run_one_after_another_and_the_baselines_follow_their_rules() {
     // Zero input: the pendulum left alone from x0.
     assert_eq!(floats(&rows[1]["x"]), local_states(&[0.4, 0.1], &[0.0; 20]));
     assert!(floats(&rows[1]["u"]).iter().all(|u| u == &[0.0]));
-    // The plan's inputs open loop.
-    assert_eq!(floats(&rows[2]["x"]), local_states(&[0.4, 0.1], &inputs));
+    // The plan's inputs open loop, clipped to the entry's bounds (±1: the plan reaches ±1.5).
+    let clipped: Vec<f64> = inputs.iter().map(|u| u.clamp(-1.0, 1.0)).collect();
+    assert_ne!(clipped, inputs);
+    assert_eq!(floats(&rows[2]["x"]), local_states(&[0.4, 0.1], &clipped));
     // With the loop: u_k = clip(u_ff,k − 20 (θ_k − θ_plan,k), ±2), the entry's own bounds.
     let x = floats(&rows[3]["x"]);
     let want_u: Vec<f64> = (0..20)

@@ -190,6 +190,10 @@ pub struct Perturbation {
     /// A push during the episode.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub push: Option<Push>,
+    /// The actuators realise `command_gain · u` for a command `u` (an actuator mismatch no
+    /// model was told about; the Kinova's), > 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub command_gain: Option<f64>,
 }
 
 /// A push: right before the simulator integrates step `step` (from state `step` to `step + 1`,
@@ -205,11 +209,12 @@ pub struct Push {
 }
 
 impl Perturbation {
-    /// Checks the values: scales finite and > 0, the push's velocity finite.
+    /// Checks the values: scales and the command gain finite and > 0, the push's velocity finite.
     pub fn check(&self) -> Result<(), String> {
         for (k, v) in [
             ("mass_scale", self.mass_scale),
             ("friction_scale", self.friction_scale),
+            ("command_gain", self.command_gain),
         ] {
             if let Some(v) = v.filter(|v| !(v.is_finite() && *v > 0.0)) {
                 return Err(format!(

@@ -30,7 +30,7 @@ from .dataset_npz import write_atomic
 from .figure8_ref import SKIP, Figure8, references, tracking_error
 from .run_report import update_report
 
-__all__ = ["SPEC_ROW", "closed_loop_of", "main", "parser", "plan_of", "rows_of", "simulator"]
+__all__ = ["SPEC_ROW", "main", "parser", "plan_of", "rows_of", "simulator"]
 
 
 def simulator(state: str = "ee,q,qd", u_limit: float = 0.3) -> Any:
@@ -64,17 +64,6 @@ def rows_of(report: dict[str, Any], sim: str) -> dict[str, dict[str, Any]]:
     if not rows:
         raise KeyError(f"report.json has no control result for simulator {sim!r} (found {[e.get('sim') for e in entries]})")
     return rows
-
-
-def closed_loop_of(report: dict[str, Any], sim: str) -> dict[str, Any]:
-    """The orchestrator's control result of simulator ``sim`` in ``report.json`` (``control``
-    may be one result or a list of them); raises ``KeyError`` naming what is there."""
-    ctrl = report.get("control")
-    entries = ctrl if isinstance(ctrl, list) else [ctrl] if isinstance(ctrl, dict) else []
-    for e in entries:
-        if e.get("sim") == sim:
-            return e
-    raise KeyError(f"report.json has no control result for simulator {sim!r} (found {[e.get('sim') for e in entries]})")
 
 
 def plan_of(sim: Any, task: Figure8, u_limit: float) -> tuple[np.ndarray, np.ndarray]:

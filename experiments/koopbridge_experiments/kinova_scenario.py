@@ -1,12 +1,13 @@
 """The Kinova steps of ``scenarios/kinova-drake.toml``: ``reference`` (a ``before-control`` hook)
 asks the scenario's Drake planner over Zenoh for trajectories to held-out goals (goals of no
 collection session) and writes them as the ``(T, 14)`` ``[q, q̇]`` reference that ``[control]
-reference_file`` reads; ``report`` (an ``after-control`` hook) scores the orchestrator's Koopman
-MPC run against the planner's open-loop feed-forward and feed-forward + LQR on the lifted model
-(both run in-process on the same Drake simulation) and the arm held still at its start, then
-runs the MPC (in-process, the service's settings), the feed-forward and the LQR again on an arm
-whose actuators realise only ``--command-gain`` (0.9) of each command (``disturbed``: what
-feedback corrects), adds the result to ``report.json`` and draws ``kinova.png``.
+reference_file`` reads; ``report`` (an ``after-control`` hook) scores every closed loop the engine
+ran on the arm — one row per labelled ``[[control]]`` entry: the error-state MPC about the plan
+with and without the position loop, the planner's open-loop feed-forward, and the same on an arm
+whose actuators realise only a fraction of each command (rows labelled ``…-mismatch``, the
+perturbation ``command_gain``) — adds feed-forward + LQR on the lifted model (run here, the one
+loop the engine does not have) and the arm held still, writes the result to ``report.json`` and
+draws ``kinova.png``.
 
     python -m koopbridge_experiments.kinova_scenario reference --out OUT --session S --connect EP [--goals 2]
     python -m koopbridge_experiments.kinova_scenario report --out OUT [--sim gen3]
@@ -29,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from .figure8_scenario import closed_loop_of, write_npy
+from .figure8_scenario import rows_of, write_npy
 from .run_report import update_report
 
 __all__ = ["feedback_gain", "held_out_goals", "main", "parser", "plan_reference", "tracking_errors"]
@@ -167,15 +168,22 @@ def _padded(a: np.ndarray, n: int, fill: np.ndarray | None = None) -> np.ndarray
     return np.concatenate([a, tail])
 
 
+#: The label suffix of the rows run on the mismatched arm (``perturbation = { command_gain = g }``).
+MISMATCH = "-mismatch"
+
+
 def _report(a: argparse.Namespace) -> int:
     from koopbridge import KoopmanModel
     from koopbridge.adapters.drake.sim import DrakeGen3Sim
 
     out = Path(a.out)
     rep_path = out / "report.json"
-    ctrl = closed_loop_of(json.loads(rep_path.read_text()), a.sim)
-    x_mpc, u_mpc = np.asarray(ctrl["x"], float), np.asarray(ctrl["u"], float)
-    steps = len(u_mpc)
+    rows = rows_of(json.loads(rep_path.read_text()), a.sim)
+    nominal = {k: v for k, v in rows.items() if not k.endswith(MISMATCH)}
+    mismatched = {k[: -len(MISMATCH)]: v for k, v in rows.items() if k.endswith(MISMATCH)}
+    through_service = next(iter(nominal))
+    ctrl = nominal[through_service]
+    steps = len(ctrl["u"])
     ref = _padded(np.load(out / REFERENCE), steps + 1)
     ff = _padded(np.load(out / FEEDFORWARD), steps, np.zeros(7))
     model = KoopmanModel.load(out / "models" / ctrl["model"])
@@ -183,62 +191,23 @@ def _report(a: argparse.Namespace) -> int:
     q = np.asarray(a.q_weights if a.q_weights else np.ones(14), float)
     K = feedback_gain(A, B, P.T @ np.diag(q) @ P + 1e-9 * np.eye(len(A)), a.r * np.eye(B.shape[1]))
     z_ref = np.asarray(model.encode(ref), float)
-    sim = DrakeGen3Sim()
     lqr = lambda k, x: ff[k] - K @ (np.asarray(model.encode(x), float) - z_ref[k])  # noqa: E731
-    # The service's closed loop is the row `through_service` names: the error-state MPC, about the
-    # plan corrected by the orchestrator's position loop when the scenario sets `position_loop`.
-    loop = ctrl.get("position_loop")
-    through_service = "koopman-mpc+position-loop" if loop else "koopman-mpc"
-    runs = {
-        through_service: x_mpc,
-        "feed-forward": _run(sim, ref[0], steps, lambda k, x: ff[k]),
-        "feed-forward+lqr": _run(sim, ref[0], steps, lqr),
-    }
-    # The service's controller in-process (koopbridge.Mpc, same model and settings): the MPC row
-    # the service did not run, the service's own run replayed (how closely it agrees), and every
-    # controller on an arm whose actuators realise only `command_gain` of each command (a
-    # mismatch none of them was told about: what feedback corrects).
-    disturbed, dis, replay = None, {}, None
-    if ctrl.get("mpc"):
-        from koopbridge import Mpc
-        from koopbridge.adapters.drake.model import VELOCITY_LIMITS
-
-        from .plan_loop import corrected_plan
-
-        mpc_cfg = dict(ctrl["mpc"])
-        H = int(mpc_cfg["horizon"])
-        mpc = Mpc(model, **mpc_cfg)
-        ff_h = _padded(ff, steps + H, np.zeros(7))
-        error_state = bool(ctrl.get("error_state"))
-        pos, vel = (loop["position"], loop["velocity"]) if loop else (list(range(7)), list(range(7, 14)))
-        gain = float(loop["gain"]) if loop else a.position_gain
-
-        def mpc_cmd(k: int, x: np.ndarray) -> np.ndarray:
-            if error_state:
-                return np.asarray(mpc.solve(x, ref[k], feedforward=ff_h[k : k + H])["u"])[0]
-            return np.asarray(mpc.solve(x, ref[k + 1 : k + 1 + H] if k + 1 + H <= len(ref) else _padded(ref[k + 1 :], H))["u"])[0]
-
-        def looped_cmd(k: int, x: np.ndarray) -> np.ndarray:
-            r, ffk = corrected_plan(x, ref[k], ff_h[k : k + H], pos, vel, gain, VELOCITY_LIMITS)
-            return np.asarray(mpc.solve(x, r, feedforward=ffk)["u"])[0]
-
-        looped = error_state and gain > 0
-        if loop:
-            runs["koopman-mpc"] = _run(sim, ref[0], steps, mpc_cmd)
-            x_replay = _run(sim, ref[0], steps, looped_cmd)
-            replay = dict(row=through_service, max_abs_state_difference=float(np.max(np.abs(x_replay - x_mpc))))
-        elif looped:
-            runs["koopman-mpc+position-loop"] = _run(sim, ref[0], steps, looped_cmd)
-        if a.command_gain != 1.0:
-            slow = DrakeGen3Sim(command_gain=a.command_gain)
-            dis = {"koopman-mpc": _run(slow, ref[0], steps, mpc_cmd), "feed-forward": _run(slow, ref[0], steps, lambda k, x: ff[k]),
-                   "feed-forward+lqr": _run(slow, ref[0], steps, lqr)}
-            if looped:
-                dis["koopman-mpc+position-loop"] = _run(slow, ref[0], steps, looped_cmd)
-            disturbed = dict(command_gain=a.command_gain, mpc="error-state (in-process, the service's settings)" if error_state else "standard (in-process)",
-                             controllers={k: tracking_errors(v, ref) for k, v in dis.items()})
+    # Every row but LQR's is the engine's (one labelled [[control]] entry each); LQR on the
+    # lifted model runs here, on the same simulation (and on the mismatched arm when the
+    # scenario runs one).
+    runs = {k: np.asarray(v["x"], float) for k, v in nominal.items()}
+    runs["feed-forward+lqr"] = _run(DrakeGen3Sim(), ref[0], steps, lqr)
+    disturbed, dis, gain = None, {}, 1.0
+    if mismatched:
+        gains = {float((v.get("perturbation") or {}).get("command_gain") or 1.0) for v in mismatched.values()}
+        if len(gains) != 1 or gains == {1.0}:
+            raise ValueError(f"the rows labelled …{MISMATCH} must share one perturbation command_gain ≠ 1, got {sorted(gains)}")
+        (gain,) = gains
+        dis = {k: np.asarray(v["x"], float) for k, v in mismatched.items()}
+        dis["feed-forward+lqr"] = _run(DrakeGen3Sim(command_gain=gain), ref[0], steps, lqr)
+        disturbed = dict(command_gain=gain, controllers={k: tracking_errors(v, ref) for k, v in dis.items()})
     entry: dict[str, Any] = dict(
-        steps=steps, dt=sim.dt,
+        steps=steps, dt=ctrl["dt"],
         metric="joint tracking error x[:7] - planned q over every step: RMS (all joints, per joint) and final (max |.| at the last step), rad",
         controllers={k: tracking_errors(v, ref) for k, v in runs.items()},
         # The floor every controller must beat: the arm left at its start (it holds to 1e-6 rad).
@@ -246,10 +215,7 @@ def _report(a: argparse.Namespace) -> int:
         lqr=dict(q=q.tolist(), r=a.r, law="u = qd_plan,k - K (phi(x_k) - phi(x_ref,k)), clipped to the velocity limits",
                  closed_loop_spectral_radius=float(np.max(np.abs(np.linalg.eigvals(A - B @ K))))),
         through_service=through_service,
-        # The service's run replayed in-process (koopbridge.Mpc, plan_loop.corrected_plan): what
-        # the orchestrator's loop and the MPC service did, computed a second way.
-        service_replay=replay,
-        position_loop=loop if loop else (dict(gain=a.position_gain, in_process=True) if a.position_gain > 0 else None),
+        position_loop=ctrl.get("position_loop"),
         mpc=dict(error_state=bool(ctrl.get("error_state")), settings=ctrl.get("mpc"), solve_median_us=ctrl.get("solve_median_us"),
                  round_trip_median_us=ctrl.get("solve_round_trip_median_us"),
                  not_solved=ctrl.get("not_solved")),
@@ -258,12 +224,12 @@ def _report(a: argparse.Namespace) -> int:
         plot=None if a.no_plot else "kinova.png",
     )
     if not a.no_plot:
-        _plot(out / "kinova.png", ref, runs, through_service, sim.dt, dis if disturbed else None, a.command_gain)
+        _plot(out / "kinova.png", ref, runs, through_service, ctrl["dt"], dis if disturbed else None, gain)
     update_report(rep_path, "kinova", entry)
-    rows = dict(entry["controllers"], **{"hold-still": entry["hold_still"]})
+    table = dict(entry["controllers"], **{"hold-still": entry["hold_still"]})
     if disturbed:
-        rows.update({f"{k} (gain {a.command_gain:g})": v for k, v in disturbed["controllers"].items()})
-    print(json.dumps({k: (round(v["rms_rad"], 6), round(v["final_rad"], 6)) for k, v in rows.items()}))
+        table.update({f"{k} (gain {gain:g})": v for k, v in disturbed["controllers"].items()})
+    print(json.dumps({k: (round(v["rms_rad"], 6), round(v["final_rad"], 6)) for k, v in table.items()}))
     return 0
 
 
@@ -325,17 +291,12 @@ def parser() -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, default=42, help="the data seed (goal seeds derive from it; default: %(default)s)")
     r.add_argument("--dt", type=float, default=0.001, help="the simulator's dt, s (default: %(default)s)")
     r.add_argument("--hold", type=float, default=0.2, help="seconds at rest at each goal (default: %(default)s)")
-    rep = sub.add_parser("report", help="score OUT/report.json's closed loop against feed-forward and LQR, draw OUT/kinova.png")
+    rep = sub.add_parser("report", help="score OUT/report.json's closed loops, add feed-forward + LQR, draw OUT/kinova.png")
     rep.add_argument("--out", required=True, help="the run's output folder")
     rep.add_argument("--sim", default="gen3", help="the controlled simulator's id (default: %(default)s)")
     rep.add_argument("--q-weights", type=lambda s: [float(v) for v in s.split(",")], help="LQR state weights, 14 values (default: ones)")
     rep.add_argument("--r", type=float, default=1e-3, help="LQR input weight (times I; default: %(default)s)")
     rep.add_argument("--no-plot", action="store_true", help="skip kinova.png")
-    rep.add_argument("--position-gain", type=float, default=30.0,
-                     help="when the service ran without [control] position_loop: also run the error-state MPC about the plan corrected by "
-                          "this position loop in-process, 1/s (0: skip; default: %(default)s)")
-    rep.add_argument("--command-gain", type=float, default=0.9,
-                     help="also run every controller on an arm whose actuators realise this multiple of each command (1: skip; default: %(default)s)")
     return p
 
 

@@ -1,8 +1,8 @@
 """A plan corrected by a position loop, for arms commanded in joint velocities: the planned
 velocities (the inputs and the planned state's q̇ alike) minus ``gain · (q − q_plan)``; the
 error-state MPC then plans around the corrected plan (docs/log/2026-12.md, session 8). Through the
-bridge the orchestrator does the same (``[control] position_loop``); the Kinova report replays
-the service's run with this one to check it."""
+bridge the orchestrator does it (``[control] position_loop``); this is the second computation the
+robot scenarios' smoke tests check the engine's rows against."""
 
 from __future__ import annotations
 

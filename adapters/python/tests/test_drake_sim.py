@@ -68,6 +68,26 @@ def test_a_command_gain_scales_what_the_actuators_realise():
             DrakeGen3Sim(command_gain=bad)
 
 
+def test_a_reset_perturbation_sets_the_episodes_command_gain_and_the_next_reset_restores_it(sim):
+    """The same arm as a simulator built with the gain: the perturbation lasts one episode."""
+    x0 = np.concatenate([np.array([0.3, 0.5, -0.2, 1.0, 0.1, -0.4, 0.2]), np.zeros(7)])
+    u = np.array([0.4, -0.3, 0.5, -0.2, 0.6, 0.3, -0.5])
+
+    def run(s, **reset):
+        s.reset(x0=x0, **reset)
+        return np.array([s.step(u) for _ in range(50)])
+
+    slow = run(DrakeGen3Sim(command_gain=0.9))
+    np.testing.assert_array_equal(run(sim, perturbation={"command_gain": 0.9}), slow)
+    nominal = run(sim)
+    assert np.abs(nominal - slow).max() > 1e-3
+    np.testing.assert_array_equal(run(sim, perturbation={}), nominal)
+    for bad in ({"command_gain": 0.0}, {"command_gain": float("nan")}, {"command_gain": "x"}, {"mass_scale": 1.2}):
+        with pytest.raises(InvalidInput, match="perturbation"):
+            sim.reset(x0=x0, perturbation=bad)
+    np.testing.assert_array_equal(run(sim), nominal)  # a refused perturbation changed nothing
+
+
 def test_holding_torque_is_mujocos_gravity_bias(sim):
     mujoco = pytest.importorskip("mujoco")
     m = mujoco.MjModel.from_xml_path(str(robosuite_mjcf()))

@@ -353,6 +353,7 @@ mod tests {
             model: "m-agg1".into(),
             label: None,
             controller: Default::default(),
+            perturbation: None,
             state_names: vec!["x".into()],
             input_names: vec!["u".into()],
             dt: 0.1,

@@ -31,6 +31,9 @@ pub struct ControlReport {
     /// What decided the inputs: the MPC service, or a baseline (`feedforward`, `zero-input`).
     #[serde(default)]
     pub controller: Controller,
+    /// The perturbation the simulator applied to the episode (`[control] perturbation`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub perturbation: Option<crate::messages::Perturbation>,
     /// State names.
     pub state_names: Vec<String>,
     /// Input names.
@@ -153,6 +156,9 @@ pub struct ControlTask<'a> {
     pub controller: Controller,
     /// The row's name in the report.
     pub label: Option<&'a str>,
+    /// The input bounds a baseline controller's inputs are clipped to (`u_min`, `u_max`; the
+    /// MPC's bounds: the scenario's intersected with the simulator's).
+    pub clip: Option<(&'a [f64], &'a [f64])>,
     /// The perturbation of the episode, sent with the reset (the simulator applies it).
     pub perturbation: Option<&'a crate::messages::Perturbation>,
     /// Where its states are shown to a viewer (published only while one subscribes).
@@ -302,6 +308,11 @@ impl<'a> ControlRun<'a> {
                 if let Some(pl) = self.task.position_loop {
                     pl.correct(&self.xs[k], &mut state, &mut u);
                 }
+                if let Some((lo, hi)) = self.task.clip {
+                    for ((v, l), h) in u.iter_mut().zip(lo).zip(hi) {
+                        *v = v.clamp(*l, *h);
+                    }
+                }
                 return Ok(self.decided_alone(u));
             }
         }
@@ -427,6 +438,7 @@ impl<'a> ControlRun<'a> {
             model: self.task.model.to_string(),
             label: self.task.label.map(str::to_string),
             controller: self.task.controller,
+            perturbation: self.task.perturbation.cloned(),
             state_names: info.state_names.clone(),
             input_names: info.input_names.clone(),
             dt: info.dt,
@@ -464,70 +476,6 @@ pub fn status_name(s: SolveStatus) -> &'static str {
         SolveStatus::Suboptimal => "suboptimal",
         SolveStatus::Fallback => "fallback",
         SolveStatus::Inaccurate => "inaccurate",
-    }
-}
-
-impl ControlReport {
-    /// The warning a loop whose MPC did not solve every step deserves (`None` when every
-    /// solve was `solved`): how many of how many steps, by status, and what that means.
-    pub fn not_solved_warning(&self) -> Option<String> {
-        if self.not_solved == 0 {
-            return None;
-        }
-        let by: Vec<String> = self
-            .not_solved_by_status
-            .iter()
-            .map(|(k, v)| format!("{k} {v}"))
-            .collect();
-        let fallback = self
-            .not_solved_by_status
-            .get("fallback")
-            .copied()
-            .unwrap_or(0);
-        Some(format!(
-            "control of '{}' (model '{}'): the MPC did not solve {} of {} steps ({}){}",
-            self.sim,
-            self.model,
-            self.not_solved,
-            self.u.len(),
-            by.join(", "),
-            if fallback > 0 {
-                "; on a fallback the solver failed and the previous plan, shifted and clamped to \
-                 the bounds, was applied: check [control].mpc (bounds, x_min/x_max, solver, \
-                 max_iterations, time_limit) and the model"
-            } else {
-                "; check [control].mpc (max_iterations, time_limit) — or, with a bilinear model, \
-                 'suboptimal' is its sequential convex MPC reaching its cap of 3 linearisations \
-                 (the best plan found is applied; not a [control].mpc setting)"
-            }
-        ))
-    }
-}
-
-impl ControlReport {
-    /// Every warning this loop deserves, in the order a reader should see them: the MPC's
-    /// unsolved steps, then the simulator's episode ends.
-    pub fn warnings(&self) -> Vec<String> {
-        self.not_solved_warning()
-            .into_iter()
-            .chain(self.terminated_warning())
-            .collect()
-    }
-
-    /// The warning a loop whose simulator flagged an episode end deserves (`None` otherwise):
-    /// from which step, for how many, and that the loop went on.
-    pub fn terminated_warning(&self) -> Option<String> {
-        let f = &self.step_flags;
-        let first = f.first_terminated?;
-        Some(format!(
-            "control of '{}' (model '{}'): the simulator reported the episode ended \
-             (terminated: a fall or the task's end) at step {first}, and at {} of {} steps; the \
-             loop went on, so the metrics include the steps after it",
-            self.sim,
-            self.model,
-            f.terminated,
-            self.u.len()
-        ))
     }
 }
 

@@ -23,6 +23,7 @@ struct Prepared {
     reference: Reference,
     mpc: koopman::mpc::MpcConfig,
     position_loop: Option<PositionLoop>,
+    perturbation: Option<crate::messages::Perturbation>,
 }
 
 /// What the control phase is asked to do.
@@ -73,6 +74,7 @@ pub fn control_phase(
             reference,
             mpc,
             position_loop,
+            perturbation: ctrl.perturbation.as_ref().map(|p| p.for_reference(0)),
         });
     }
     let rounds = rounds_of(&prepared.iter().map(|p| p.sim).collect::<Vec<_>>());
@@ -122,7 +124,8 @@ pub fn control_phase(
                     replay: None,
                     controller: ctrl.controller,
                     label: ctrl.label.as_deref(),
-                    perturbation: None,
+                    clip: p.mpc.u_min.as_deref().zip(p.mpc.u_max.as_deref()),
+                    perturbation: p.perturbation.as_ref(),
                     view: Some(super::view::StepView {
                         view: what.view,
                         row: ctrl.label.as_deref().unwrap_or(&p.model),

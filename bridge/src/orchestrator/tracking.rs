@@ -338,6 +338,7 @@ fn run_one(
         },
         controller: crate::scenario::Controller::Mpc,
         label: None,
+        clip: None,
         perturbation: how.perturbation,
         view: Some(StepView {
             view: how.view,

@@ -69,7 +69,8 @@ pub struct ControlSpec {
     /// Transitions per on-policy window of a tracking task (default: `[collect]`'s T).
     #[serde(default)]
     pub onpolicy_steps: Option<usize>,
-    /// A tracking task's perturbation of every episode ([`PerturbationSpec`]).
+    /// The perturbation of every episode ([`PerturbationSpec`]; a single closed loop's is
+    /// reference 0's).
     #[serde(default)]
     pub perturbation: Option<PerturbationSpec>,
     /// A tracking task whose closed loops are the training data of `koopbridge run --aggregate`.
@@ -128,6 +129,9 @@ impl ControlSpec {
         }
         if let Some(l) = &self.label {
             crate::keyexpr::validate_chunk("[control].label", l)?;
+        }
+        if let Some(p) = &self.perturbation {
+            p.check().or_else(bad)?;
         }
         Ok(())
     }
@@ -197,8 +201,8 @@ pub struct QFromData {
     pub states: Option<Vec<usize>>,
 }
 
-/// A perturbation of every tracked episode (the simulator applies it; PROTOCOL.md "reset"): the
-/// same for every reference except the push, whose step and direction are drawn per reference
+/// A perturbation of every episode of a tracking task or of a single closed loop (the simulator
+/// applies it; PROTOCOL.md "reset"): the same for every reference except the push, whose step and direction are drawn per reference
 /// from `seed` (deterministic: reference i's push is the same in every row and every run).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -219,6 +223,9 @@ pub struct PerturbationSpec {
     /// The seed of the pushes' draws.
     #[serde(default)]
     pub seed: u64,
+    /// The actuators realise `command_gain · u` for a command `u` (an actuator mismatch), > 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub command_gain: Option<f64>,
 }
 
 fn default_push_steps() -> [u64; 2] {
@@ -242,6 +249,7 @@ impl PerturbationSpec {
             mass_scale: self.mass_scale,
             friction_scale: self.friction_scale,
             push,
+            command_gain: self.command_gain,
         }
     }
 
@@ -302,66 +310,4 @@ pub(super) fn one_or_many<'de, D: serde::Deserializer<'de>>(
         _ => ControlSpec::deserialize(v).map(|c| vec![c]),
     }
     .map_err(serde::de::Error::custom)
-}
-
-#[cfg(test)]
-mod tests {
-    use crate::scenario::{Controller, Scenario};
-
-    /// A scenario with the `[[control]]` entries `entries` (TOML) for simulator `pend`.
-    fn with(entries: &str) -> crate::error::Result<Scenario> {
-        Scenario::parse(&format!(
-            "name = \"demo\"\n[[sims]]\nid = \"pend\"\nenv = \"damped-pendulum\"\n\
-             [collect]\ntrain_windows = 10\nval_windows = 2\ntest_windows = 2\n\
-             [train]\nconfig = {{ iterations = 5 }}\n{entries}"
-        ))
-    }
-
-    const MPC: &str = "[[control]]\nx0 = [1.0, 0.0]\nreference = [0.0, 0.0]\nsteps = 5\n";
-    const PLAN: &str = "[[control]]\nx0 = [1.0, 0.0]\nreference_file = \"r.npy\"\n\
-                        feedforward_file = \"u.npy\"\nsteps = 5\n";
-
-    #[test]
-    fn a_simulators_several_entries_need_distinct_labels() {
-        let e = with(&format!("{MPC}{MPC}")).unwrap_err().to_string();
-        assert!(e.contains("distinct `label`"), "{e}");
-        let one = format!("{MPC}label = \"a\"\n{MPC}label = \"a\"\n");
-        assert!(with(&one).unwrap_err().to_string().contains("distinct"));
-        let two = format!("{MPC}{MPC}label = \"b\"\n");
-        assert!(with(&two).is_err(), "the first entry needs its label too");
-        let s = with(&format!("{MPC}label = \"a\"\n{MPC}label = \"b\"\n")).unwrap();
-        assert_eq!(s.control.len(), 2);
-        let e = with(&format!("{MPC}label = \"a b\"\n"))
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("label"), "{e}");
-    }
-
-    #[test]
-    fn a_baseline_controller_gets_what_it_needs_and_nothing_of_the_mpc() {
-        let s = with(&format!("{MPC}controller = \"zero-input\"\n")).unwrap();
-        assert_eq!(s.control[0].controller, Controller::ZeroInput);
-        assert_eq!(with(MPC).unwrap().control[0].controller, Controller::Mpc);
-        let e = with(&format!("{MPC}controller = \"feedforward\"\n"))
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("needs `feedforward_file`"), "{e}");
-        let s = with(&format!("{PLAN}controller = \"feedforward\"\n")).unwrap();
-        assert_eq!(s.control[0].controller, Controller::Feedforward);
-        let e = with(&format!(
-            "{MPC}controller = \"zero-input\"\noffset_free = {{ mode = \"integral\" }}\n"
-        ))
-        .unwrap_err()
-        .to_string();
-        assert!(e.contains("offset_free"), "{e}");
-        assert!(with(&format!("{MPC}controller = \"pid\"\n")).is_err());
-        // A tracking task's baseline is its replay row.
-        let e = with("[[control]]\nreferences = \"r.npz\"\ncontroller = \"zero-input\"\n")
-            .unwrap_err()
-            .to_string();
-        assert!(
-            e.contains("`controller` is not a key of a tracking task"),
-            "{e}"
-        );
-    }
 }

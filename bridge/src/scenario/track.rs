@@ -57,7 +57,6 @@ impl TrackSpec {
                 ("replay", c.replay.is_some()),
                 ("q_from_data", c.q_from_data.is_some()),
                 ("onpolicy_steps", c.onpolicy_steps.is_some()),
-                ("perturbation", c.perturbation.is_some()),
                 ("aggregate", c.aggregate),
             ];
             if let Some((k, _)) = only.iter().find(|(_, set)| *set) {

@@ -67,6 +67,8 @@ class DrakeGen3Sim:
         if not (np.isfinite(command_gain) and command_gain > 0):
             raise InvalidInput(f"command_gain must be finite and > 0, got {command_gain}")
         self.command_gain = float(command_gain)
+        #: The gain of the episode: ``command_gain``, or a reset perturbation's.
+        self.episode_gain = self.command_gain
         self.drake_version = version("drake")
         b = DiagramBuilder()
         self.gen3 = build_gen3(time_step=time_step, collision=False, builder=b, finalize_diagram=False)
@@ -142,9 +144,25 @@ class DrakeGen3Sim:
             )
         return x
 
-    def reset(self, seed: int | None = None, x0: Any = None) -> np.ndarray:
+    def reset(self, seed: int | None = None, x0: Any = None, perturbation: dict[str, Any] | None = None) -> np.ndarray:
         """Starts at ``x0``, at rest at a configuration drawn uniformly within the limits with
-        ``seed`` (continuous joints ±π), or (neither) at rest upright (q = 0). Returns x_0."""
+        ``seed`` (continuous joints ±π), or (neither) at rest upright (q = 0). Returns x_0.
+        ``perturbation`` (PROTOCOL.md "reset"): ``{"command_gain": g}`` makes the actuators realise
+        ``g · u`` for this episode (g > 0; without it the simulator's own ``command_gain``); any
+        other key is refused."""
+        gain = self.command_gain
+        if perturbation is not None:
+            unknown = sorted(set(perturbation) - {"command_gain"})
+            if unknown:
+                raise InvalidInput(f"perturbation: the Kinova takes only command_gain, not {unknown}")
+            g = perturbation.get("command_gain")
+            if g is not None:
+                try:
+                    gain = float(g)
+                except (TypeError, ValueError) as e:
+                    raise InvalidInput(f"perturbation.command_gain must be a number, got {g!r}") from e
+                if not (np.isfinite(gain) and gain > 0):
+                    raise InvalidInput(f"perturbation.command_gain must be finite and > 0, got {g}")
         if x0 is not None:
             x = self._check_state(x0)
         elif seed is not None:
@@ -158,6 +176,7 @@ class DrakeGen3Sim:
         self.ready = True
         self.simulator.Initialize()
         self.k = 0
+        self.episode_gain = gain
         return self.state()
 
     def state(self) -> np.ndarray:
@@ -180,7 +199,7 @@ class DrakeGen3Sim:
             raise InvalidInput(f"u: joint {j + 1} command {u[j]:.4f} rad/s exceeds its limit {VELOCITY_LIMITS[j]}")
         # The position reference starts at the measured q (no hidden state carried over).
         q_ref = self.state()[:7]
-        u = self.command_gain * u
+        u = self.episode_gain * u
         for i in range(self.substeps):
             self._desired.FixValue(self.context, np.concatenate([q_ref, u]))
             q_ref = q_ref + u * self.time_step
