@@ -43,7 +43,8 @@ pub struct ControlSummary {
 }
 
 /// The side-by-side table of `trained` (each model with its kind, in training order) and the
-/// control runs `controls` (matched by simulator and model name).
+/// control runs `controls` (matched by simulator and model name; the model's first MPC row, not a
+/// baseline's).
 pub fn side_by_side(
     trained: &[(ModelKind, TrainReport)],
     controls: &[ControlReport],
@@ -61,7 +62,11 @@ pub fn side_by_side(
             test_error_normalised: t.metrics["config"]["normalise"] == true,
             control: controls
                 .iter()
-                .find(|c| c.sim == t.sim && c.model == t.model)
+                .find(|c| {
+                    c.sim == t.sim
+                        && c.model == t.model
+                        && c.controller == crate::scenario::Controller::Mpc
+                })
                 .map(|c| ControlSummary {
                     steps: c.u.len(),
                     final_error: c.final_error,
