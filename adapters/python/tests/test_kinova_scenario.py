@@ -83,9 +83,11 @@ def test_tracking_errors_written_out():
     assert e["final_rad"] == pytest.approx(0.4) and e["rms_per_joint_rad"][0] == pytest.approx(np.sqrt(0.25 / 3), abs=1e-6)
 
 
-def test_report_scores_the_closed_loop_against_feed_forward_and_lqr(tmp_path, planner):
-    """A "closed loop" that is the feed-forward run itself scores exactly as the feed-forward
-    baseline (same deterministic simulation); the report, its LQR run and kinova.png are written."""
+def test_report_scores_the_engines_rows_and_adds_lqr(tmp_path, planner, capsys):
+    """Rows that are the feed-forward run itself (nominal, and on an arm realising half of each
+    command, labelled ``…-mismatch`` with that perturbation) score exactly as the tracking error
+    written out here; the report adds LQR on both arms, the arm held still and kinova.png; rows
+    on the mismatched arm without one shared command gain are refused."""
     import json
 
     from koopbridge import KoopmanModel
@@ -95,19 +97,33 @@ def test_report_scores_the_closed_loop_against_feed_forward_and_lqr(tmp_path, pl
     np.save(tmp_path / ks.REFERENCE, ref["x"])
     np.save(tmp_path / ks.FEEDFORWARD, ref["ff"])
     KoopmanModel.init(14, 7, hidden=[16], n_mult=2).save(tmp_path / "models" / "kinova-gen3")
-    sim = DrakeGen3Sim()
-    x = sim.reset(x0=ref["x"][0])
-    xs = [x] + [sim.step(u) for u in ref["ff"]]
-    entry = dict(sim="gen3", model="kinova-gen3", x=np.array(xs).tolist(), u=ref["ff"].tolist(), solve_median_us=1.0)
-    (tmp_path / "report.json").write_text(json.dumps(dict(control=entry, controls=[entry])))
+
+    def feedforward_run(gain: float) -> np.ndarray:
+        sim = DrakeGen3Sim(command_gain=gain)
+        return np.array([sim.reset(x0=ref["x"][0])] + [sim.step(u) for u in ref["ff"]])
+
+    xs, slow = feedforward_run(1.0), feedforward_run(0.5)
+
+    def row(label: str, x: np.ndarray, gain: float | None = None) -> dict:
+        return dict(sim="gen3", model="kinova-gen3", label=label, dt=0.001, x=x.tolist(), u=ref["ff"].tolist(), solve_median_us=1.0,
+                    perturbation=None if gain is None else {"command_gain": gain})
+
+    rows = [row("koopman-mpc", xs), row("feed-forward", xs), row("feed-forward-mismatch", slow, 0.5), dict(sim="other", x=[], u=[])]
+    (tmp_path / "report.json").write_text(json.dumps(dict(control=rows[0], controls=rows)))
     assert ks.main(["report", "--out", str(tmp_path)]) == 0
     rep = json.loads((tmp_path / "report.json").read_text())["kinova"]
     c = rep["controllers"]
-    assert c["koopman-mpc"] == c["feed-forward"]
-    err = np.array(xs)[:, :7] - ref["x"][:, :7]
-    assert c["feed-forward"]["rms_rad"] == pytest.approx(np.sqrt(np.mean(err**2)), rel=1e-12)
+    assert set(c) == {"koopman-mpc", "feed-forward", "feed-forward+lqr"} and rep["through_service"] == "koopman-mpc"
+    for got, x in ((c["feed-forward"], xs), (rep["disturbed"]["controllers"]["feed-forward"], slow)):
+        err = x[:, :7] - ref["x"][:, :7]
+        assert got["rms_rad"] == pytest.approx(np.sqrt(np.mean(err**2)), rel=1e-12)
+    assert rep["disturbed"]["command_gain"] == 0.5 and np.isfinite(rep["disturbed"]["controllers"]["feed-forward+lqr"]["rms_rad"])
     assert np.isfinite(c["feed-forward+lqr"]["rms_rad"]) and rep["steps"] == len(ref["ff"])
     held = ref["x"][:, :7] - ref["x"][0, :7]
     assert rep["hold_still"]["rms_rad"] == pytest.approx(np.sqrt(np.mean(held**2)), rel=1e-12)
     assert rep["hold_still"]["final_rad"] == pytest.approx(np.max(np.abs(held[-1])), rel=1e-12) and rep["hold_still"]["final_rad"] > 0.1
     assert (tmp_path / "kinova.png").read_bytes()[:4] == b"\x89PNG"
+    rows[2]["perturbation"] = None
+    (tmp_path / "report.json").write_text(json.dumps(dict(controls=rows)))
+    assert ks.main(["report", "--out", str(tmp_path), "--no-plot"]) == 2
+    assert "command_gain" in capsys.readouterr().err
