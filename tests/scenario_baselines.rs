@@ -127,3 +127,18 @@ fn an_unlabelled_second_entry_for_a_simulator_is_refused_before_anything_starts(
     assert!(err.contains("distinct `label`"), "{err}");
     assert!(!dir.join("out/data").exists(), "nothing collected");
 }
+
+#[test]
+fn aggregation_over_labelled_rows_is_refused_before_anything_starts() {
+    let dir = common::scratch("scn-rows-agg");
+    let text = format!(
+        "name = \"rows-agg\"\n{}\
+         [[control]]\nlabel = \"mpc\"\nx0 = [0.4, 0.1]\nreference = [0.0, 0.0]\nsteps = 5\n",
+        common::PENDULUM_BASE
+    );
+    let (o, out) = common::run_scenario_text(&dir, "agg", &text, &["--aggregate", "1"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(err.contains("labelled [control] entries"), "{err}");
+    assert!(!out.join("data").exists(), "nothing collected");
+}

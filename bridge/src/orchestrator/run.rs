@@ -116,7 +116,9 @@ pub fn run_scenario_with(
     }
     if extras.aggregate > 0 && sc.control.iter().any(|c| c.label.is_some()) {
         return Err(Error::Config(
-            "--aggregate retrains each simulator's model on its one [control] loop; labelled              [control] entries (several rows per simulator) are for comparing controllers: run              them without --aggregate"
+            "--aggregate retrains each simulator's model on its one [control] loop; labelled \
+             [control] entries (several rows per simulator) are for comparing controllers: run \
+             them without --aggregate"
                 .into(),
         ));
     }
