@@ -43,10 +43,10 @@ pub struct ControlPhase<'a> {
 }
 
 /// Runs the control phase of `sc`: returns one report per `[control]` entry (in order) and the
-/// loop's figures. `clients[j]` is `sc.sims[j]`'s client. A simulator's first entries of all
-/// simulators step in one lockstep loop (round 0, whose figures are the loop's); a simulator's
-/// second, third... entries (labelled rows: another controller, another plan) run in the rounds
-/// after it, each round's MPC models configured just before it.
+/// loop's figures. `clients[j]` is `sc.sims[j]`'s client. Every simulator's first entry steps
+/// in one lockstep loop (round 0, whose figures are the loop's); a simulator's second, third...
+/// entries (labelled rows: another controller, another plan) run in the rounds after it, each
+/// round's MPC models configured just before it.
 pub fn control_phase(
     sc: &Scenario,
     client: &Client,
