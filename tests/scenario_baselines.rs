@@ -104,12 +104,19 @@ fn labelled_rows_run_one_after_another_and_the_baselines_follow_their_rules() {
             out.join(format!("control-{label}.png")).is_file(),
             "{label}"
         );
+        let line = stdout
+            .lines()
+            .find(|l| l.contains(&format!("control of 'pend' ({label})")))
+            .unwrap_or_else(|| panic!("no summary of {label}:\n{stdout}"));
         assert!(
-            stdout.contains(&format!("control of 'pend' ({label})")),
-            "{stdout}"
+            line.contains("(no model)") && !line.contains("solve median"),
+            "{line}"
         );
     }
     assert!(out.join("control.png").is_file());
+    assert!(stdout
+        .lines()
+        .any(|l| l.contains("control of 'pend' (mpc)") && l.contains("solve median")));
 }
 
 #[test]

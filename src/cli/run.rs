@@ -284,8 +284,18 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             Ok(()) => println!("  plot: {}", png.display()),
             Err(e) => eprintln!("warning: could not draw {}: {e:#}", png.display()),
         }
+        // A baseline controller asked no solver: its row says which rule decided, not solve times.
+        let solver = match c.controller {
+            bridge::scenario::Controller::Mpc => format!(
+                "not solved {}, solve median {:.0} µs, round trip median {:.0} µs",
+                not_solved(c),
+                c.solve_median_us,
+                c.solve_round_trip_median_us
+            ),
+            other => format!("controller {} (no model)", other.name()),
+        };
         println!(
-            "  control of '{}'{}: final error {:.4}, tracking RMS {:.4}, time to goal {}, not solved {}, solve median {:.0} µs, round trip median {:.0} µs",
+            "  control of '{}'{}: final error {:.4}, tracking RMS {:.4}, time to goal {}, {solver}",
             c.sim,
             match (&c.label, kinds > 1) {
                 (Some(label), _) => format!(" ({label})"),
@@ -295,9 +305,6 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             c.final_error,
             c.tracking_rms_total,
             time_to_goal(c.time_to_goal_steps),
-            not_solved(c),
-            c.solve_median_us,
-            c.solve_round_trip_median_us
         );
     }
     if let (true, Some(l)) = (several, &report.control_loop) {
