@@ -5,6 +5,7 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
+use bridge::orchestrator::control_summary::time_to_goal_text;
 use bridge::orchestrator::viewer::{ViewMode, ViewOptions};
 use bridge::orchestrator::{run_scenario_with, Event, RunExtras, RunOptions};
 use bridge::scenario::Scenario;
@@ -284,28 +285,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             Ok(()) => println!("  plot: {}", png.display()),
             Err(e) => eprintln!("warning: could not draw {}: {e:#}", png.display()),
         }
-        // A baseline controller asked no solver: its row says which rule decided, not solve times.
-        let solver = match c.controller {
-            bridge::scenario::Controller::Mpc => format!(
-                "not solved {}, solve median {:.0} µs, round trip median {:.0} µs",
-                not_solved(c),
-                c.solve_median_us,
-                c.solve_round_trip_median_us
-            ),
-            other => format!("controller {} (no model)", other.name()),
-        };
-        println!(
-            "  control of '{}'{}: final error {:.4}, tracking RMS {:.4}, time to goal {}, {solver}",
-            c.sim,
-            match (&c.label, kinds > 1) {
-                (Some(label), _) => format!(" ({label})"),
-                (None, true) => format!(" with model '{}'", c.model),
-                (None, false) => String::new(),
-            },
-            c.final_error,
-            c.tracking_rms_total,
-            time_to_goal(c.time_to_goal_steps),
-        );
+        println!("  {}", c.summary_line(kinds > 1));
     }
     if let (true, Some(l)) = (several, &report.control_loop) {
         println!(
@@ -343,8 +323,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                     a.error_after,
                     a.final_error_before,
                     a.final_error_after,
-                    time_to_goal(a.time_to_goal_before),
-                    time_to_goal(a.time_to_goal_after),
+                    time_to_goal_text(a.time_to_goal_before),
+                    time_to_goal_text(a.time_to_goal_after),
                     a.not_solved_before,
                     a.not_solved_after,
                     if a.regression.is_some() { "  [WORSE]" } else { "" }
@@ -399,24 +379,6 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
-}
-
-/// `"0"`, or the count with its statuses: `"500 of 500 (fallback 500)"`.
-fn not_solved(c: &bridge::orchestrator::ControlReport) -> String {
-    if c.not_solved == 0 {
-        return "0".into();
-    }
-    let by: Vec<String> = c
-        .not_solved_by_status
-        .iter()
-        .map(|(k, v)| format!("{k} {v}"))
-        .collect();
-    format!("{} of {} ({})", c.not_solved, c.u.len(), by.join(", "))
-}
-
-/// `"N steps"`, or `"never"` when the goal was not reached and held.
-fn time_to_goal(steps: Option<usize>) -> String {
-    steps.map_or_else(|| "never".into(), |k| format!("{k} steps"))
 }
 
 /// States against their references, then inputs, of a closed-loop run.
@@ -592,13 +554,4 @@ fn plot_first_errors(
         &panels,
         900,
     )
-}
-
-#[cfg(test)]
-mod tests {
-    #[test]
-    fn a_goal_never_reached_reads_never() {
-        assert_eq!(super::time_to_goal(None), "never");
-        assert_eq!(super::time_to_goal(Some(31)), "31 steps");
-    }
 }

@@ -33,6 +33,7 @@ pub mod compare;
 pub mod control;
 pub mod control_loop;
 pub mod control_settings;
+pub mod control_summary;
 mod control_warnings;
 pub mod data_quality;
 pub mod diagnose;
