@@ -10,6 +10,7 @@ import tempfile
 import zipfile
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 
@@ -78,6 +79,17 @@ def save_dataset_npz(path: str, x: np.ndarray, u: np.ndarray, meta: DatasetMeta)
 
     write_atomic(path, write)
     write_atomic(os.path.splitext(path)[0] + ".json", lambda f: f.write(meta_json))  # type: ignore[attr-defined]
+
+
+def save_splits(out: str, x: np.ndarray, u: np.ndarray, cuts: dict[str, tuple[int, int]], info: Any, seed: int, source: str,
+                policy: str) -> None:
+    """Writes ``out/{name}.npz`` for each ``name: (lo, hi)`` window range of ``x``/``u``, with
+    the metadata of the simulator ``info`` (``SimInfo``: env, dt, names) and ``seed``,
+    ``source``, ``policy``."""
+    meta = DatasetMeta(env=info.env, dt=info.dt, state_names=list(info.state_names), input_names=list(info.input_names),
+                       seed=seed, source=source, policy=policy)
+    for name, (lo, hi) in cuts.items():
+        save_dataset_npz(os.path.join(out, f"{name}.npz"), x[lo:hi], u[lo:hi], meta)
 
 
 def load_block(path: str, seed: int, start: int, n: int, T: int) -> Windows | None:

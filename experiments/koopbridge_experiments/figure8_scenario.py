@@ -98,13 +98,13 @@ def report(out: Path, sim_id: str, state: str, u_limit: float, plot: bool = True
         raise ValueError(f"the closed loop has {len(x)} states; SPEC's error needs more than {SKIP + 1}")
     sim = simulator(state, u_limit)
     task = references(sim, len(x))
-    runs, errors = [], {}
+    runs, errors, ee_of = [], {}, {}
     for name, row in rows.items():
         xr = np.asarray(row["x"], dtype=float)
-        ee = _ee_path(sim, xr)
+        ee_of[name] = ee = _ee_path(sim, xr)
         errors[name] = tracking_error(ee, task.targets[: len(xr)])
         runs.append(Run(name, xr if sim.with_ee else np.c_[ee, xr], np.asarray(row["u"], dtype=float), [], [], 0.0, {}))
-    dev = np.linalg.norm(_ee_path(sim, x)[:, 1:3] - task.targets[:, 1:3], axis=1)
+    dev = np.linalg.norm(ee_of[main_row][:, 1:3] - task.targets[:, 1:3], axis=1)
     entry = dict(
         metric=f"Frobenius norm of the (y, z) end-effector deviation after the first {SKIP} steps (SPEC)",
         steps=len(x) - 1,

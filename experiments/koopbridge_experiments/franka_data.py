@@ -25,7 +25,7 @@ import numpy as np
 
 from koopbridge.collect import UniformPolicy
 
-from .dataset_npz import DatasetMeta, load_block, save_dataset_npz
+from .dataset_npz import load_block, save_splits
 
 __all__ = ["collect_block", "main", "parser"]
 
@@ -136,17 +136,9 @@ def _write_splits(a: argparse.Namespace, x: np.ndarray, u: np.ndarray, cuts: dic
     info = _sim(a.state).info()
     import mujoco
 
-    meta = dict(
-        env=info.env,
-        dt=info.dt,
-        state_names=list(info.state_names),
-        input_names=list(info.input_names),
-        seed=a.seed,
-        source=f"koopbridge.adapters.mujoco.sim collect (MuJoCo {mujoco.__version__}, {os.path.basename(info.extra['mujoco']['model_file'])})",
-        policy=f"uniform random input U(±{COMMAND_RANGE}) each step; reset home + U(±0.2) clipped to the joint limits",
-    )
-    for name, (lo, hi) in cuts.items():
-        save_dataset_npz(os.path.join(a.out, f"{name}.npz"), x[lo:hi], u[lo:hi], DatasetMeta(**meta))
+    save_splits(a.out, x, u, cuts, info, a.seed,
+                source=f"koopbridge.adapters.mujoco.sim collect (MuJoCo {mujoco.__version__}, {os.path.basename(info.extra['mujoco']['model_file'])})",
+                policy=f"uniform random input U(±{COMMAND_RANGE}) each step; reset home + U(±0.2) clipped to the joint limits")
 
 
 def _write_partial(a: argparse.Namespace, spec: list[tuple[int, int, str]], n_train: int) -> int:

@@ -29,6 +29,7 @@ import numpy as np
 from koopbridge import survival
 
 from .legged_robots import REFERENCE_SEED
+from .legged_robots import make_references as legged_make_references
 
 __all__ = ["HEIGHT_INDEX", "Q_SLICE", "THRESHOLD", "G1Reference", "fallen_mask", "main", "make_references", "replay"]
 
@@ -58,26 +59,11 @@ def fallen_mask(x: np.ndarray) -> np.ndarray:
 
 def make_references(sim: Any, probe: Any, n: int, steps: int, seed: int = REFERENCE_SEED) -> list[G1Reference]:
     """The first ``n`` expert rollouts of ``steps`` transitions (module docstring) collected on
-    ``sim`` whose first state the memoryless ``probe`` accepts as ``reset(x0)``."""
-    from koopbridge import InvalidInput
-
-    if n < 1 or steps < 1:
-        raise ValueError(f"references: need n >= 1 and steps >= 1, got {n}, {steps}")
+    ``sim`` whose first state the memoryless ``probe`` accepts as ``reset(x0)``: the legged
+    robots' ``legged_robots.make_references`` with the G1's expert settings."""
     policy = sim.expert_policy({"kind": "expert", "windows_per_episode": 1, "warmup": 1.0, "command_every": 2.0})
-    out: list[G1Reference] = []
-    start = 0
-    while len(out) < n:
-        if start > 2 * n + 20:
-            raise ValueError(f"references: {start - len(out)} of {start} expert rollouts start in states the simulator refuses")
-        w = sim.collect(policy, seed, n - len(out), steps, start=start)
-        for j in range(len(w.x)):
-            try:
-                probe.reset(x0=w.x[j, 0])
-            except InvalidInput:
-                continue
-            out.append(G1Reference(x=w.x[j].copy(), u=w.u[j].copy(), index=start + j))
-        start += len(w.x)
-    return out
+    refs = legged_make_references(n, steps, seed, sim=sim, probe=probe, policy=policy)
+    return [G1Reference(x=r.x, u=r.u, index=r.index) for r in refs]
 
 
 def replay(sim: Any, ref: G1Reference, threshold: float = THRESHOLD) -> tuple[int, np.ndarray]:

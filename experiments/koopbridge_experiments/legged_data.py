@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from .dataset_npz import DatasetMeta, load_block, save_dataset_npz
+from .dataset_npz import load_block, save_splits
 
 __all__ = ["DataRobot", "collect_block", "main", "parser", "policy_json"]
 
@@ -152,18 +152,11 @@ def main(robot: DataRobot, a: argparse.Namespace, options: dict[str, Any] | None
     x = np.concatenate([b.x for b in blocks if b is not None])
     u = np.concatenate([b.u for b in blocks if b is not None])
     info = _sim(robot.simulator, a.target_margin, options).info()
-    meta = DatasetMeta(
-        env=info.env,
-        dt=info.dt,
-        state_names=list(info.state_names),
-        input_names=list(info.input_names),
-        seed=a.seed,
-        source=f"{robot.simulator}({json.dumps(options)}) collect (MuJoCo {info.extra['mujoco']['version']}, {info.extra['mujoco']['source']})",
-        policy=f"{json.dumps(policy)}: {robot.expert}, {a.windows_per_episode} windows back to back per episode after 1 s of "
-        f"warm-up; inputs = the joint targets applied (clipped to the joint ranges widened by {a.target_margin} rad)",
-    )
-    for name, (lo, hi) in {"train": (0, n_train), "val": (n_train, n_train + n_val), "test": (n_train + n_val, a.windows)}.items():
-        save_dataset_npz(os.path.join(a.out, f"{name}.npz"), x[lo:hi], u[lo:hi], meta)
+    cuts = {"train": (0, n_train), "val": (n_train, n_train + n_val), "test": (n_train + n_val, a.windows)}
+    save_splits(a.out, x, u, cuts, info, a.seed,
+                source=f"{robot.simulator}({json.dumps(options)}) collect (MuJoCo {info.extra['mujoco']['version']}, {info.extra['mujoco']['source']})",
+                policy=f"{json.dumps(policy)}: {robot.expert}, {a.windows_per_episode} windows back to back per episode after 1 s of "
+                f"warm-up; inputs = the joint targets applied (clipped to the joint ranges widened by {a.target_margin} rad)")
     summary = dict(windows=a.windows, train=n_train, val=n_val, test=n_test, steps=a.steps, seed=a.seed, procs=a.procs, policy=policy,
                    target_margin=a.target_margin, options=options, collected=sum(n for _, n, _ in todo), falls=falls, wall_s=round(wall, 1),
                    windows_per_s=round(sum(n for _, n, _ in todo) / wall, 1) if todo else None)
