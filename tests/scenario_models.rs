@@ -248,3 +248,38 @@ model = ["koopman", "bilinear"]
     );
     assert!(!dir.join("auto/data/poly/train.npz").exists());
 }
+
+/// With several kinds, the MPC entry runs once per kind and a baseline that needs no model once
+/// (in the first pass), not once per kind.
+#[test]
+fn a_baseline_row_runs_once_beside_every_kinds_mpc_row() {
+    let dir = common::scratch("scn-models-baseline");
+    let text = SCENARIO.replace("[control]\n", "[[control]]\nlabel = \"mpc\"\n")
+        + "[[control]]\nlabel = \"zero\"\ncontroller = \"zero-input\"\nx0 = [-0.6, 0.1]\n\
+         reference = [0.0, 0.0]\nsteps = 25\n";
+    let sc = dir.join("kinds.toml");
+    std::fs::write(&sc, text).unwrap();
+    let out = dir.join("out");
+    common::run_scenario(&sc, &out, &[]);
+    let rows: Vec<(String, String)> = report(&out)["controls"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| {
+            (
+                c["label"].as_str().unwrap().to_string(),
+                c["model"].as_str().unwrap().to_string(),
+            )
+        })
+        .collect();
+    let want = [
+        ("mpc", "kinds-pend"),
+        ("zero", "kinds-pend"),
+        ("mpc", "kinds-pend-edmd"),
+    ];
+    assert_eq!(
+        rows,
+        want.map(|(l, m)| (l.to_string(), m.to_string())).to_vec()
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}

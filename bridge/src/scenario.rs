@@ -30,7 +30,8 @@ mod train_names;
 
 pub use collect::{CollectSpec, Policy};
 pub use control::{
-    ControlSpec, Controller, PerturbationSpec, PositionLoopSpec, QFromData, SurvivalSpec,
+    ControlSpec, Controller, ObservationNoise, PerturbationSpec, PositionLoopSpec, QFromData,
+    SurvivalSpec,
 };
 pub use extras::{CommandLine, HookPhase, HookSpec, ParticipantRole, ParticipantSpec};
 pub use pretrained::PretrainedSpec;
@@ -50,7 +51,9 @@ pub struct Scenario {
     pub description: String,
     /// Simulators to start (each with `koopbridge sim`).
     pub sims: Vec<SimSpec>,
-    /// Data collection.
+    /// Data collection; absent: none ([`CollectSpec::nothing`]) — the scenario trains nothing
+    /// and scores models trained elsewhere (`[train] pretrained`, a `[control]` entry's `model`).
+    #[serde(default = "CollectSpec::nothing")]
     pub collect: CollectSpec,
     /// Training (through the trainer service): which kinds of model, with which settings
     /// ([`TrainSpec`]); absent = no training, no control.
@@ -256,29 +259,20 @@ impl Scenario {
                 return Err(Error::Config(format!("sim id '{}' appears twice", s.id)));
             }
         }
-        let c = &self.collect;
-        if c.train_windows == 0 || c.steps == 0 {
-            return Err(Error::Config(
-                "collect.train_windows and collect.steps must be positive".into(),
-            ));
+        if self.collect.collects() {
+            self.collect.check()?;
         }
-        if let Policy::Scripted { inputs } = &c.policy {
-            if inputs.is_empty() {
-                return Err(Error::Config(
-                    "a scripted policy needs at least one input".into(),
-                ));
-            }
-        }
-        if matches!(c.policy, Policy::Adapter { block: 0, .. }) {
-            return Err(Error::Config(
-                "collect.policy.block must be at least 1".into(),
-            ));
-        }
-        c.x0_box()?;
         for j in 0..self.sims.len() {
             self.sim_region(j)?;
         }
         for t in &self.tracks {
+            if t.aggregate && !self.collect.collects() {
+                return Err(Error::Config(format!(
+                    "[control] for '{}': `aggregate = true` adds its windows to the training \
+                     data, and this scenario collects none (no [collect])",
+                    self.tracked_id(t)
+                )));
+            }
             if t.aggregate && t.onpolicy_steps.is_some_and(|n| n != self.collect.steps) {
                 return Err(Error::Config(format!(
                     "[control] for '{}': `aggregate = true` adds its windows to the training \
@@ -376,9 +370,6 @@ impl Scenario {
             .map_err(|e| {
                 Error::Config(format!("[control].mpc for '{}': {e}", self.tracked_id(t)))
             })?;
-        }
-        if let Policy::Uniform { low, high } = &self.collect.policy {
-            data_region::check_bounds("collect.policy", ["`low`", "`high`"], low, high)?;
         }
         Ok(())
     }

@@ -4,7 +4,7 @@ the (y, z) deviation over time, one line per controller (matplotlib, Agg; import
 from __future__ import annotations
 
 import io
-from collections.abc import Sequence
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -14,8 +14,9 @@ from .figure8_ref import SKIP, Figure8, tracking_error
 __all__ = ["plot"]
 
 
-def plot(path: str, task: Figure8, runs: Sequence[object]) -> None:
-    """Writes the PNG to ``path`` atomically. ``runs`` are ``figure8.Run`` objects."""
+def plot(path: str, task: Figure8, paths: Mapping[str, np.ndarray]) -> None:
+    """Writes the PNG to ``path`` atomically: ``paths`` maps each row's name to its end-effector
+    path ``(n, 3)``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -24,13 +25,12 @@ def plot(path: str, task: Figure8, runs: Sequence[object]) -> None:
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 5))
     ax1.plot(task.targets[:, 1], task.targets[:, 2], "k--", lw=1.5, label="figure-8 target")
     t = 0.02 * np.arange(len(task.targets))
-    for r in runs:
-        ee = r.ee  # type: ignore[attr-defined]
-        err = tracking_error(ee, task.targets)
-        ax1.plot(ee[:, 1], ee[:, 2], lw=1, label=f"{r.name} (error {err:.3f})")  # type: ignore[attr-defined]
-        dev = np.linalg.norm(ee[:, 1:3] - task.targets[:, 1:3], axis=1)
+    for name, ee in paths.items():
+        err = tracking_error(ee, task.targets[: len(ee)])
+        ax1.plot(ee[:, 1], ee[:, 2], lw=1, label=f"{name} (error {err:.3f})")
+        dev = np.linalg.norm(ee[:, 1:3] - task.targets[: len(ee), 1:3], axis=1)
         # Log scale: the controllers worth comparing sit orders of magnitude below zero input.
-        ax2.semilogy(t, np.maximum(dev, 1e-6), lw=1, label=r.name)  # type: ignore[attr-defined]
+        ax2.semilogy(t[: len(ee)], np.maximum(dev, 1e-6), lw=1, label=name)
     ax1.set_xlabel("y (m)")
     ax1.set_ylabel("z (m)")
     ax1.set_aspect("equal", adjustable="datalim")

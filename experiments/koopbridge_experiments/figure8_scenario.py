@@ -87,8 +87,6 @@ def report(out: Path, sim_id: str, state: str, u_limit: float, plot: bool = True
     """Scores every closed loop of simulator ``sim_id`` in ``out/report.json`` (see the module doc)
     with SPEC's error; the deviation figures are SPEC's MPC's (the unlabelled or ``koopman-mpc``
     row, else the first); returns the entry added."""
-    from .figure8 import Run
-
     rep_path = out / "report.json"
     rows = rows_of(json.loads(rep_path.read_text()), sim_id)
     main_row = SPEC_ROW if SPEC_ROW in rows else next(iter(rows))
@@ -98,12 +96,11 @@ def report(out: Path, sim_id: str, state: str, u_limit: float, plot: bool = True
         raise ValueError(f"the closed loop has {len(x)} states; SPEC's error needs more than {SKIP + 1}")
     sim = simulator(state, u_limit)
     task = references(sim, len(x))
-    runs, errors, ee_of = [], {}, {}
+    errors, ee_of = {}, {}
     for name, row in rows.items():
         xr = np.asarray(row["x"], dtype=float)
         ee_of[name] = ee = _ee_path(sim, xr)
         errors[name] = tracking_error(ee, task.targets[: len(xr)])
-        runs.append(Run(name, xr if sim.with_ee else np.c_[ee, xr], np.asarray(row["u"], dtype=float), [], [], 0.0, {}))
     dev = np.linalg.norm(ee_of[main_row][:, 1:3] - task.targets[:, 1:3], axis=1)
     entry = dict(
         metric=f"Frobenius norm of the (y, z) end-effector deviation after the first {SKIP} steps (SPEC)",
@@ -111,7 +108,8 @@ def report(out: Path, sim_id: str, state: str, u_limit: float, plot: bool = True
         u_limit=u_limit,
         errors=errors,
         rows={name: dict(controller=row.get("controller", "mpc"), error_state=row.get("error_state", False),
-                         position_loop=row.get("position_loop")) for name, row in rows.items()},
+                         position_loop=row.get("position_loop"), observation_noise=row.get("observation_noise"))
+              for name, row in rows.items()},
         rms_deviation_m=float(np.sqrt(np.mean(dev[SKIP:] ** 2))),
         max_deviation_m=float(dev[SKIP:].max()),
         saturated_fraction=round(float(np.mean(np.abs(u) >= u_limit - 1e-9)), 4),
@@ -122,7 +120,7 @@ def report(out: Path, sim_id: str, state: str, u_limit: float, plot: bool = True
     if plot:
         from .figure8_plot import plot as draw
 
-        draw(str(out / "figure8.png"), task, runs)
+        draw(str(out / "figure8.png"), task, ee_of)
     update_report(rep_path, "figure8", entry)
     return entry
 

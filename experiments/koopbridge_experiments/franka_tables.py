@@ -1,8 +1,9 @@
 """The paper's two Franka tables (issue 10) in one resumable command: SPEC's dataset, the
 prediction table (EDMD, NNDM, Koopman base / +ctrl / +cov / +both at n_mult 16 and m = 140k) with
-the +both m-sweep and α_m, and the figure-8 tracking table (each model's MPC through the bridge:
-the MuJoCo adapter in lockstep, the MPC service deciding every step), written as ``tables.md``
-and ``tables.json`` beside the paper's figures.
+the +both m-sweep and α_m, and the figure-8 tracking table (every model's MPC in one ``koopbridge
+run`` per column of a ``figure8_models`` scenario: the MuJoCo adapter in lockstep, the MPC service
+deciding every step, SPEC's observation noise, zero input and the greedy joint follower beside),
+written as ``tables.md`` and ``tables.json`` beside the paper's figures.
 
     python -m koopbridge_experiments.franka_tables --out results/franka-tables [--iterations 60000]
 
@@ -13,7 +14,7 @@ NNDM's random-shooting MPC (1000 rollouts of 15 steps per control step) for 3,00
 
 Besides SPEC's formulation (Q = I on the 17-D state, whose q̇ reference is 0, clip ±0.3 rad/s)
 the tracking table has a column per variant: the clip at ±1.0 rad/s (``--also-u-limits``; SPEC's
-path asks up to 0.9 rad/s of joint 4, so the P baseline and the NNDM's sampled inputs saturate at
+path asks up to 0.9 rad/s of joint 4, so the joint follower and the NNDM's sampled inputs saturate at
 ±0.3), and Q with weight 0.01 on q̇ (``--velocity-weight``): with Q = I the q̇ = 0 reference
 weighs like an input penalty of 1 against position moves of 0.02·u per step, and every model's
 MPC lags the path.
@@ -24,10 +25,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import subprocess
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -51,10 +53,11 @@ SEED, N_MULT = 17382, 16
 
 class Stage:
     """One step of the pipeline: done when every path of ``outputs`` exists (never, for an empty
-    list: a cheap stage that always runs), ``cmd`` runs it."""
+    list: a cheap stage that always runs), ``cmd`` runs it after ``prepare`` (if any) wrote what
+    it reads."""
 
-    def __init__(self, name: str, outputs: list[Path], cmd: list[str]):
-        self.name, self.outputs, self.cmd = name, outputs, cmd
+    def __init__(self, name: str, outputs: list[Path], cmd: list[str], prepare: Callable[[], None] | None = None):
+        self.name, self.outputs, self.cmd, self.prepare = name, outputs, cmd, prepare
 
     @property
     def done(self) -> bool:
@@ -91,10 +94,9 @@ def stages(a: argparse.Namespace) -> list[Stage]:
                "--threads", str(a.trainers * a.threads), *it]),
     ]
     for label, folder, extra in _columns(a):
-        for name, model in _tracked(a).items():
-            s.append(Stage(f"tracking: figure-8 with {name}, {label}", [folder / name / "report.json"],
-                           [py, "-m", "koopbridge_experiments.figure8", "--model", str(model), "--out", str(folder / name),
-                            "--baselines", "zero,p" if name == "edmd" else "none", "--steps", str(a.steps), *extra]))
+        s.append(Stage(f"tracking: figure-8 with every model, {label} (koopbridge run, no collection)",
+                       [folder / "figure8.png"], [kb, "run", str(folder / "figure8.toml"), "--out", str(folder)],
+                       prepare=lambda folder=folder, extra=extra: _write_scenario(a, folder, extra)))
     # The m-sweep last: both tables are complete before its four extra trainings start.
     s += [Stage("prediction: the +both m-sweep", [run(m, "both") for m in ms],
                 [*common, "--samples", ",".join(map(str, ms)), "--regularisers", "both"]),
@@ -103,15 +105,25 @@ def stages(a: argparse.Namespace) -> list[Stage]:
     return s
 
 
-def _columns(a: argparse.Namespace) -> list[tuple[str, Path, list[str]]]:
-    """The tracking table's columns, SPEC's first: (label, runs' folder, ``figure8`` options)."""
+def _columns(a: argparse.Namespace) -> list[tuple[str, Path, dict[str, Any]]]:
+    """The tracking table's columns, SPEC's first: (label, run folder, ``figure8_models``
+    settings)."""
     out = Path(a.out)
-    cols = [(f"clip ±{a.u_limit:g} rad/s", out / "figure8", ["--u-limit", repr(a.u_limit)])]
-    cols += [(f"clip ±{lim:g} rad/s", out / f"figure8-clip{lim:g}", ["--u-limit", repr(lim)]) for lim in a.also_u_limits]
+    cols = [(f"clip ±{a.u_limit:g} rad/s", out / "figure8", dict(u_limit=a.u_limit))]
+    cols += [(f"clip ±{lim:g} rad/s", out / f"figure8-clip{lim:g}", dict(u_limit=lim)) for lim in a.also_u_limits]
     if a.velocity_weight is not None:
-        q = ",".join(["1"] * 10 + [repr(a.velocity_weight)] * 7)
-        cols.append((f"q̇ weight {a.velocity_weight:g}", out / f"figure8-qd{a.velocity_weight:g}", ["--u-limit", repr(a.u_limit), "--q-weights", q]))
+        q = [1.0] * 10 + [a.velocity_weight] * 7
+        cols.append((f"q̇ weight {a.velocity_weight:g}", out / f"figure8-qd{a.velocity_weight:g}", dict(u_limit=a.u_limit, q=q)))
     return cols
+
+
+def _write_scenario(a: argparse.Namespace, folder: Path, settings: dict[str, Any]) -> None:
+    """Writes ``folder/figure8.toml``: the figure-8 with every row's model (``figure8_models``)."""
+    from .figure8_models import scenario_text
+
+    folder.mkdir(parents=True, exist_ok=True)
+    text = scenario_text(_tracked(a), steps=a.steps, name="franka-tables-" + re.sub(r"[^a-z0-9_-]", "-", folder.name), **settings)
+    write_atomic(str(folder / "figure8.toml"), lambda f: f.write(text.encode()))  # type: ignore[attr-defined]
 
 
 def _tracked(a: argparse.Namespace) -> dict[str, Path]:
@@ -135,34 +147,37 @@ def tables(a: argparse.Namespace) -> dict[str, Any]:
     out = Path(a.out)
     extra = _columns(a)[1:]
     rows: dict[str, Any] = {}
+    spec = _figure8(out / "figure8")
     for name, model in _tracked(a).items():
         metrics = _read(model / "metrics.json") or {}
-        fig8 = _read(out / "figure8" / name / "report.json") or {}
-        ctrl = next(iter(fig8.get("controllers", {}).values()), {})
-        rows[name] = dict(prediction=metrics.get("test_prediction_error"), tracking=ctrl.get("error"),
-                          solve_median_us=(ctrl.get("solve") or {}).get("median_us"), model=str(model),
-                          tracking_also={label: _mpc_error(folder / name) for label, folder, _ in extra})
+        rows[name] = dict(prediction=metrics.get("test_prediction_error"), tracking=spec["errors"].get(name),
+                          solve_median_us=spec["solve_median_us"].get(name), model=str(model),
+                          tracking_also={label: _figure8(folder)["errors"].get(name) for label, folder, _ in extra})
     base = rows["koopman-base"]["tracking"]
     for name in VARIANTS.values():
         t = rows[name]["tracking"]
         rows[name]["gain_over_base"] = (base - t) / base if base and t is not None else None
-    baselines = _baselines(out / "figure8")
-    baselines_also = {label: _baselines(folder) for label, folder, _ in extra}
+    baselines = _baselines(spec)
+    baselines_also = {label: _baselines(_figure8(folder)) for label, folder, _ in extra}
     scaling = _read(out / "scaling" / "scaling.json")
     return dict(rows=rows, baselines=baselines, baselines_also=baselines_also, scaling=scaling, paper=PAPER,
                 settings=dict(iterations=a.iterations, table_samples=a.table_samples, samples=a.samples, u_limit=a.u_limit,
                               also_u_limits=a.also_u_limits, velocity_weight=a.velocity_weight, steps=a.steps, data=str(a.data)))
 
 
-def _baselines(folder: Path) -> dict[str, float]:
-    """The baselines' tracking errors (every controller but the MPC) of the EDMD run in ``folder``."""
-    controllers = (_read(folder / "edmd" / "report.json") or {}).get("controllers", {})
-    return {k: v["error"] for k, v in controllers.items() if k != "mpc"}
+def _figure8(folder: Path) -> dict[str, dict[str, Any]]:
+    """The figure-8 run in ``folder``: SPEC's error of every row (``report.json``'s ``figure8``)
+    and the MPC rows' median solve times (µs); empty where it has not run."""
+    report = _read(folder / "report.json") or {}
+    solve = {c.get("label"): c.get("solve_median_us") for c in report.get("controls", []) if c.get("controller") == "mpc"}
+    return dict(errors=(report.get("figure8") or {}).get("errors", {}), solve_median_us=solve)
 
 
-def _mpc_error(folder: Path) -> float | None:
-    """The MPC's tracking error in the figure-8 report of ``folder`` (``None`` if not run)."""
-    return (((_read(folder / "report.json") or {}).get("controllers") or {}).get("mpc") or {}).get("error")
+def _baselines(run: dict[str, dict[str, Any]]) -> dict[str, float]:
+    """The baselines' tracking errors (the rows that need no model) of a figure-8 run."""
+    from .figure8_models import BASELINES
+
+    return {k: v for k, v in run["errors"].items() if k in BASELINES}
 
 
 def _alpha_m_fit(scaling: dict[str, Any] | None) -> dict[str, Any]:
@@ -234,6 +249,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if st.done:
             continue
         t = time.monotonic()
+        if st.prepare:
+            st.prepare()
         r = subprocess.run(st.cmd)
         if r.returncode != 0:
             print(f"franka_tables: stage '{st.name}' failed (exit {r.returncode}); rerun to resume", file=sys.stderr)

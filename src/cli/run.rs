@@ -235,14 +235,17 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             ""
         }
     };
-    println!(
-        "  collected {:?} windows × {} steps from {:?} at {:.0} macro steps/s{}",
-        report.collect.windows,
-        report.collect.steps,
-        report.collect.sims,
-        report.collect.macro_steps_per_second,
-        reused(report.collect.reused)
-    );
+    match &report.collect {
+        Some(c) => println!(
+            "  collected {:?} windows × {} steps from {:?} at {:.0} macro steps/s{}",
+            c.windows,
+            c.steps,
+            c.sims,
+            c.macro_steps_per_second,
+            reused(c.reused)
+        ),
+        None => println!("  collected nothing (no [collect]: models trained elsewhere)"),
+    }
     for t in &report.train {
         println!(
             "  model '{}' (job {}){}: {}",

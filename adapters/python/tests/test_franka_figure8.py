@@ -1,7 +1,7 @@
-"""Figure-8 smoke test through the bridge: a small Franka dataset, EDMD fitted by the CLI, the
-MuJoCo adapter (child process) in lockstep with the Rust MPC service (child process) deciding
-every step; the tracking error is finite and below the zero-input error. Plus the task's pieces
-against independent computations."""
+"""Figure-8 smoke test through the bridge: a small Franka dataset, EDMD fitted by the CLI, scored
+by ``koopbridge run`` of a ``figure8_models`` scenario (the MuJoCo adapter in lockstep, the MPC
+service deciding every step, SPEC's observation noise); the tracking error is finite and below the
+zero-input error. Plus the task's pieces against independent computations."""
 
 from __future__ import annotations
 
@@ -14,8 +14,7 @@ import pytest
 from conftest import koopbridge_binary_or_skip
 from koopbridge.adapters.mujoco.ik import figure8
 from koopbridge.adapters.mujoco.sim import FrankaSimulator
-from koopbridge_experiments import figure8 as fig8
-from koopbridge_experiments import franka_data
+from koopbridge_experiments import figure8_models, franka_data
 from koopbridge_experiments.figure8_ref import joint_p_command, references, tracking_error
 
 
@@ -46,23 +45,30 @@ def test_figure8_through_the_bridge_beats_zero_input(tmp_path):
     r = subprocess.run([str(exe), "train", "--model", "edmd", "--data", str(data), "--out", str(model)],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
+    # The scenario of models trained elsewhere: no collection, the engine's closed loops.
+    sc = tmp_path / "figure8.toml"
+    assert figure8_models.main(["--model", f"franka-edmd={model}", "--out", str(sc), "--steps", "251"]) == 0
     out = tmp_path / "run"
-    assert fig8.main(["--model", str(model), "--out", str(out), "--steps", "251", "--baselines", "zero"]) == 0
+    r = subprocess.run([str(exe), "run", str(sc), "--out", str(out)], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
     report = json.loads((out / "report.json").read_text())
-    mpc, zero = report["controllers"]["mpc"], report["controllers"]["zero"]
-    assert mpc["steps"] == zero["steps"] == 250
-    assert np.isfinite(mpc["error"]) and mpc["error"] < zero["error"], report
-    assert mpc["solve"]["median_us"] > 0 and mpc["statuses"]
-    # The saved path is the one the error was computed from.
-    with np.load(out / "paths.npz") as p:
-        assert tracking_error(p["x_mpc"][:, :3], p["targets"]) == pytest.approx(mpc["error"], rel=1e-12)
-        assert np.all(np.abs(p["u_mpc"]) <= 0.3 + 1e-9)
+    rows = {c["label"]: c for c in report["controls"]}
+    assert list(rows) == ["franka-edmd", "zero-input", "joint-follower"]
+    errors = report["figure8"]["errors"]
+    mpc = rows["franka-edmd"]
+    assert len(mpc["u"]) == len(rows["zero-input"]["u"]) == 250
+    assert np.isfinite(errors["franka-edmd"]) and errors["franka-edmd"] < errors["zero-input"], errors
+    assert mpc["solve_median_us"] > 0 and mpc["observation_noise"]["sigma"] == 0.01
+    # The error is SPEC's, recomputed here from the recorded end-effector path (the true states:
+    # the noise is only what the MPC saw).
+    x = np.asarray(mpc["x"])
+    assert tracking_error(x[:, :3], figure8(251)) == pytest.approx(errors["franka-edmd"], rel=1e-6)
+    assert np.all(np.abs(np.asarray(mpc["u"])) <= 0.3 + 1e-9)
     assert (out / "figure8.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_bad_model_folder_exits_2(tmp_path):
-    assert fig8.main(["--model", str(tmp_path / "nowhere"), "--out", str(tmp_path / "o")]) == 2
-    bad = tmp_path / "Bad Name"
-    bad.mkdir()
-    (bad / "config.json").write_text("{}")
-    assert fig8.main(["--model", str(bad), "--out", str(tmp_path / "o")]) == 2
+def test_the_models_scenario_refuses_bad_rows(tmp_path, capsys):
+    out = str(tmp_path / "s.toml")
+    for bad in (["--model", "Bad Name=x"], ["--model", "zero-input=x"], ["--model", "noequals"]):
+        assert figure8_models.main([*bad, "--out", out]) == 2, bad
+    assert "figure8_models:" in capsys.readouterr().err

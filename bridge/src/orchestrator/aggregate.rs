@@ -265,7 +265,7 @@ pub fn aggregate(
         if round < rounds {
             start_recording(sc, cluster)?;
         }
-        let model_of = |id: &str| model_name(sc, id, round);
+        let model_of = |id: &str| Some(model_name(sc, id, round));
         let (next, _) = control_phase(
             sc,
             &cluster.client,
@@ -274,6 +274,7 @@ pub fn aggregate(
             ph,
             &ControlPhase {
                 model_of: &model_of,
+                first_pass: true,
                 publish: round < rounds,
                 baseline: false,
                 deprioritise: &|id| cluster.deprioritise_sim(id),
@@ -379,6 +380,7 @@ mod tests {
             mpc: None,
             error_state: false,
             position_loop: None,
+            observation_noise: None,
             step_flags: Default::default(),
         }
     }

@@ -93,6 +93,9 @@ pub struct ControlReport {
     /// The position loop that corrected the plan at every step (`[control] position_loop`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub position_loop: Option<crate::scenario::PositionLoopSpec>,
+    /// The noise on the state the MPC saw (`[control] observation_noise`); `x` is the true state.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub observation_noise: Option<crate::scenario::ObservationNoise>,
     /// The steps the simulator flagged in its step replies (an episode end, a clipped input;
     /// PROTOCOL.md §4); absent when it flagged none.
     #[serde(default, skip_serializing_if = "StepFlags::is_empty")]
@@ -161,6 +164,8 @@ pub struct ControlTask<'a> {
     pub clip: Option<(&'a [f64], &'a [f64])>,
     /// The perturbation of the episode, sent with the reset (the simulator applies it).
     pub perturbation: Option<&'a crate::messages::Perturbation>,
+    /// Noise on the state the MPC sees (its draws seeded by the noise's `seed`).
+    pub observation_noise: Option<&'a crate::scenario::ObservationNoise>,
     /// Where its states are shown to a viewer (published only while one subscribes).
     pub view: Option<StepView<'a>>,
 }
@@ -184,6 +189,8 @@ pub struct ControlRun<'a> {
     publisher: Option<zenoh::pubsub::Publisher<'static>>,
     /// The input decided at the current state and the MPC's reply, until the view shows them.
     decided: Option<(Vec<f64>, Option<SolveReply>)>,
+    /// The draws of the observation noise.
+    noise_rng: koopman::rng::Rng,
 }
 
 impl<'a> ControlRun<'a> {
@@ -217,6 +224,7 @@ impl<'a> ControlRun<'a> {
         } else {
             None
         };
+        let noise_rng = koopman::rng::Rng::new(task.observation_noise.map_or(0, |n| n.seed));
         let run = ControlRun {
             key: client.keys.mpc_solve(task.mpc_id)?,
             who: format!("MPC service '{}'", task.mpc_id),
@@ -234,6 +242,7 @@ impl<'a> ControlRun<'a> {
             sim_failure: None,
             publisher,
             decided: None,
+            noise_rng,
         };
         run.publish(first.k, first.t, &[])?;
         Ok(run)
@@ -322,7 +331,7 @@ impl<'a> ControlRun<'a> {
         }
         let req = SolveRequest {
             model: self.task.model.to_string(),
-            x: self.xs[k].clone(),
+            x: self.observed(k),
             reference,
             feedforward,
         };
@@ -347,6 +356,17 @@ impl<'a> ControlRun<'a> {
         let u = r.u[..nu].to_vec();
         self.decided = Some((u.clone(), Some(r)));
         Ok(u)
+    }
+
+    /// State `k` as the MPC sees it: with the observation noise's draws added to its states.
+    fn observed(&mut self, k: usize) -> Vec<f64> {
+        let mut x = self.xs[k].clone();
+        if let Some(n) = self.task.observation_noise {
+            for &i in &n.states {
+                x[i] += n.sigma * self.noise_rng.normal();
+            }
+        }
+        x
     }
 
     /// `u`, decided without the MPC service (a replay or a baseline controller).
@@ -462,6 +482,7 @@ impl<'a> ControlRun<'a> {
             error_state: self.task.controller == Controller::Mpc
                 && matches!(r, Reference::Plan { .. }),
             position_loop: self.task.position_loop.map(|p| p.spec().clone()),
+            observation_noise: self.task.observation_noise.cloned(),
             step_flags: self.flags,
             x: self.xs,
             u: self.us,

@@ -24,12 +24,18 @@ struct Prepared {
     mpc: koopman::mpc::MpcConfig,
     position_loop: Option<PositionLoop>,
     perturbation: Option<crate::messages::Perturbation>,
+    /// Whether it runs in this pass (a row that needs no trained model runs in the first only).
+    included: bool,
 }
 
 /// What the control phase is asked to do.
 pub struct ControlPhase<'a> {
-    /// The model of simulator `id` (default `{scenario}-{id}`).
-    pub model_of: &'a dyn Fn(&str) -> String,
+    /// The model this pass trained for simulator `id` (`{scenario}-{id}`...), `None` when the
+    /// run trains none.
+    pub model_of: &'a dyn Fn(&str) -> Option<String>,
+    /// The first pass (of one per trained kind): the entries that need no trained model (a
+    /// baseline controller, an entry naming its `model`) run in it only.
+    pub first_pass: bool,
     /// Publish the executed states (for the recorder).
     pub publish: bool,
     /// Also run each controlled simulator alone in the loop (after the loop of all), for
@@ -68,16 +74,31 @@ pub fn control_phase(
             Some(s) => Some(position_loop_of(s, info, &mpc).map_err(|e| at(Error::Config(e)))?),
             None => None,
         };
+        let trained = (what.model_of)(&sc.sims[j].id);
+        let needs_trained = ctrl.controller == Controller::Mpc && ctrl.model.is_none();
         prepared.push(Prepared {
             sim: j,
-            model: (what.model_of)(&sc.sims[j].id),
+            included: what.first_pass || needs_trained,
+            // A baseline row keeps the pass's model name (as before), or none.
+            model: ctrl.model.clone().or(trained).unwrap_or_default(),
             reference,
             mpc,
             position_loop,
             perturbation: ctrl.perturbation.as_ref().map(|p| p.for_reference(0)),
         });
     }
-    let rounds = rounds_of(&prepared.iter().map(|p| p.sim).collect::<Vec<_>>());
+    let included: Vec<usize> = (0..prepared.len())
+        .filter(|&i| prepared[i].included)
+        .collect();
+    let rounds: Vec<Vec<usize>> = rounds_of(
+        &included
+            .iter()
+            .map(|&i| prepared[i].sim)
+            .collect::<Vec<_>>(),
+    )
+    .into_iter()
+    .map(|r| r.into_iter().map(|k| included[k]).collect())
+    .collect();
     let configure_round = |which: &[usize]| -> Result<()> {
         for &i in which {
             let (p, ctrl) = (&prepared[i], &sc.control[i]);
@@ -126,6 +147,7 @@ pub fn control_phase(
                     label: ctrl.label.as_deref(),
                     clip: p.mpc.u_min.as_deref().zip(p.mpc.u_max.as_deref()),
                     perturbation: p.perturbation.as_ref(),
+                    observation_noise: ctrl.observation_noise.as_ref(),
                     view: Some(super::view::StepView {
                         view: what.view,
                         row: ctrl.label.as_deref().unwrap_or(&p.model),

@@ -22,8 +22,9 @@ pub struct Report {
     pub scenario: String,
     /// Session id used.
     pub session: String,
-    /// Collection summary.
-    pub collect: CollectReport,
+    /// Collection summary (`None`: the scenario collects nothing, no `[collect]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub collect: Option<CollectReport>,
     /// Training results, one per simulator and model kind (the kinds in `[train].model` order,
     /// the simulators in `[[sims]]` order within each).
     pub train: Vec<TrainReport>,

@@ -122,7 +122,7 @@ pub fn run_scenario_with(
                 .into(),
         ));
     }
-    let kinds = sc.train.as_ref().map(|t| t.kinds()).unwrap_or_default();
+    let kinds = sc.trained_kinds();
     if extras.aggregate > 0 && !sc.control.is_empty() && kinds.len() > 1 {
         return Err(Error::Config(format!(
             "--aggregate retrains one model per simulator from its [control] loop; \
@@ -195,7 +195,18 @@ pub fn run_scenario_with(
     };
     hooks(HookPhase::BeforeCollect, on)?;
 
-    let collect_report = collect_phase(sc, opts, &cluster, &mut clients, &collect_key, on)?;
+    let collect_report = if sc.collect.collects() {
+        Some(collect_phase(
+            sc,
+            opts,
+            &cluster,
+            &mut clients,
+            &collect_key,
+            on,
+        )?)
+    } else {
+        None
+    };
     let mut trained: Vec<(ModelKind, TrainReport)> = Vec::new();
     for &kind in &kinds {
         on(Event::Phase(&if kinds.len() > 1 {
@@ -213,21 +224,27 @@ pub fn run_scenario_with(
     let infos: Vec<&SimInfo> = clients.iter().map(|c| &c.info.sim).collect();
     let pretrained = pretrained::install(sc, &ph, &infos, false, Some(&opts.out_dir))?;
     let (mut controls, mut control_loop, mut aggregation) = (Vec::new(), None, Vec::new());
-    for (i, &kind) in kinds.iter().enumerate().filter(|_| !sc.control.is_empty()) {
-        on(Event::Phase(&if kinds.len() > 1 {
-            format!(
+    // One pass per trained kind (its models' rows); the rows that need no trained model (a
+    // baseline, a named model) run in the first pass only. No trained kind: one pass.
+    let passes: Vec<Option<ModelKind>> = if kinds.is_empty() {
+        vec![None]
+    } else {
+        kinds.iter().copied().map(Some).collect()
+    };
+    for (i, &kind) in passes.iter().enumerate().filter(|_| !sc.control.is_empty()) {
+        on(Event::Phase(&match kind {
+            Some(kind) if kinds.len() > 1 => format!(
                 "closed-loop control with the {kind} models (MPC service: {})",
                 kind.controller()
-            )
-        } else {
-            "closed-loop control (MPC service)".to_string()
+            ),
+            _ => "closed-loop control (MPC service)".to_string(),
         }));
         // Aggregation (one kind only) records and retrains the first run.
         let record = extras.aggregate > 0 && i == 0;
         if record {
             aggregate::start_recording(sc, &cluster)?;
         }
-        let model_of = |id: &str| sc.model_name(id, kind);
+        let model_of = |id: &str| kind.map(|k| sc.model_name(id, k));
         let (c, l) = control_phase(
             sc,
             &cluster.client,
@@ -236,6 +253,7 @@ pub fn run_scenario_with(
             &ph,
             &ControlPhase {
                 model_of: &model_of,
+                first_pass: i == 0,
                 publish: record,
                 baseline: extras.loop_baseline && i == 0,
                 deprioritise: &|id| cluster.deprioritise_sim(id),

@@ -340,6 +340,7 @@ fn run_one(
         label: None,
         clip: None,
         perturbation: how.perturbation,
+        observation_noise: None,
         view: Some(StepView {
             view: how.view,
             row: how.shown_as,

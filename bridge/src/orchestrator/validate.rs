@@ -93,7 +93,7 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
                 ))
             })?;
         }
-        if t.kinds().contains(&ModelKind::Bilinear) {
+        if sc.trained_kinds().contains(&ModelKind::Bilinear) {
             if let Some(s) = sc.sims.iter().zip(infos).find(|(_, i)| i.nu() == 0) {
                 return Err(Error::Config(format!(
                     "[train].model: a bilinear model cannot be trained for simulator '{}': it has \
@@ -121,11 +121,7 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
     for ctrl in &sc.control {
         let j = controlled_sim(sc, ctrl);
         validate_control(ctrl, &sc.sims[j].id, infos[j])?;
-        if sc
-            .train
-            .as_ref()
-            .is_some_and(|t| t.kinds().contains(&ModelKind::Nndm))
-        {
+        if ctrl.model.is_none() && sc.trained_kinds().contains(&ModelKind::Nndm) {
             shooting_accepts(ctrl, infos[j]).map_err(|e| {
                 Error::Config(format!(
                     "[control].mpc for simulator '{}' with model kind 'nndm' ([train].model): {e}",
@@ -252,6 +248,16 @@ fn validate_control(ctrl: &ControlSpec, sim: &str, info: &SimInfo) -> Result<()>
         if let Err(e) = position_loop_of(pl, info, &cfg) {
             return bad(e);
         }
+    }
+    if let Some(i) = ctrl
+        .observation_noise
+        .iter()
+        .flat_map(|n| &n.states)
+        .find(|&&i| i >= nx)
+    {
+        return bad(format!(
+            "observation_noise.states: {i} is not a state (the simulator has {nx})"
+        ));
     }
     // The real controller is built by the MPC service from the trained model after training;
     // the same settings on a stand-in model of the same dimensions fail the same way now.

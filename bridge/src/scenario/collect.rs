@@ -81,6 +81,58 @@ super::data_region::with_x0_box! {
 }
 
 impl CollectSpec {
+    /// No data at all: what a scenario without `[collect]` collects (it scores models trained
+    /// elsewhere, `[train] pretrained`, and trains none).
+    pub fn nothing() -> Self {
+        CollectSpec {
+            policy: Policy::uniform(),
+            train_windows: 0,
+            val_windows: 0,
+            test_windows: 0,
+            steps: default_steps(),
+            seed: default_seed(),
+            x0_low: None,
+            x0_high: None,
+            x0_center: None,
+            x0_radius: None,
+        }
+    }
+
+    /// Whether any data is collected (a `[collect]` table with training windows).
+    pub fn collects(&self) -> bool {
+        self.train_windows > 0
+    }
+
+    /// Checks the table without the simulators: positive training windows and steps, a
+    /// scripted policy with inputs, an adapter policy's block ≥ 1, the initial-state box, the
+    /// uniform policy's bounds.
+    pub fn check(&self) -> Result<()> {
+        if self.train_windows == 0 || self.steps == 0 {
+            return Err(Error::Config(
+                "collect.train_windows and collect.steps must be positive (a scenario that \
+                 collects nothing has no [collect] table)"
+                    .into(),
+            ));
+        }
+        if let Policy::Scripted { inputs } = &self.policy {
+            if inputs.is_empty() {
+                return Err(Error::Config(
+                    "a scripted policy needs at least one input".into(),
+                ));
+            }
+        }
+        if matches!(self.policy, Policy::Adapter { block: 0, .. }) {
+            return Err(Error::Config(
+                "collect.policy.block must be at least 1".into(),
+            ));
+        }
+        self.x0_box()?;
+        if let Policy::Uniform { low, high } = &self.policy {
+            super::data_region::check_bounds("collect.policy", ["`low`", "`high`"], low, high)?;
+        }
+        Ok(())
+    }
+
     /// The initial-state box `(low, high)` the scenario asks for, if any: `x0_low`/`x0_high`
     /// as given, or `x0_center ± x0_radius`. Checked without the simulator: the keys of one
     /// form together and not both forms, equal lengths, finite values, `low ≤ high` (a radius

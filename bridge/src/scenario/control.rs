@@ -82,6 +82,15 @@ pub struct ControlSpec {
     /// Which simulator to control (default: the first).
     #[serde(default)]
     pub sim: Option<String>,
+    /// The MPC's model by its name in the run's model store: a `[train] pretrained` name, or a
+    /// model this run trains (`{scenario}-{sim}`...). Such an entry runs once, not once per
+    /// trained kind. Default: the model this run trains for the simulator (one row per kind).
+    #[serde(default)]
+    pub model: Option<String>,
+    /// Gaussian noise on the state the MPC sees ([`ObservationNoise`]; SPEC's figure-8: σ = 0.01
+    /// on the end-effector position). A baseline controller sees the true state.
+    #[serde(default)]
+    pub observation_noise: Option<ObservationNoise>,
     /// Offset-free correction of the MPC (a bilinear or a lifted-linear model; not with
     /// `feedforward_file`), `koopman::mpc::OffsetFreeConfig` fields: `mode` (`trajectory`,
     /// `disturbance` or `integral`), `radius`, `gain` (nx values), `angles`.
@@ -133,6 +142,24 @@ impl ControlSpec {
         if let Some(p) = &self.perturbation {
             p.check().or_else(bad)?;
         }
+        if self.controller != Controller::Mpc {
+            let mpc_only = [
+                ("model", self.model.is_some()),
+                ("observation_noise", self.observation_noise.is_some()),
+            ];
+            if let Some((k, _)) = mpc_only.iter().find(|(_, set)| *set) {
+                return bad(format!(
+                    "`{k}` is the MPC's; controller = \"{}\" has none",
+                    self.controller.name()
+                ));
+            }
+        }
+        if let Some(m) = &self.model {
+            crate::keyexpr::validate_chunk("[control].model", m)?;
+        }
+        if let Some(n) = &self.observation_noise {
+            n.check().or_else(bad)?;
+        }
         Ok(())
     }
 }
@@ -162,6 +189,42 @@ impl Controller {
             Controller::Feedforward => "feedforward",
             Controller::ZeroInput => "zero-input",
         }
+    }
+}
+
+/// Gaussian noise on the state the MPC sees: `N(0, sigma²)` added to each of `states` before
+/// every solve, drawn from `seed` (deterministic; the simulator steps the true state).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObservationNoise {
+    /// The standard deviation, in the states' units (finite, ≥ 0).
+    pub sigma: f64,
+    /// The noisy state indices (at least one; checked against `nx` with the simulator's info).
+    pub states: Vec<usize>,
+    /// The seed of the draws.
+    #[serde(default)]
+    pub seed: u64,
+}
+
+impl ObservationNoise {
+    /// Checks the values: a finite σ ≥ 0, at least one state, none twice.
+    pub fn check(&self) -> std::result::Result<(), String> {
+        if !(self.sigma.is_finite() && self.sigma >= 0.0) {
+            return Err(format!(
+                "observation_noise.sigma must be finite and ≥ 0, got {}",
+                self.sigma
+            ));
+        }
+        let mut s = self.states.clone();
+        s.sort_unstable();
+        s.dedup();
+        if s.is_empty() || s.len() != self.states.len() {
+            return Err(format!(
+                "observation_noise.states must name distinct state indices, at least one; got {:?}",
+                self.states
+            ));
+        }
+        Ok(())
     }
 }
 

@@ -78,6 +78,8 @@ impl TrackSpec {
             ("feedforward_file", c.feedforward_file.is_some()),
             ("position_loop", c.position_loop.is_some()),
             ("offset_free", c.offset_free.is_some()),
+            ("model", c.model.is_some()),
+            ("observation_noise", c.observation_noise.is_some()),
             (
                 "controller",
                 c.controller != super::control::Controller::Mpc,
@@ -85,9 +87,9 @@ impl TrackSpec {
         ];
         if let Some((k, _)) = not_here.iter().find(|(_, set)| *set) {
             return bad(format!(
-                "`{k}` is not a key of a tracking task (`references`): each reference starts \
-                 from its own first state; use `error_state = true` to plan about the \
-                 references' inputs"
+                "`{k}` is not a key of a tracking task (`references`): its rows are the trained \
+                 and `[train] pretrained` models, each reference from its own first state; use \
+                 `error_state = true` to plan about the references' inputs"
             ));
         }
         if references.trim().is_empty() {

@@ -16,6 +16,15 @@ impl Scenario {
         }
     }
 
+    /// The kinds this run trains: `[train]`'s ([`super::train::TrainSpec::kinds`]), none without
+    /// `[train]` or without `[collect]` (no data: the models are `[train] pretrained`).
+    pub fn trained_kinds(&self) -> Vec<ModelKind> {
+        match &self.train {
+            Some(t) if self.collect.collects() => t.kinds(),
+            _ => Vec::new(),
+        }
+    }
+
     /// The `TrainConfig` fields simulator `sim`'s models are trained with: `[train].config` (with
     /// `--full`, merged with `[full].train_config`), its `[[sims]]` `train_config` over them.
     /// Empty without `[train]`.
@@ -72,7 +81,20 @@ impl Scenario {
                 )),
                 e => e,
             })?;
-        let kinds = t.kinds();
+        if !self.collect.collects() {
+            let trains = t.model.is_some()
+                || !t.config.is_empty()
+                || self.sims.iter().any(|s| !s.train_config.is_empty());
+            if trains {
+                return Err(Error::Config(
+                    "[train] sets `model` or training settings, but there is no [collect] table \
+                     (no data to train on): add one, or keep only `pretrained` in [train] to \
+                     score models trained elsewhere"
+                        .into(),
+                ));
+            }
+        }
+        let kinds = self.trained_kinds();
         let mut names: Vec<(String, &str, ModelKind)> = Vec::new();
         for s in &self.sims {
             for &k in &kinds {
@@ -90,9 +112,33 @@ impl Scenario {
         let sims: Vec<&str> = self.sims.iter().map(|s| s.id.as_str()).collect();
         let trained: Vec<String> = names.iter().map(|(n, _, _)| n.clone()).collect();
         super::pretrained::check(&t.pretrained, &sims, &trained)?;
-        if !t.pretrained.is_empty() && self.tracks.is_empty() {
+        for ctrl in &self.control {
+            let sim = self.controlled_id(ctrl);
+            match &ctrl.model {
+                Some(m) if !t.pretrained.iter().any(|p| &p.name == m) && !trained.contains(m) => {
+                    return Err(Error::Config(format!(
+                        "[control] for '{sim}': model '{m}' is neither a [train] pretrained name \
+                         ({:?}) nor a model this run trains ({trained:?})",
+                        t.pretrained.iter().map(|p| &p.name).collect::<Vec<_>>()
+                    )));
+                }
+                None if kinds.is_empty() && ctrl.controller == super::Controller::Mpc => {
+                    return Err(Error::Config(format!(
+                        "[control] for '{sim}': this run trains no model (no [collect]); name the \
+                         MPC's model with `model = \"NAME\"` (a [train] pretrained name)"
+                    )));
+                }
+                _ => {}
+            }
+        }
+        if !t.pretrained.is_empty()
+            && self.tracks.is_empty()
+            && self.control.iter().all(|c| c.model.is_none())
+        {
             return Err(Error::Config(
-                "[train] pretrained: the models trained elsewhere are rows of tracking tasks                  (`[control]` with `references`); this scenario has none"
+                "[train] pretrained: the models trained elsewhere are rows of tracking tasks \
+                 (`[control]` with `references`) or the `model` of a [control] entry; this \
+                 scenario has neither"
                     .into(),
             ));
         }
