@@ -266,6 +266,14 @@ impl Scenario {
             self.sim_region(j)?;
         }
         for t in &self.tracks {
+            if t.q_from_data.is_some() && !self.collect.collects() {
+                return Err(Error::Config(format!(
+                    "[control] for '{}': `q_from_data` weighs by the spread of this run's \
+                     training data, and this scenario collects none (no [collect]): give \
+                     `mpc.q` instead",
+                    self.tracked_id(t)
+                )));
+            }
             if t.aggregate && !self.collect.collects() {
                 return Err(Error::Config(format!(
                     "[control] for '{}': `aggregate = true` adds its windows to the training \

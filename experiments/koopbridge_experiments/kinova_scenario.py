@@ -3,11 +3,11 @@ asks the scenario's Drake planner over Zenoh for trajectories to held-out goals 
 collection session) and writes them as the ``(T, 14)`` ``[q, q̇]`` reference that ``[control]
 reference_file`` reads; ``report`` (an ``after-control`` hook) scores every closed loop the engine
 ran on the arm — one row per labelled ``[[control]]`` entry: the error-state MPC about the plan
-with and without the position loop, the planner's open-loop feed-forward, and the same on an arm
-whose actuators realise only a fraction of each command (rows labelled ``…-mismatch``, the
-perturbation ``command_gain``) — adds feed-forward + LQR on the lifted model (run here, the one
-loop the engine does not have) and the arm held still, writes the result to ``report.json`` and
-draws ``kinova.png``.
+with and without the position loop, the planner's open-loop feed-forward, the feed-forward with
+LQR on the lifted model (the MPC service's law ``lqr``), and the same on an arm whose actuators
+realise only a fraction of each command (rows labelled ``…-mismatch``, the perturbation
+``command_gain``) — adds the arm held still, writes the result to ``report.json`` and draws
+``kinova.png``. No closed loop runs here.
 
     python -m koopbridge_experiments.kinova_scenario reference --out OUT --session S --connect EP [--goals 2]
     python -m koopbridge_experiments.kinova_scenario report --out OUT [--sim gen3]
@@ -33,7 +33,7 @@ import numpy as np
 from .figure8_scenario import rows_of, write_npy
 from .run_report import update_report
 
-__all__ = ["feedback_gain", "held_out_goals", "main", "parser", "plan_reference", "tracking_errors"]
+__all__ = ["held_out_goals", "main", "parser", "plan_reference", "tracking_errors"]
 
 #: Goal sessions of the reference: far above any collection session of ``drake_collect``
 #: (sessions count from 0 per split), so no goal was used for training, validation or test.
@@ -125,39 +125,12 @@ def _reference(a: argparse.Namespace) -> int:
     return 0
 
 
-def feedback_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, iters: int = 20000, tol: float = 1e-10) -> np.ndarray:
-    """The infinite-horizon discrete LQR gain ``K`` (u = −K z) by iterating the Riccati
-    recursion ``S ← Q + Aᵀ S A − Aᵀ S B (R + Bᵀ S B)⁻¹ Bᵀ S A`` to convergence."""
-    S = Q.copy()
-    for _ in range(iters):
-        BtS = B.T @ S
-        K = np.linalg.solve(R + BtS @ B, BtS @ A)
-        S_new = Q + A.T @ S @ (A - B @ K)
-        S_new = 0.5 * (S_new + S_new.T)
-        if np.max(np.abs(S_new - S)) <= tol * max(1.0, np.max(np.abs(S))):
-            S = S_new
-            break
-        S = S_new
-    return np.linalg.solve(R + B.T @ S @ B, B.T @ S @ A)
-
-
 def tracking_errors(x: np.ndarray, ref: np.ndarray) -> dict[str, Any]:
     """Joint tracking RMS over every step and joint, per joint, and the final error (largest
     joint deviation at the last step), rad."""
     e = x[:, :7] - ref[: len(x), :7]
     return dict(rms_rad=float(np.sqrt(np.mean(e**2))), rms_per_joint_rad=np.sqrt(np.mean(e**2, axis=0)).round(6).tolist(),
                 final_rad=float(np.max(np.abs(e[-1]))))
-
-
-def _run(sim: Any, x0: np.ndarray, steps: int, command: Any) -> np.ndarray:
-    from koopbridge.adapters.drake.model import VELOCITY_LIMITS
-
-    x = sim.reset(x0=x0)
-    xs = [x]
-    for k in range(steps):
-        x = sim.step(np.clip(command(k, x), -VELOCITY_LIMITS, VELOCITY_LIMITS))
-        xs.append(x)
-    return np.array(xs)
 
 
 def _padded(a: np.ndarray, n: int, fill: np.ndarray | None = None) -> np.ndarray:
@@ -173,9 +146,6 @@ MISMATCH = "-mismatch"
 
 
 def _report(a: argparse.Namespace) -> int:
-    from koopbridge import KoopmanModel
-    from koopbridge.adapters.drake.sim import DrakeGen3Sim
-
     out = Path(a.out)
     rep_path = out / "report.json"
     rows = rows_of(json.loads(rep_path.read_text()), a.sim)
@@ -185,18 +155,9 @@ def _report(a: argparse.Namespace) -> int:
     ctrl = nominal[through_service]
     steps = len(ctrl["u"])
     ref = _padded(np.load(out / REFERENCE), steps + 1)
-    ff = _padded(np.load(out / FEEDFORWARD), steps, np.zeros(7))
-    model = KoopmanModel.load(out / "models" / ctrl["model"])
-    A, B, P = (np.asarray(m, float) for m in (model.A, model.B, model.P))
-    q = np.asarray(a.q_weights if a.q_weights else np.ones(14), float)
-    K = feedback_gain(A, B, P.T @ np.diag(q) @ P + 1e-9 * np.eye(len(A)), a.r * np.eye(B.shape[1]))
-    z_ref = np.asarray(model.encode(ref), float)
-    lqr = lambda k, x: ff[k] - K @ (np.asarray(model.encode(x), float) - z_ref[k])  # noqa: E731
-    # Every row but LQR's is the engine's (one labelled [[control]] entry each); LQR on the
-    # lifted model runs here, on the same simulation (and on the mismatched arm when the
-    # scenario runs one).
+    # Every row is the engine's (one labelled [[control]] entry each; LQR on the lifted model is
+    # the MPC service's law `lqr`).
     runs = {k: np.asarray(v["x"], float) for k, v in nominal.items()}
-    runs["feed-forward+lqr"] = _run(DrakeGen3Sim(), ref[0], steps, lqr)
     disturbed, dis, gain = None, {}, 1.0
     if mismatched:
         gains = {float((v.get("perturbation") or {}).get("command_gain") or 1.0) for v in mismatched.values()}
@@ -204,16 +165,17 @@ def _report(a: argparse.Namespace) -> int:
             raise ValueError(f"the rows labelled …{MISMATCH} must share one perturbation command_gain ≠ 1, got {sorted(gains)}")
         (gain,) = gains
         dis = {k: np.asarray(v["x"], float) for k, v in mismatched.items()}
-        dis["feed-forward+lqr"] = _run(DrakeGen3Sim(command_gain=gain), ref[0], steps, lqr)
         disturbed = dict(command_gain=gain, controllers={k: tracking_errors(v, ref) for k, v in dis.items()})
+    lqr_rows = [v for v in nominal.values() if (v.get("mpc") or {}).get("law") == "lqr"]
     entry: dict[str, Any] = dict(
         steps=steps, dt=ctrl["dt"],
         metric="joint tracking error x[:7] - planned q over every step: RMS (all joints, per joint) and final (max |.| at the last step), rad",
         controllers={k: tracking_errors(v, ref) for k, v in runs.items()},
         # The floor every controller must beat: the arm left at its start (it holds to 1e-6 rad).
         hold_still=tracking_errors(np.tile(ref[0], (steps + 1, 1)), ref),
-        lqr=dict(q=q.tolist(), r=a.r, law="u = qd_plan,k - K (phi(x_k) - phi(x_ref,k)), clipped to the velocity limits",
-                 closed_loop_spectral_radius=float(np.max(np.abs(np.linalg.eigvals(A - B @ K))))),
+        lqr=dict(q=lqr_rows[0]["mpc"]["q"], r=lqr_rows[0]["mpc"]["r"],
+                 law="u = qd_plan,k - K (phi(x_k) - phi(x_ref,k)), clipped to the velocity limits (the MPC service's law lqr)")
+        if lqr_rows else None,
         through_service=through_service,
         position_loop=ctrl.get("position_loop"),
         mpc=dict(error_state=bool(ctrl.get("error_state")), settings=ctrl.get("mpc"), solve_median_us=ctrl.get("solve_median_us"),
@@ -291,11 +253,9 @@ def parser() -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, default=42, help="the data seed (goal seeds derive from it; default: %(default)s)")
     r.add_argument("--dt", type=float, default=0.001, help="the simulator's dt, s (default: %(default)s)")
     r.add_argument("--hold", type=float, default=0.2, help="seconds at rest at each goal (default: %(default)s)")
-    rep = sub.add_parser("report", help="score OUT/report.json's closed loops, add feed-forward + LQR, draw OUT/kinova.png")
+    rep = sub.add_parser("report", help="score OUT/report.json's closed loops and the arm held still, draw OUT/kinova.png")
     rep.add_argument("--out", required=True, help="the run's output folder")
     rep.add_argument("--sim", default="gen3", help="the controlled simulator's id (default: %(default)s)")
-    rep.add_argument("--q-weights", type=lambda s: [float(v) for v in s.split(",")], help="LQR state weights, 14 values (default: ones)")
-    rep.add_argument("--r", type=float, default=1e-3, help="LQR input weight (times I; default: %(default)s)")
     rep.add_argument("--no-plot", action="store_true", help="skip kinova.png")
     return p
 

@@ -54,26 +54,6 @@ def test_reference_chains_plans_and_skips_infeasible_goals(planner):
     np.testing.assert_allclose(x[0, :7] + 0.001 * np.cumsum(ff[:n1], axis=0)[-1], g1, atol=2e-2)
 
 
-def test_lqr_gain_solves_the_riccati_equation():
-    # 1-D: a = b = q = r = 1 gives S = (1 + sqrt 5) / 2 and K = S / (1 + S).
-    K = ks.feedback_gain(np.eye(1), np.eye(1), np.eye(1), np.eye(1))
-    s = (1 + np.sqrt(5)) / 2
-    assert K[0, 0] == pytest.approx(s / (1 + s), rel=1e-9)
-    rng = np.random.default_rng(0)
-    A = rng.normal(size=(6, 6)) * 0.4 + np.eye(6)
-    B = rng.normal(size=(6, 2))
-    Q, R = np.eye(6), 0.1 * np.eye(2)
-    K = ks.feedback_gain(A, B, Q, R)
-    assert np.max(np.abs(np.linalg.eigvals(A - B @ K))) < 1
-    # K is optimal: S from the closed loop's Lyapunov sum satisfies the Riccati equation.
-    Acl = A - B @ K
-    S, term = np.zeros((6, 6)), Q + K.T @ R @ K
-    for _ in range(5000):
-        S = term + Acl.T @ S @ Acl
-    riccati = Q + A.T @ S @ A - A.T @ S @ B @ np.linalg.solve(R + B.T @ S @ B, B.T @ S @ A)
-    np.testing.assert_allclose(riccati, S, rtol=1e-6, atol=1e-6)
-
-
 def test_tracking_errors_written_out():
     ref = np.zeros((4, 14))
     x = np.zeros((3, 14))
@@ -83,20 +63,18 @@ def test_tracking_errors_written_out():
     assert e["final_rad"] == pytest.approx(0.4) and e["rms_per_joint_rad"][0] == pytest.approx(np.sqrt(0.25 / 3), abs=1e-6)
 
 
-def test_report_scores_the_engines_rows_and_adds_lqr(tmp_path, planner, capsys):
+def test_report_scores_the_engines_rows_and_the_arm_held_still(tmp_path, planner, capsys):
     """Rows that are the feed-forward run itself (nominal, and on an arm realising half of each
     command, labelled ``…-mismatch`` with that perturbation) score exactly as the tracking error
-    written out here; the report adds LQR on both arms, the arm held still and kinova.png; rows
-    on the mismatched arm without one shared command gain are refused."""
+    written out here; the LQR row's settings are reported; the report adds the arm held still and
+    kinova.png; rows on the mismatched arm without one shared command gain are refused."""
     import json
 
-    from koopbridge import KoopmanModel
     from koopbridge.adapters.drake.sim import DrakeGen3Sim
 
     ref = ks.plan_reference(handler(planner), [(1, np.array([0.3, 0.2, 0.0, 0.4, 0.0, 0.3, 0.0]))], 0.001, 0.05, np.zeros(7))
     np.save(tmp_path / ks.REFERENCE, ref["x"])
     np.save(tmp_path / ks.FEEDFORWARD, ref["ff"])
-    KoopmanModel.init(14, 7, hidden=[16], n_mult=2).save(tmp_path / "models" / "kinova-gen3")
 
     def feedforward_run(gain: float) -> np.ndarray:
         sim = DrakeGen3Sim(command_gain=gain)
@@ -104,26 +82,29 @@ def test_report_scores_the_engines_rows_and_adds_lqr(tmp_path, planner, capsys):
 
     xs, slow = feedforward_run(1.0), feedforward_run(0.5)
 
-    def row(label: str, x: np.ndarray, gain: float | None = None) -> dict:
+    def row(label: str, x: np.ndarray, gain: float | None = None, mpc: dict | None = None) -> dict:
         return dict(sim="gen3", model="kinova-gen3", label=label, dt=0.001, x=x.tolist(), u=ref["ff"].tolist(), solve_median_us=1.0,
-                    perturbation=None if gain is None else {"command_gain": gain})
+                    perturbation=None if gain is None else {"command_gain": gain}, mpc=mpc)
 
-    rows = [row("koopman-mpc", xs), row("feed-forward", xs), row("feed-forward-mismatch", slow, 0.5), dict(sim="other", x=[], u=[])]
+    lqr = dict(law="lqr", q=[1.0] * 14, r=[0.001] * 7)
+    rows = [row("koopman-mpc", xs), row("feed-forward", xs), row("feed-forward-lqr", xs, mpc=lqr), row("feed-forward-mismatch", slow, 0.5),
+            dict(sim="other", x=[], u=[])]
     (tmp_path / "report.json").write_text(json.dumps(dict(control=rows[0], controls=rows)))
     assert ks.main(["report", "--out", str(tmp_path)]) == 0
     rep = json.loads((tmp_path / "report.json").read_text())["kinova"]
     c = rep["controllers"]
-    assert set(c) == {"koopman-mpc", "feed-forward", "feed-forward+lqr"} and rep["through_service"] == "koopman-mpc"
+    assert set(c) == {"koopman-mpc", "feed-forward", "feed-forward-lqr"} and rep["through_service"] == "koopman-mpc"
+    assert rep["lqr"]["q"] == lqr["q"] and rep["lqr"]["r"] == lqr["r"]
     for got, x in ((c["feed-forward"], xs), (rep["disturbed"]["controllers"]["feed-forward"], slow)):
         err = x[:, :7] - ref["x"][:, :7]
         assert got["rms_rad"] == pytest.approx(np.sqrt(np.mean(err**2)), rel=1e-12)
-    assert rep["disturbed"]["command_gain"] == 0.5 and np.isfinite(rep["disturbed"]["controllers"]["feed-forward+lqr"]["rms_rad"])
-    assert np.isfinite(c["feed-forward+lqr"]["rms_rad"]) and rep["steps"] == len(ref["ff"])
+    assert rep["disturbed"]["command_gain"] == 0.5 and set(rep["disturbed"]["controllers"]) == {"feed-forward"}
+    assert rep["steps"] == len(ref["ff"])
     held = ref["x"][:, :7] - ref["x"][0, :7]
     assert rep["hold_still"]["rms_rad"] == pytest.approx(np.sqrt(np.mean(held**2)), rel=1e-12)
     assert rep["hold_still"]["final_rad"] == pytest.approx(np.max(np.abs(held[-1])), rel=1e-12) and rep["hold_still"]["final_rad"] > 0.1
     assert (tmp_path / "kinova.png").read_bytes()[:4] == b"\x89PNG"
-    rows[2]["perturbation"] = None
+    rows[3]["perturbation"] = None
     (tmp_path / "report.json").write_text(json.dumps(dict(controls=rows)))
     assert ks.main(["report", "--out", str(tmp_path), "--no-plot"]) == 2
     assert "command_gain" in capsys.readouterr().err

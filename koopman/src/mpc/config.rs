@@ -29,6 +29,19 @@ impl SolverKind {
     }
 }
 
+/// What the MPC service computes from a lifted-linear model.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum ControlLaw {
+    /// The condensed MPC over the horizon (SPEC's).
+    #[default]
+    Mpc,
+    /// The infinite-horizon LQR gain under the same Q and R ([`crate::mpc::lqr_law::LqrLaw`]):
+    /// about a plan `u = u_ff,k − K(Φ(x_k) − Φ(r_k))`, clamped to the input bounds. Only the
+    /// weights, the bounds and the horizon (the length of the returned plan) apply.
+    Lqr,
+}
+
 /// Settings of the condensed linear MPC of SPEC.md ("Control").
 ///
 /// Over the horizon H it minimises `Σ_τ (x_{τ+1} − r_τ)ᵀ Q_τ (x_{τ+1} − r_τ) + u_τᵀ R u_τ` with
@@ -84,6 +97,9 @@ pub struct MpcConfig {
     /// plan, numerical trouble): `true` returns the shifted previous plan clamped to the input
     /// bounds with [`crate::mpc::SolveStatus::Fallback`]; `false` returns the error.
     pub fallback: bool,
+    /// The control law: the MPC (default) or LQR on the same model and weights
+    /// ([`ControlLaw`]; a lifted-linear model only).
+    pub law: ControlLaw,
 }
 
 impl Default for MpcConfig {
@@ -104,6 +120,7 @@ impl Default for MpcConfig {
             max_iterations: 1000,
             time_limit: None,
             fallback: true,
+            law: ControlLaw::Mpc,
         }
     }
 }

@@ -168,6 +168,13 @@ impl MpcController<'static> {
 
 impl<'m> MpcController<'m> {
     fn build(model: ModelRef<'m>, cfg: &MpcConfig) -> Result<Self> {
+        if cfg.law != super::config::ControlLaw::Mpc {
+            return Err(Error::InvalidArgument(
+                "law = \"lqr\" is not this MPC: the LQR law is built by \
+                 LoadedModel::controller (the MPC service, the exported FMU)"
+                    .into(),
+            ));
+        }
         let m = model.get();
         let (nx, nu, latent) = (m.nx(), m.nu(), m.latent_dim());
         let a = m.a();

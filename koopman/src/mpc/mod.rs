@@ -33,6 +33,7 @@ pub mod constraints;
 pub mod controller;
 pub mod controllers;
 pub mod lqr;
+pub mod lqr_law;
 pub mod metrics;
 pub mod offset_free;
 pub mod policy;
@@ -42,7 +43,7 @@ pub mod shooting;
 
 pub use bilinear::{BilinearMpc, BilinearSolution, ScpOptions, ScpStatus};
 pub use closed_loop::{run_closed_loop, ClosedLoopMetrics, Task, TaskKind, Trajectory};
-pub use config::{MpcConfig, SolverKind};
+pub use config::{ControlLaw, MpcConfig, SolverKind};
 pub use controller::{FallbackReason, MpcController, MpcSolution, SolveStatus};
 pub use lqr::Lqr;
 pub use offset_free::{OffsetFree, OffsetFreeConfig, OffsetMode};
@@ -57,5 +58,7 @@ mod tests;
 mod tests_closed_loop;
 #[cfg(test)]
 mod tests_error_state;
+#[cfg(test)]
+mod tests_lqr_law;
 #[cfg(test)]
 mod tests_terminal;

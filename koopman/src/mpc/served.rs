@@ -12,9 +12,10 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use super::bilinear::{BilinearMpc, ScpOptions, ScpStatus};
-use super::config::MpcConfig;
+use super::config::{ControlLaw, MpcConfig};
 use super::controller::{MpcController, SolveStatus};
 use super::controllers::{SHOOTING_SAMPLES, SHOOTING_SEED};
+use super::lqr_law::LqrLaw;
 use super::offset_free::OffsetFreeConfig;
 use super::shooting::{OneStepModel, RandomShooting};
 use crate::error::{ensure_finite, Error, Result};
@@ -93,6 +94,20 @@ impl LoadedModel {
                 "no inputs to control: {AUTONOMOUS_MPC}"
             )));
         }
+        if cfg.law == ControlLaw::Lqr {
+            return match self {
+                LoadedModel::Lifted(m) if offset_free.is_none() => {
+                    Ok(ModelController::Lqr(Box::new(LqrLaw::new(m.clone(), cfg)?)))
+                }
+                LoadedModel::Lifted(_) => Err(Error::InvalidArgument(
+                    "offset_free corrects the MPC; the LQR law has none".into(),
+                )),
+                other => Err(Error::InvalidArgument(format!(
+                    "the LQR law needs a lifted-linear model; this one is {}",
+                    other.kind()
+                ))),
+            };
+        }
         match self {
             LoadedModel::Lifted(m) => {
                 let mut c = MpcController::from_shared(m.clone(), cfg)?;
@@ -134,6 +149,8 @@ pub enum ModelController {
     /// Random-shooting MPC on a one-step model (SHOOTING_SAMPLES sequences per solve, seeded
     /// once when the controller is built, so an episode is reproducible).
     Shooting(Box<Shooting>),
+    /// The LQR law on a lifted model (`MpcConfig::law = lqr`; stateless between solves).
+    Lqr(Box<LqrLaw>),
 }
 
 /// A random-shooting planner and the one-step model it plans on.
@@ -176,6 +193,7 @@ impl ModelController {
             ModelController::Lifted(c) => c.nx(),
             ModelController::Bilinear(c) => c.nx(),
             ModelController::Shooting(s) => s.model.nx(),
+            ModelController::Lqr(l) => l.model().nx(),
         }
     }
 
@@ -185,6 +203,7 @@ impl ModelController {
             ModelController::Lifted(c) => c.nu(),
             ModelController::Bilinear(c) => c.nu(),
             ModelController::Shooting(s) => s.model.nu(),
+            ModelController::Lqr(l) => l.model().nu(),
         }
     }
 
@@ -194,6 +213,7 @@ impl ModelController {
             ModelController::Lifted(c) => c.horizon(),
             ModelController::Bilinear(c) => c.horizon(),
             ModelController::Shooting(s) => s.planner.horizon,
+            ModelController::Lqr(l) => l.horizon(),
         }
     }
 
@@ -203,6 +223,7 @@ impl ModelController {
             ModelController::Lifted(_) => "lifted-linear",
             ModelController::Bilinear(_) => "bilinear",
             ModelController::Shooting(_) => "a one-step NNDM",
+            ModelController::Lqr(_) => "lifted-linear (LQR law)",
         }
     }
 
@@ -211,7 +232,7 @@ impl ModelController {
     pub fn takes_feedforward(&self) -> bool {
         matches!(
             self,
-            ModelController::Lifted(_) | ModelController::Shooting(_)
+            ModelController::Lifted(_) | ModelController::Shooting(_) | ModelController::Lqr(_)
         )
     }
 
@@ -220,6 +241,7 @@ impl ModelController {
     /// Errors: wrong lengths, non-finite values, a failed QP without fallback.
     pub fn solve(&mut self, x: &[f64], reference: &[f64]) -> Result<ModelPlan> {
         match self {
+            ModelController::Lqr(l) => l.solve(x, reference),
             ModelController::Lifted(c) => {
                 let nx = c.nx();
                 if c.offset_free().is_some() {
@@ -294,6 +316,7 @@ impl ModelController {
         feedforward: &[f64],
     ) -> Result<ModelPlan> {
         match self {
+            ModelController::Lqr(l) => l.solve_about_plan(x, reference, feedforward),
             ModelController::Lifted(c) => Ok(lifted_plan(c.solve_about_plan(
                 x,
                 reference,
