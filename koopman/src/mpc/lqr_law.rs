@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use super::config::MpcConfig;
 use super::lqr::Lqr;
-use super::served::{ModelPlan, PlanStatus};
+use super::model_plan::{ModelPlan, PlanStatus};
 use crate::error::{ensure_finite, Error, Result};
 use crate::model::LiftedModel;
 

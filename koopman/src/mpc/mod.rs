@@ -35,6 +35,7 @@ pub mod controllers;
 pub mod lqr;
 pub mod lqr_law;
 pub mod metrics;
+mod model_plan;
 pub mod offset_free;
 pub mod policy;
 pub mod qp;

@@ -9,13 +9,14 @@
 
 use std::path::Path;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use super::bilinear::{BilinearMpc, ScpOptions, ScpStatus};
 use super::config::{ControlLaw, MpcConfig};
 use super::controller::{MpcController, SolveStatus};
 use super::controllers::{SHOOTING_SAMPLES, SHOOTING_SEED};
 use super::lqr_law::LqrLaw;
+pub use super::model_plan::{ModelPlan, PlanStatus};
 use super::offset_free::OffsetFreeConfig;
 use super::shooting::{OneStepModel, RandomShooting};
 use crate::error::{ensure_finite, Error, Result};
@@ -157,33 +158,6 @@ pub enum ModelController {
 pub struct Shooting {
     planner: RandomShooting,
     model: Arc<dyn OneStepModel>,
-}
-
-/// How a [`ModelPlan`] was obtained, whatever the controller.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum PlanStatus {
-    /// Optimal within the solver's tolerances (a converged linearisation for bilinear MPC;
-    /// always for random shooting).
-    Solved,
-    /// Optimal to reduced accuracy.
-    Inaccurate,
-    /// Feasible but not proven optimal (an iteration or time limit, or a linearisation cap).
-    Suboptimal,
-    /// The solver failed; the plan is the shifted previous one clamped to the bounds.
-    Fallback,
-}
-
-/// What one solve returns.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ModelPlan {
-    /// The input plan, H·nu values, first input first (always finite).
-    pub u: Vec<f64>,
-    /// How it was obtained.
-    pub status: PlanStatus,
-    /// QP iterations (summed over linearisations for the bilinear MPC; samples for shooting).
-    pub iterations: usize,
-    /// Solve wall time.
-    pub solve_time: Duration,
 }
 
 impl ModelController {
