@@ -34,6 +34,7 @@ survival = {{ threshold = 0.5, states = [0] }}
 error_state = true
 replay = false
 onpolicy_steps = 5
+q_from_data = {{ states = [0], also = [{{ states = [1], scale = 0.25 }}] }}
 mpc = {{ horizon = 10, r = [0.1] }}
 "#
     );
@@ -89,6 +90,11 @@ mpc = {{ horizon = 10, r = [0.1] }}
     }
     // The error-state task: no replay row, its own row name, windows of 5 transitions.
     let rows = es["rows"].as_array().unwrap();
+    // Its Q: 1/σ² on θ, a quarter of it on θ̇ (the `also` group), from the same spread.
+    let es_q = rows[0]["mpc"]["q"].as_array().unwrap();
+    let f = |v: &serde_json::Value| v.as_f64().unwrap();
+    assert_eq!(f(&es_q[0]), f(&q[0]));
+    assert!((f(&es_q[1]) - 0.25 * f(&q[1])).abs() <= 1e-12 * f(&q[1]), "{es_q:?} {q:?}");
     assert_eq!(rows.len(), 1);
     assert_eq!(rows[0]["row"], "tracking-pend+es");
     assert!(es["error_state"].as_bool().unwrap());

@@ -128,7 +128,7 @@ pub fn tracking_phase(
                     spreads.entry(sim_id.clone()).or_insert(n)
                 }
             };
-            mpc.q = Some(q_weights(norm, q.states.as_deref(), nx));
+            mpc.q = Some(q.weights(&norm.x_std));
         }
         let window_steps = t.onpolicy_steps.unwrap_or(sc.collect.steps);
         let perturbations: Vec<Perturbation> = match &t.perturbation {
@@ -460,21 +460,6 @@ fn row_of(
         onpolicy: None,
         wall_s,
     }
-}
-
-/// Q's diagonal from a training split's spread `norm` ([`training_spread`]): `1/σ²` on `states`,
-/// 0 elsewhere (every state when `None`), the z-score a normalised model was trained in.
-pub fn q_weights(norm: &Normalisation, states: Option<&[usize]>, nx: usize) -> Vec<f64> {
-    (0..nx)
-        .map(|i| {
-            let s = norm.x_std[i];
-            if states.is_none_or(|w| w.contains(&i)) {
-                1.0 / (s * s)
-            } else {
-                0.0
-            }
-        })
-        .collect()
 }
 
 /// The spread of simulator `sim`'s training split (`{out}/data/{sim}/train.npz`), as a

@@ -255,13 +255,72 @@ pub struct SurvivalSpec {
 
 /// Q's diagonal from the training data: `1/σ²` of each state's standard deviation over the
 /// simulator's training split (the z-score a `normalise = true` model is trained in) on
-/// `states`, 0 on every other state (all states when `states` is absent).
+/// `states`, 0 on every other state (all states when `states` is absent); each group of `also`
+/// then weighs its states by `scale/σ²`.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct QFromData {
     /// The weighted states (default: all).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub states: Option<Vec<usize>>,
+    /// Further states at a fraction of their z-score weight (e.g. a legged robot's base at 0.1
+    /// beside its joints), applied in order over `states`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub also: Vec<QGroup>,
+}
+
+/// A group of states weighted `scale/σ²` in [`QFromData`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QGroup {
+    /// The states (at least one).
+    pub states: Vec<usize>,
+    /// The fraction of the z-score weight (finite, ≥ 0).
+    pub scale: f64,
+}
+
+impl QFromData {
+    /// Checks the groups: each names a state and has a finite scale ≥ 0.
+    pub fn check(&self) -> std::result::Result<(), String> {
+        for g in &self.also {
+            if g.states.is_empty() {
+                return Err("q_from_data.also: a group names no state".into());
+            }
+            if !(g.scale.is_finite() && g.scale >= 0.0) {
+                return Err(format!(
+                    "q_from_data.also: scale must be finite and ≥ 0, got {}",
+                    g.scale
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Every state index it names (`states` and the groups').
+    pub fn named_states(&self) -> impl Iterator<Item = &usize> {
+        self.states
+            .iter()
+            .flatten()
+            .chain(self.also.iter().flat_map(|g| &g.states))
+    }
+
+    /// Q's diagonal for the states' standard deviations `x_std` (`nx` values; indices checked
+    /// against `nx` before).
+    pub fn weights(&self, x_std: &[f64]) -> Vec<f64> {
+        let z = |i: usize| 1.0 / (x_std[i] * x_std[i]);
+        let mut w: Vec<f64> = (0..x_std.len())
+            .map(|i| match &self.states {
+                Some(s) if !s.contains(&i) => 0.0,
+                _ => z(i),
+            })
+            .collect();
+        for g in &self.also {
+            for &i in &g.states {
+                w[i] = g.scale * z(i);
+            }
+        }
+        w
+    }
 }
 
 /// A perturbation of every episode of a tracking task or of a single closed loop (the simulator

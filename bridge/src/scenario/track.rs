@@ -109,6 +109,11 @@ impl TrackSpec {
                 return bad("survival.states must name at least one state index".into());
             }
         }
+        if let Some(q) = &c.q_from_data {
+            if let Err(m) = q.check() {
+                return bad(m);
+            }
+        }
         if c.onpolicy_steps == Some(0) {
             return bad("onpolicy_steps must be ≥ 1".into());
         }
@@ -144,15 +149,14 @@ impl TrackSpec {
 
     /// Checks the state indices against the simulator's `nx` (survival and `q_from_data`).
     pub fn check_states(&self, nx: usize, sim: &str) -> Result<()> {
-        let lists = [
-            ("survival.states", self.survival.as_ref().map(|s| &s.states)),
-            (
-                "q_from_data.states",
-                self.q_from_data.as_ref().and_then(|q| q.states.as_ref()),
-            ),
+        let survival = self.survival.iter().flat_map(|s| &s.states);
+        let q = self.q_from_data.iter().flat_map(|q| q.named_states());
+        let lists: [(&str, Vec<usize>); 2] = [
+            ("survival.states", survival.copied().collect()),
+            ("q_from_data", q.copied().collect()),
         ];
         for (key, list) in lists {
-            if let Some(&i) = list.into_iter().flatten().find(|&&i| i >= nx) {
+            if let Some(&i) = list.iter().find(|&&i| i >= nx) {
                 return Err(Error::Config(format!(
                     "[control] for '{sim}': {key} names state {i}, the simulator has {nx} \
                      states (0..{})",
@@ -244,5 +248,28 @@ mod tests {
         let plain: ControlSpec = toml::from_str("reference = [0.0]").unwrap();
         let e = TrackSpec::of(&plain, "p").unwrap_err().to_string();
         assert!(e.contains("needs `x0` and `steps`"), "{e}");
+    }
+
+    #[test]
+    fn q_from_data_weighs_its_states_and_each_group_by_its_fraction_of_the_z_score() {
+        let q: QFromData =
+            toml::from_str("states = [1, 2]\nalso = [{ states = [0, 2], scale = 0.1 }]").unwrap();
+        let sd = [2.0, 0.5, 4.0, 1.0];
+        // Written out: 1/σ² on 1 and 2, then 0.1/σ² on 0 and 2 (the group wins), 0 on 3.
+        assert_eq!(q.weights(&sd), vec![0.1 / 4.0, 4.0, 0.1 / 16.0, 0.0]);
+        assert_eq!(
+            QFromData::default().weights(&sd),
+            vec![0.25, 4.0, 1.0 / 16.0, 1.0]
+        );
+        let bad = |t: &str| toml::from_str::<QFromData>(t).unwrap().check().unwrap_err();
+        assert!(bad("also = [{ states = [], scale = 1.0 }]").contains("names no state"));
+        assert!(bad("also = [{ states = [0], scale = -1.0 }]").contains("scale"));
+        let c: ControlSpec = toml::from_str(
+            "references = \"r.npz\"\nq_from_data = { also = [{ states = [9], scale = 1.0 }] }",
+        )
+        .unwrap();
+        let t = TrackSpec::of(&c, "pend").unwrap().unwrap();
+        let e = t.check_states(4, "pend").unwrap_err().to_string();
+        assert!(e.contains("q_from_data names state 9"), "{e}");
     }
 }
