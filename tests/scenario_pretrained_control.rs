@@ -36,7 +36,8 @@ fn a_named_model_runs_as_in_the_run_that_trained_it_and_noise_moves_only_the_mpc
          [[control]]\nlabel = \"given\"\nmodel = \"given\"\n\
          [[control]]\nlabel = \"noisy\"\nmodel = \"given\"\n\
          observation_noise = {{ sigma = 0.05, states = [0], seed = 3 }}\n\
-         [[control]]\nlabel = \"zero\"\ncontroller = \"zero-input\"\n",
+         [[control]]\nlabel = \"zero\"\ncontroller = \"zero-input\"\n\
+         [[control]]\nlabel = \"lqr\"\nmodel = \"given\"\nmpc = {{ law = \"lqr\", r = [0.1] }}\n",
         model.display()
     );
     let (o, out) = common::run_scenario_text(&dir, "second", &second, &[]);
@@ -48,7 +49,7 @@ fn a_named_model_runs_as_in_the_run_that_trained_it_and_noise_moves_only_the_mpc
     assert!(!out.join("data/pend").exists(), "nothing collected");
     let rows = r["controls"].as_array().unwrap();
     let labels: Vec<&str> = rows.iter().map(|c| c["label"].as_str().unwrap()).collect();
-    assert_eq!(labels, ["given", "noisy", "zero"]);
+    assert_eq!(labels, ["given", "noisy", "zero", "lqr"]);
     assert_eq!(rows[0]["model"], "given");
     // The given model: the first run's closed loop, bit for bit.
     assert_eq!(floats(&rows[0]["x"]), floats(&trained["x"]));
@@ -60,6 +61,17 @@ fn a_named_model_runs_as_in_the_run_that_trained_it_and_noise_moves_only_the_mpc
     assert_ne!(un, floats(&trained["u"]));
     assert_eq!(rows[1]["observation_noise"]["sigma"], 0.05);
     assert!(rows[0].get("observation_noise").is_none());
+    // The LQR law through the service: its first input is the one the same settings give
+    // in-process from the stored model.
+    let cfg: koopman::mpc::MpcConfig = serde_json::from_value(rows[3]["mpc"].clone()).unwrap();
+    assert_eq!(cfg.law, koopman::mpc::ControlLaw::Lqr);
+    let mut lqr = koopman::mpc::LoadedModel::load(&out.join("models/given"))
+        .unwrap()
+        .controller(&cfg, None)
+        .unwrap();
+    let want = lqr.solve(&[0.4, 0.1], &[0.0, 0.0]).unwrap().u[0];
+    assert_eq!(floats(&rows[3]["u"])[0][0], want);
+    assert_ne!(floats(&rows[3]["u"]), floats(&trained["u"]));
     // A second run with the same seed draws the same noise.
     let (o, again) = common::run_scenario_text(&dir, "again", &second, &[]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));

@@ -94,7 +94,10 @@ mpc = {{ horizon = 10, r = [0.1] }}
     let es_q = rows[0]["mpc"]["q"].as_array().unwrap();
     let f = |v: &serde_json::Value| v.as_f64().unwrap();
     assert_eq!(f(&es_q[0]), f(&q[0]));
-    assert!((f(&es_q[1]) - 0.25 * f(&q[1])).abs() <= 1e-12 * f(&q[1]), "{es_q:?} {q:?}");
+    assert!(
+        (f(&es_q[1]) - 0.25 * f(&q[1])).abs() <= 1e-12 * f(&q[1]),
+        "{es_q:?} {q:?}"
+    );
     assert_eq!(rows.len(), 1);
     assert_eq!(rows[0]["row"], "tracking-pend+es");
     assert!(es["error_state"].as_bool().unwrap());

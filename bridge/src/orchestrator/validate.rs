@@ -264,7 +264,13 @@ fn validate_control(ctrl: &ControlSpec, sim: &str, info: &SimInfo) -> Result<()>
     let model = stand_in::build(StandIn::Dimensions { nx, nu })
         .map_err(Error::from)?
         .into_lifted();
-    MpcController::new(model.as_ref(), &cfg)
+    // The LQR law uses the MPC's weights and bounds: checked as the MPC's (its Riccati
+    // iteration needs the trained model's (A, B), at `configure`).
+    let as_mpc = koopman::mpc::MpcConfig {
+        law: koopman::mpc::ControlLaw::Mpc,
+        ..cfg
+    };
+    MpcController::new(model.as_ref(), &as_mpc)
         .map(|_| ())
         .map_err(|e| Error::Config(format!("[control].mpc: {e}")))
 }
