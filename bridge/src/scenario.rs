@@ -197,6 +197,9 @@ impl Scenario {
     pub fn parse(text: &str) -> Result<Self> {
         let mut doc: toml::Table =
             toml::from_str(text).map_err(|e| Error::Config(e.to_string()))?;
+        // A `[collect]` table written with no training windows is a mistake, not "collect
+        // nothing" (which is no table at all).
+        let collect_written = doc.contains_key("collect");
         // Read from the text when there are no defaults to merge: its errors name the innermost
         // key and the line.
         let mut s: Scenario = if control::apply_control_defaults(&mut doc)? {
@@ -207,6 +210,9 @@ impl Scenario {
             toml::from_str(text).map_err(|e| Error::Config(e.to_string()))?
         };
         s.split_tracks()?;
+        if collect_written {
+            s.collect.check()?;
+        }
         s.validate()?;
         s.check_settings()?;
         Ok(s)
@@ -527,6 +533,10 @@ train_config = { iterations = 60000 }
         assert_eq!(s.train.unwrap().config["iterations"], 60000);
         assert!(Scenario::parse(&GOOD.replace("\"demo\"", "\"De mo\"")).is_err());
         assert!(Scenario::parse(&GOOD.replace("train_windows = 10", "train_windows = 0")).is_err());
+        // (The line above also breaks [full]'s `1000`; this one changes [collect]'s only.)
+        let e = Scenario::parse(&GOOD.replace("train_windows = 10\n", "train_windows = 0\n"));
+        let e = e.unwrap_err().to_string();
+        assert!(e.contains("must be positive"), "{e}");
         assert!(Scenario::parse(&GOOD.replace("steps = 20", "steps = 20\nbogus = 1")).is_err());
         // `env` is required for a built-in simulator only.
         let no_env = GOOD.replace("env = \"damped-pendulum\"", "");

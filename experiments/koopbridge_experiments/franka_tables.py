@@ -148,17 +148,18 @@ def tables(a: argparse.Namespace) -> dict[str, Any]:
     extra = _columns(a)[1:]
     rows: dict[str, Any] = {}
     spec = _figure8(out / "figure8")
+    also = {label: _figure8(folder) for label, folder, _ in extra}  # each column's report read once
     for name, model in _tracked(a).items():
         metrics = _read(model / "metrics.json") or {}
         rows[name] = dict(prediction=metrics.get("test_prediction_error"), tracking=spec["errors"].get(name),
                           solve_median_us=spec["solve_median_us"].get(name), model=str(model),
-                          tracking_also={label: _figure8(folder)["errors"].get(name) for label, folder, _ in extra})
+                          tracking_also={label: run["errors"].get(name) for label, run in also.items()})
     base = rows["koopman-base"]["tracking"]
     for name in VARIANTS.values():
         t = rows[name]["tracking"]
         rows[name]["gain_over_base"] = (base - t) / base if base and t is not None else None
     baselines = _baselines(spec)
-    baselines_also = {label: _baselines(_figure8(folder)) for label, folder, _ in extra}
+    baselines_also = {label: _baselines(run) for label, run in also.items()}
     scaling = _read(out / "scaling" / "scaling.json")
     return dict(rows=rows, baselines=baselines, baselines_also=baselines_also, scaling=scaling, paper=PAPER,
                 settings=dict(iterations=a.iterations, table_samples=a.table_samples, samples=a.samples, u_limit=a.u_limit,

@@ -130,12 +130,6 @@ impl ControlSpec {
                     .into(),
             );
         }
-        if self.controller != Controller::Mpc && self.offset_free.is_some() {
-            return bad(format!(
-                "`offset_free` corrects the MPC; controller = \"{}\" has none",
-                self.controller.name()
-            ));
-        }
         if let Some(l) = &self.label {
             crate::keyexpr::validate_chunk("[control].label", l)?;
         }
@@ -144,6 +138,7 @@ impl ControlSpec {
         }
         if self.controller != Controller::Mpc {
             let mpc_only = [
+                ("offset_free", self.offset_free.is_some()),
                 ("model", self.model.is_some()),
                 ("observation_noise", self.observation_noise.is_some()),
             ];

@@ -51,11 +51,6 @@ impl LqrLaw {
         })
     }
 
-    /// The gain K (nu × N).
-    pub fn gain(&self) -> &faer::Mat<f64> {
-        &self.lqr.k
-    }
-
     /// The model it controls.
     pub fn model(&self) -> &dyn LiftedModel {
         self.model.as_ref()
