@@ -110,3 +110,26 @@ fn the_shipped_scenarios_parse() {
     }
     assert!(n >= 2);
 }
+
+#[test]
+fn the_g1s_full_budget_runs_the_spec_size_controller_beside_specs_row() {
+    let file = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/g1-survival.toml");
+    let mut sc = Scenario::load(std::path::Path::new(file)).unwrap();
+    let r_of = |sc: &Scenario, label: Option<&str>| {
+        let t = sc
+            .tracks
+            .iter()
+            .find(|t| t.label.as_deref() == label)
+            .unwrap();
+        (t.mpc.get("r").cloned(), t.q_from_data.clone())
+    };
+    let (spec_before, rec_before) = (r_of(&sc, None), r_of(&sc, Some("error-state")));
+    assert_eq!(rec_before.0.unwrap()[0], 1.0);
+    sc.apply_full();
+    assert_eq!(r_of(&sc, None), spec_before, "SPEC's row is as written");
+    for label in ["error-state", "push", "mass", "friction", "mass-friction"] {
+        let (r, q) = r_of(&sc, Some(label));
+        assert_eq!(r.unwrap()[0], 0.1, "{label}");
+        assert_eq!(q.unwrap().also[0].states, vec![1, 2, 4, 5, 7, 8], "{label}");
+    }
+}

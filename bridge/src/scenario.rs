@@ -22,6 +22,7 @@ pub mod collect;
 pub mod control;
 mod data_region;
 pub mod extras;
+mod full;
 mod pretrained;
 mod region;
 pub mod track;
@@ -34,6 +35,7 @@ pub use control::{
     SurvivalSpec,
 };
 pub use extras::{CommandLine, HookPhase, HookSpec, ParticipantRole, ParticipantSpec};
+pub use full::FullSpec;
 pub use pretrained::PretrainedSpec;
 pub use track::TrackSpec;
 pub use train::TrainSpec;
@@ -87,6 +89,11 @@ pub struct Scenario {
     /// merge). Not a TOML field.
     #[serde(skip)]
     pub full_applied: bool,
+    /// The `[control]` entries and tracking tasks in force with `--full` when `[full]` has
+    /// `control_defaults` (parsed and checked with the file; [`Scenario::apply_full`] swaps them
+    /// in). Not a TOML field.
+    #[serde(skip)]
+    pub(crate) full_controls: Option<full::FullControls>,
 }
 
 /// The repository a file belongs to: the nearest folder above it that holds `.git`, else the
@@ -165,21 +172,6 @@ impl SimSpec {
     }
 }
 
-/// Overrides for `--full`.
-#[derive(Clone, Debug, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct FullSpec {
-    /// Training windows.
-    pub train_windows: Option<usize>,
-    /// Validation windows.
-    pub val_windows: Option<usize>,
-    /// Test windows.
-    pub test_windows: Option<usize>,
-    /// Training config overrides (merged over `[train.config]`).
-    #[serde(default)]
-    pub train_config: serde_json::Map<String, serde_json::Value>,
-}
-
 impl Scenario {
     /// Reads and validates a scenario file.
     pub fn load(path: &Path) -> Result<Self> {
@@ -193,21 +185,40 @@ impl Scenario {
         Ok(s)
     }
 
-    /// Parses and validates scenario text.
+    /// Parses and validates scenario text (with `[full].control_defaults`, the entries in force
+    /// under `--full` too).
     pub fn parse(text: &str) -> Result<Self> {
-        let mut doc: toml::Table =
-            toml::from_str(text).map_err(|e| Error::Config(e.to_string()))?;
+        let doc: toml::Table = toml::from_str(text).map_err(|e| Error::Config(e.to_string()))?;
+        let full_doc = full::doc_with_full_control_defaults(&doc)?;
+        let mut s = Self::from_doc(doc, Some(text))?;
+        if let Some(d) = full_doc {
+            let f = Self::from_doc(d, None).map_err(|e| {
+                Error::Config(format!(
+                    "with --full ([full].control_defaults over [control_defaults]): {e}"
+                ))
+            })?;
+            s.full_controls = Some(full::FullControls {
+                control: f.control,
+                tracks: f.tracks,
+            });
+        }
+        Ok(s)
+    }
+
+    /// Parses a scenario document (`text`, when given, is its source: the errors of a file
+    /// without `[control_defaults]` then name the innermost key and the line).
+    fn from_doc(mut doc: toml::Table, text: Option<&str>) -> Result<Self> {
         // A `[collect]` table written with no training windows is a mistake, not "collect
         // nothing" (which is no table at all).
         let collect_written = doc.contains_key("collect");
-        // Read from the text when there are no defaults to merge: its errors name the innermost
-        // key and the line.
-        let mut s: Scenario = if control::apply_control_defaults(&mut doc)? {
-            toml::Value::Table(doc)
+        let merged = control::apply_control_defaults(&mut doc)?;
+        let mut s: Scenario = match text {
+            Some(text) if !merged => {
+                toml::from_str(text).map_err(|e| Error::Config(e.to_string()))?
+            }
+            _ => toml::Value::Table(doc)
                 .try_into()
-                .map_err(|e: toml::de::Error| Error::Config(e.to_string()))?
-        } else {
-            toml::from_str(text).map_err(|e| Error::Config(e.to_string()))?
+                .map_err(|e: toml::de::Error| Error::Config(e.to_string()))?,
         };
         s.split_tracks()?;
         if collect_written {
@@ -416,27 +427,6 @@ impl Scenario {
         self.sims
             .get(self.controlled_index(ctrl))
             .map_or("", |s| s.id.as_str())
-    }
-
-    /// Applies the `[full]` overrides.
-    pub fn apply_full(&mut self) {
-        self.full_applied = true;
-        if let Some(f) = self.full.clone() {
-            if let Some(n) = f.train_windows {
-                self.collect.train_windows = n;
-            }
-            if let Some(n) = f.val_windows {
-                self.collect.val_windows = n;
-            }
-            if let Some(n) = f.test_windows {
-                self.collect.test_windows = n;
-            }
-            if let Some(t) = &mut self.train {
-                for (k, v) in f.train_config {
-                    t.config.insert(k, v);
-                }
-            }
-        }
     }
 }
 

@@ -33,7 +33,8 @@ use bridge::scenario::Scenario;
 pub struct RunArgs {
     /// The scenario file (TOML, see scenarios/).
     pub scenario: PathBuf,
-    /// Use the scenario's `[full]` budget (the SPEC settings; hours on 2 cores).
+    /// Use the scenario's `[full]` budget (the SPEC settings: its windows, `train_config` and,
+    /// where it has them, the `control_defaults` for the larger model; hours on 2 cores).
     #[arg(long)]
     pub full: bool,
     /// Output folder (default: results/{scenario name}).
