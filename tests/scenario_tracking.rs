@@ -341,3 +341,95 @@ survival = { threshold = 0.5, states = [0] }
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn the_offset_free_correction_acts_about_each_reference_and_restarts_with_every_one() {
+    let dir = common::scratch("tracking-offset");
+    let defaults = |references: &str| {
+        format!(
+            "[control_defaults]\nreferences = \"{references}\"\n\
+             survival = {{ threshold = 0.5, states = [0] }}\nerror_state = true\nreplay = false\n\
+             mpc = {{ horizon = 10, r = [0.1] }}\n\
+             offset_free = {{ mode = \"disturbance\", radius = 1e9, gain = [0.5, 0.5] }}\n"
+        )
+    };
+    let (o, first) = run(
+        &dir,
+        "first",
+        &format!(
+            "name = \"first\"\n{BASE}{}[[control]]\n",
+            defaults("{out}/data/pend/test.npz")
+        ),
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let task = json(&first.join("report.json"))["tracking"][0].clone();
+    assert_eq!(task["offset_free"]["mode"], "disturbance");
+    // The references are the plant's own windows with the inputs that realised them: on such a
+    // plan the deviation's prediction error is zero, so the correction estimates nothing.
+    for e in task["rows"][0]["tracking_rms"].as_array().unwrap() {
+        assert!(e.as_f64().unwrap() < 1e-9, "on the plan: {e}");
+    }
+
+    // Plans the plant does not follow (their inputs × 1.3), forwards and reversed, scored by the
+    // first run's model in a run that collects nothing.
+    let mut refs = koopman::data::Dataset::load_npz(&first.join("data/pend/test.npz")).unwrap();
+    refs.u.iter_mut().for_each(|u| *u *= 1.3);
+    let forwards = dir.join("forwards.npz");
+    refs.save_npz(&forwards).unwrap();
+    let (sx, su) = ((refs.steps + 1) * refs.nx, refs.steps * refs.nu);
+    refs.x = refs.x.chunks(sx).rev().flatten().copied().collect();
+    refs.u = refs.u.chunks(su).rev().flatten().copied().collect();
+    let reversed = dir.join("reversed.npz");
+    refs.save_npz(&reversed).unwrap();
+    let second = format!(
+        "name = \"second\"\n[[sims]]\nid = \"pend\"\nenv = \"damped-pendulum\"\n[train]\n\
+         pretrained = [{{ name = \"given\", path = \"{}\" }}]\n{}\
+         [[control]]\nlabel = \"plain\"\noffset_free = {{ mode = \"disturbance\", radius = 1e9, gain = [0.0, 0.0] }}\n\
+         [[control]]\nlabel = \"offset\"\n\
+         [[control]]\nlabel = \"reversed\"\nreferences = \"{}\"\n",
+        first.join("models/first-pend").display(),
+        defaults(forwards.to_str().unwrap()),
+        reversed.display()
+    );
+    let (o, out) = run(&dir, "second", &second);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let tasks = json(&out.join("report.json"))["tracking"].clone();
+    let row = |i: usize, key: &str| -> Vec<f64> {
+        serde_json::from_value(tasks[i]["rows"][0][key].clone()).unwrap()
+    };
+    let (plain, offset) = (row(0, "tracking_rms"), row(1, "tracking_rms"));
+    let moved = plain
+        .iter()
+        .zip(&offset)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(
+        moved > 1e-6,
+        "the correction moves the loop off the plain one: {moved}"
+    );
+    // Each reference is its own episode (the estimate starts at zero): the reversed task's
+    // figures are the forward task's, reversed, to the bit.
+    for key in ["survivals", "tracking_rms", "steps_run"] {
+        let mut back = tasks[2]["rows"][0][key].as_array().unwrap().clone();
+        back.reverse();
+        assert_eq!(
+            serde_json::Value::Array(back),
+            tasks[1]["rows"][0][key],
+            "{key}"
+        );
+    }
+
+    // About a plan only the disturbance estimate: another mode is refused before collection.
+    let bad = format!(
+        "name = \"bad\"\n{BASE}{}[[control]]\n",
+        defaults("{out}/data/pend/test.npz").replace("\"disturbance\"", "\"integral\"")
+    );
+    let (o, out) = run(&dir, "bad", &bad);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        stderr.contains("offset_free") && stderr.contains("\"disturbance\" only"),
+        "{stderr}"
+    );
+    assert!(!out.join("data/pend/train.npz").exists());
+}

@@ -207,19 +207,19 @@ pub fn tracking_phase(
                     ""
                 }
             )));
-            configure(
-                client,
-                SERVICES_ID,
-                &ConfigureRequest {
-                    model: model.clone(),
-                    mpc: Some(mpc.clone()),
-                    offset_free: None,
-                },
-                Duration::from_secs(60),
-            )?;
+            let request = ConfigureRequest {
+                model: model.clone(),
+                mpc: Some(mpc.clone()),
+                offset_free: t.offset_free.clone(),
+            };
+            configure(client, SERVICES_ID, &request, Duration::from_secs(60))?;
             let t0 = Instant::now();
             let mut scored = Vec::new();
             for i in 0..refs.len() {
+                if i > 0 && t.offset_free.is_some() {
+                    // A fresh controller: the correction's estimate starts at zero each episode.
+                    configure(client, SERVICES_ID, &request, Duration::from_secs(60))?;
+                }
                 let row = if t.error_state {
                     Row::ErrorState
                 } else {
@@ -273,6 +273,7 @@ pub fn tracking_phase(
             aggregate: t.aggregate,
             perturbation: t.perturbation.clone(),
             perturbations,
+            offset_free: t.offset_free.clone(),
             rows,
         });
     }

@@ -44,6 +44,9 @@ pub struct TrackReport {
     /// Each reference's perturbation as sent with its reset (the push drawn for it).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub perturbations: Vec<Perturbation>,
+    /// The MPC's offset-free correction (restarted with every reference), as the task gave it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub offset_free: Option<koopman::mpc::OffsetFreeConfig>,
     /// The replay row first (when run), then one row per model kind.
     pub rows: Vec<TrackRow>,
 }

@@ -136,13 +136,7 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
                     sc.sims[j].id
                 ))
             };
-            if ctrl.feedforward_file.is_some() {
-                return Err(at(
-                    "the error-state MPC of `feedforward_file` takes no offset-free correction"
-                        .into(),
-                ));
-            }
-            o.check(infos[j].nx()).map_err(|e| at(e.to_string()))?;
+            check_offset_free(o, ctrl.feedforward_file.is_some(), infos[j].nx()).map_err(at)?;
         }
         // A file that exists already is checked now; one a hook writes, when control starts.
         let existing = |f: &Option<String>| {
@@ -174,6 +168,11 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
         }
         mpc_config(info, &t.mpc)
             .map_err(|e| Error::Config(format!("[control] for simulator '{id}': {e}")))?;
+        if let Some(o) = &t.offset_free {
+            check_offset_free(o, t.error_state, info.nx()).map_err(|m| {
+                Error::Config(format!("[control].offset_free for simulator '{id}': {m}"))
+            })?;
+        }
         // A references file that exists already is checked now; one a hook writes, when
         // control starts.
         if !t.references.contains("{out}") {
@@ -188,6 +187,22 @@ pub fn validate_scenario(sc: &Scenario, infos: &[&SimInfo]) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// An offset-free correction's settings against the state dimension; about a plan (the
+/// error-state MPC) the `disturbance` mode only.
+fn check_offset_free(
+    o: &koopman::mpc::OffsetFreeConfig,
+    about_plan: bool,
+    nx: usize,
+) -> std::result::Result<(), String> {
+    if about_plan && o.mode != koopman::mpc::OffsetMode::Disturbance {
+        return Err(format!(
+            "the error-state MPC (a feed-forward) takes the mode \"disturbance\" only, got {:?}",
+            o.mode
+        ));
+    }
+    o.check(nx).map_err(|e| e.to_string())
 }
 
 /// The names of every `TrainConfig` field (what `[train].config` may set).

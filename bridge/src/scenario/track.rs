@@ -42,6 +42,9 @@ pub struct TrackSpec {
     pub perturbation: Option<PerturbationSpec>,
     /// Its closed loops' windows are what `koopbridge run --aggregate` retrains on.
     pub aggregate: bool,
+    /// The MPC's offset-free correction, restarted with every reference (about a plan,
+    /// `error_state`, the `disturbance` mode only).
+    pub offset_free: Option<koopman::mpc::OffsetFreeConfig>,
 }
 
 impl TrackSpec {
@@ -77,7 +80,6 @@ impl TrackSpec {
             ("reference_file", c.reference_file.is_some()),
             ("feedforward_file", c.feedforward_file.is_some()),
             ("position_loop", c.position_loop.is_some()),
-            ("offset_free", c.offset_free.is_some()),
             ("model", c.model.is_some()),
             ("observation_noise", c.observation_noise.is_some()),
             (
@@ -136,6 +138,7 @@ impl TrackSpec {
             onpolicy_steps: c.onpolicy_steps,
             perturbation: c.perturbation.clone(),
             aggregate: c.aggregate,
+            offset_free: c.offset_free.clone(),
         }))
     }
 

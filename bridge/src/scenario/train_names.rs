@@ -191,6 +191,21 @@ impl Scenario {
                 )));
             }
         }
+        for t in self.tracks.iter().filter(|t| t.offset_free.is_some()) {
+            let why = if riccati(&t.mpc) {
+                "mpc.terminal_riccati does not combine with `offset_free`".to_string()
+            } else if kinds.contains(&ModelKind::Nndm) {
+                "model kind 'nndm' in [train].model cannot do this: `offset_free` corrects the \
+                 MPC of a lifted-linear or bilinear model, not the random shooting of an NNDM"
+                    .to_string()
+            } else {
+                continue;
+            };
+            return Err(Error::Config(format!(
+                "[control] for '{}': {why}",
+                self.tracked_id(t)
+            )));
+        }
         for t in self.tracks.iter().filter(|t| t.error_state) {
             if let Some(k) = kinds.iter().find(|k| !k.plans_about_feedforward()) {
                 return Err(Error::Config(format!(

@@ -60,6 +60,8 @@ mod tests_closed_loop;
 #[cfg(test)]
 mod tests_error_state;
 #[cfg(test)]
+mod tests_error_state_offset;
+#[cfg(test)]
 mod tests_lqr_law;
 #[cfg(test)]
 mod tests_terminal;

@@ -130,6 +130,9 @@ pub struct OffsetFree {
     active: bool,
     /// The last decisions `(x, u)`, newest first: one kept, or H for [`OffsetMode::Trajectory`].
     history: VecDeque<(Vec<f64>, Vec<f64>)>,
+    /// About a plan ([`OffsetFree::record_about_plan`]): the plan's state and first
+    /// feed-forward input at the last decision.
+    plan_prev: Option<(Vec<f64>, Vec<f64>)>,
 }
 
 impl OffsetFree {
@@ -152,6 +155,7 @@ impl OffsetFree {
             horizon,
             active: false,
             history: VecDeque::new(),
+            plan_prev: None,
         })
     }
 
@@ -176,6 +180,7 @@ impl OffsetFree {
         self.estimate.fill(0.0);
         self.active = false;
         self.history.clear();
+        self.plan_prev = None;
     }
 
     /// Updates the estimate from the measured state `x` and the current reference `r`;
@@ -188,7 +193,43 @@ impl OffsetFree {
         &mut self,
         x: &[f64],
         r: &[f64],
+        predict: impl FnMut(&[f64], &[f64]) -> Vec<f64>,
+    ) -> Result<()> {
+        self.update_with(x, r, predict, false)
+    }
+
+    /// [`OffsetMode::Disturbance`] about a plan (the error-state MPC): updates `d` from the
+    /// error of the model's one-step prediction of the *deviation* from the plan,
+    /// `(x_k − P f(Φ(x_{k−1}), u_{k−1})) − (r_k − P f(Φ(r_{k−1}), u_ff,k−1))`, where `r` is the
+    /// plan's state now and the previous decision and plan point are those of
+    /// [`OffsetFree::record_about_plan`]. The model's own error along the plan — which the
+    /// error-state MPC cancels already — drops out; what is left is what the plant does
+    /// differently about the plan (a heavier body, another floor). Exact for a plant that is
+    /// the model plus a constant state disturbance, along a plan the model reproduces.
+    ///
+    /// Errors: another mode (`InvalidArgument`); as [`OffsetFree::update`].
+    pub fn update_about_plan(
+        &mut self,
+        x: &[f64],
+        r: &[f64],
+        predict: impl FnMut(&[f64], &[f64]) -> Vec<f64>,
+    ) -> Result<()> {
+        if self.cfg.mode != OffsetMode::Disturbance {
+            return Err(Error::InvalidArgument(format!(
+                "about a plan (the error-state MPC) the offset-free correction is `disturbance` \
+                 only, got {:?}",
+                self.cfg.mode
+            )));
+        }
+        self.update_with(x, r, predict, true)
+    }
+
+    fn update_with(
+        &mut self,
+        x: &[f64],
+        r: &[f64],
         mut predict: impl FnMut(&[f64], &[f64]) -> Vec<f64>,
+        about_plan: bool,
     ) -> Result<()> {
         let nx = self.cfg.gain.len();
         if x.len() != nx || r.len() != nx {
@@ -209,13 +250,9 @@ impl OffsetFree {
         }
         match self.cfg.mode {
             OffsetMode::Disturbance => {
-                if let (true, Some((xp, up))) = (self.active, self.history.front()) {
-                    let pred = predict(xp, up);
-                    if pred.len() == nx && pred.iter().all(|v| v.is_finite()) {
-                        let innov = wrapped_error(x, &pred, &self.cfg.angles);
-                        for ((d, g), e) in self.estimate.iter_mut().zip(&self.cfg.gain).zip(innov) {
-                            *d = (1.0 - g) * *d + g * e;
-                        }
+                if let Some(innov) = self.one_step_innovation(x, r, &mut predict, about_plan) {
+                    for ((d, g), e) in self.estimate.iter_mut().zip(&self.cfg.gain).zip(innov) {
+                        *d = (1.0 - g) * *d + g * e;
                     }
                 }
             }
@@ -244,6 +281,39 @@ impl OffsetFree {
         }
         self.active = true;
         Ok(())
+    }
+
+    /// The error of the model's one-step prediction of `x` from the last decision (about a plan:
+    /// less its error on the plan's step to `r`); `None` while off, without a last decision, or
+    /// when a prediction is not finite.
+    fn one_step_innovation(
+        &self,
+        x: &[f64],
+        r: &[f64],
+        predict: &mut impl FnMut(&[f64], &[f64]) -> Vec<f64>,
+        about_plan: bool,
+    ) -> Option<Vec<f64>> {
+        if !self.active {
+            return None;
+        }
+        let fits = |p: &Vec<f64>| p.len() == x.len() && p.iter().all(|v| v.is_finite());
+        let (xp, up) = self.history.front()?;
+        let pred = Some(predict(xp, up)).filter(fits)?;
+        let mut innov = wrapped_error(x, &pred, &self.cfg.angles);
+        if about_plan {
+            let (rp, ufp) = self.plan_prev.as_ref()?;
+            let along = Some(predict(rp, ufp)).filter(fits)?;
+            let along = wrapped_error(r, &along, &self.cfg.angles);
+            innov.iter_mut().zip(along).for_each(|(e, a)| *e -= a);
+        }
+        Some(innov)
+    }
+
+    /// Records the decision taken at `x` (its first input `u`) about the plan's state `r` with
+    /// first feed-forward input `u_ff` ([`OffsetFree::update_about_plan`]).
+    pub fn record_about_plan(&mut self, x: &[f64], u: &[f64], r: &[f64], u_ff: &[f64]) {
+        self.record(x, u);
+        self.plan_prev = Some((r.to_vec(), u_ff.to_vec()));
     }
 
     /// Records the decision taken at `x` (its first input `u`), for the next prediction errors.

@@ -9,6 +9,7 @@ use crate::error::{ensure_finite, Error, Result};
 use crate::linalg::kernels::gemv_simd;
 use crate::mpc::condensed::Condensed;
 use crate::mpc::config::MpcConfig;
+use crate::mpc::offset_free::OffsetMode;
 
 impl MpcController<'_> {
     /// Error-state (deviation) tracking of a planned trajectory: plans the deviation
@@ -21,9 +22,17 @@ impl MpcController<'_> {
     /// still corrects deviations. `reference_now` is the planned state at the current step k
     /// (nx values). Returns the absolute inputs `u`.
     ///
+    /// With the offset-free correction [`crate::mpc::OffsetMode::Disturbance`] on, each call
+    /// first updates its estimate `d` from `x` ([`crate::mpc::OffsetFree::update_about_plan`]:
+    /// the error of the model's one-step prediction of the deviation from the plan) and the
+    /// predictions from `Φ(x)` carry `d` (`z_{τ+1} = A z_τ + B u_τ + E d`) while the plan's
+    /// rollout does not: the plan is what the plant should do, `d` what it does differently.
+    /// Consecutive calls are consecutive steps of one episode (call
+    /// [`MpcController::set_offset_free`] again to start another).
+    ///
     /// Errors: as [`MpcController::solve`]; a feed-forward of another length than H·nu
     /// (`InvalidArgument`) or with a non-finite value (`NonFinite`); an offset-free correction
-    /// is on, or the terminal cost is the Riccati one (`InvalidArgument`).
+    /// other than `disturbance`, or the terminal cost is the Riccati one (`InvalidArgument`).
     pub fn solve_about_plan(
         &mut self,
         x: &[f64],
@@ -36,11 +45,16 @@ impl MpcController<'_> {
                 "the error-state MPC (a feed-forward) does not take terminal_riccati".into(),
             ));
         }
-        if self.offset.is_some() {
-            return Err(Error::InvalidArgument(
-                "the error-state MPC (a feed-forward) does not take an offset-free correction"
-                    .into(),
-            ));
+        if let Some(o) = self
+            .offset
+            .as_ref()
+            .filter(|o| o.config().mode != OffsetMode::Disturbance)
+        {
+            return Err(Error::InvalidArgument(format!(
+                "the error-state MPC (a feed-forward) takes the offset-free correction \
+                 `disturbance` only, got {:?}",
+                o.config().mode
+            )));
         }
         let (nx, n) = (self.nx(), self.condensed.n_vars());
         for (what, v) in [("state", x), ("reference state", reference_now)] {
@@ -60,6 +74,15 @@ impl MpcController<'_> {
         let (z0, z_plan) = (model.lift(x), model.lift(reference_now));
         self.check_lifted(&z0)?;
         self.check_lifted(&z_plan)?;
+        if self.offset.is_some() {
+            // The plan's rollout as the reference; `set_reference` moves it by −S d.
+            self.observe_about_plan(x, reference_now)?;
+            let rollout = self.condensed.predict(&z_plan, feedforward);
+            let s = self.solve_lifted_from(start, &z0, &rollout, Some(feedforward))?;
+            let nu = self.nu();
+            self.record_about_plan(x, &s.u[..nu], reference_now, &feedforward[..nu]);
+            return Ok(s);
+        }
         if matches!(self.solver, Backend::Dedicated { .. }) {
             self.ustar_about_plan(&z0, &z_plan, feedforward);
             return self.solve_qp(start, &z0);

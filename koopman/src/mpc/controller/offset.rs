@@ -67,12 +67,22 @@ impl MpcController<'_> {
     ///
     /// Errors: wrong lengths or non-finite values.
     pub fn observe(&mut self, x: &[f64], r: &[f64]) -> Result<()> {
+        self.observe_with(x, r, false)
+    }
+
+    /// [`MpcController::observe`] about a plan whose state now is `r`
+    /// ([`OffsetFree::update_about_plan`]; [`MpcController::solve_about_plan`] calls it).
+    pub(super) fn observe_about_plan(&mut self, x: &[f64], r: &[f64]) -> Result<()> {
+        self.observe_with(x, r, true)
+    }
+
+    fn observe_with(&mut self, x: &[f64], r: &[f64], about_plan: bool) -> Result<()> {
         let Some(o) = &mut self.offset else {
             return Ok(());
         };
         let (model, c) = (self.model.get(), &self.condensed);
         let (nx, nu, hz) = (c.nx, c.nu, c.horizon);
-        o.update(x, r, |start, inputs| {
+        let predict = |start: &[f64], inputs: &[f64]| {
             let k = inputs.len() / nu;
             let Ok(z) = model.try_lift(start) else {
                 return Vec::new();
@@ -84,13 +94,26 @@ impl MpcController<'_> {
             let mut u = inputs.to_vec();
             u.resize(hz * nu, 0.0);
             c.predict(&z, &u)[(k - 1) * nx..k * nx].to_vec()
-        })
+        };
+        if about_plan {
+            o.update_about_plan(x, r, predict)
+        } else {
+            o.update(x, r, predict)
+        }
     }
 
     /// Records the input `u` applied at state `x` (for the correction's prediction errors).
     pub fn record(&mut self, x: &[f64], u: &[f64]) {
         if let Some(o) = &mut self.offset {
             o.record(x, u);
+        }
+    }
+
+    /// Records the input `u` applied at state `x` about the plan's state `r` with first
+    /// feed-forward input `u_ff`.
+    pub(super) fn record_about_plan(&mut self, x: &[f64], u: &[f64], r: &[f64], u_ff: &[f64]) {
+        if let Some(o) = &mut self.offset {
+            o.record_about_plan(x, u, r, u_ff);
         }
     }
 
