@@ -25,6 +25,8 @@ pub mod extras;
 mod full;
 mod pretrained;
 mod region;
+#[cfg(test)]
+mod tests_full;
 pub mod track;
 pub mod train;
 mod train_names;
@@ -427,6 +429,32 @@ impl Scenario {
         self.sims
             .get(self.controlled_index(ctrl))
             .map_or("", |s| s.id.as_str())
+    }
+
+    /// Applies the `[full]` overrides: the windows, `train_config` over `[train].config`, and
+    /// the control entries parsed with `[full].control_defaults`.
+    pub fn apply_full(&mut self) {
+        self.full_applied = true;
+        if let Some(fc) = self.full_controls.take() {
+            self.control = fc.control;
+            self.tracks = fc.tracks;
+        }
+        if let Some(f) = self.full.clone() {
+            if let Some(n) = f.train_windows {
+                self.collect.train_windows = n;
+            }
+            if let Some(n) = f.val_windows {
+                self.collect.val_windows = n;
+            }
+            if let Some(n) = f.test_windows {
+                self.collect.test_windows = n;
+            }
+            if let Some(t) = &mut self.train {
+                for (k, v) in f.train_config {
+                    t.config.insert(k, v);
+                }
+            }
+        }
     }
 }
 
