@@ -10,7 +10,8 @@ all pairs the gain of B over A in percent of A's mean.
         --tasks nominal,push,mass --names base,+both [--json gains.json]
 
 A row is ``REPORT#ROW``: the row named ROW (``{task}`` replaced by each task) in any tracking
-task of that ``report.json``. Prints a Markdown table; exit code 2 names a missing report or row,
+task of that ``report.json``, an aggregation round's too (``koopbridge run --aggregate``: its
+model's rows are ``MODEL-aggN…``). Prints a Markdown table; exit code 2 names a missing report or row,
 or two rows of a pair scored on different numbers of references.
 """
 
@@ -41,7 +42,9 @@ def survivals(spec: str, task: str, cache: dict[Path, dict[str, list[float]]]) -
             r = json.loads(path.read_text())
         except (OSError, ValueError) as e:
             raise Refused(f"{path}: {e}") from e
-        cache[path] = {w["row"]: w["survivals"] for t in r.get("tracking", []) for w in t["rows"] if "survivals" in w}
+        # The first pass's tasks, then every aggregation round's (their models are named `…-aggN`).
+        tasks = list(r.get("tracking", [])) + [t for a in r.get("tracking_aggregation", []) for t in a["tracking"]]
+        cache[path] = {w["row"]: w["survivals"] for t in tasks for w in t["rows"] if "survivals" in w}
     rows = cache[path]
     if row not in rows:
         raise Refused(f"{path} has no tracking row {row!r} (it has {', '.join(sorted(rows)) or 'none'})")

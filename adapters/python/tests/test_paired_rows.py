@@ -38,6 +38,15 @@ def test_pairs_are_compared_reference_by_reference(tmp_path, capsys):
     assert json.loads((tmp_path / "g.json").read_text())[0]["task"] == "x"
 
 
+def test_an_aggregation_rounds_rows_pair_with_the_first_pass(tmp_path):
+    tasks = [dict(rows=[dict(row="m+x", survivals=[1, 2, 3])])]
+    rounds = [dict(round=1, tracking=[dict(rows=[dict(row="m-agg1+x", survivals=[2, 2, 5])])])]
+    path = tmp_path / "r.json"
+    path.write_text(json.dumps(dict(tracking=tasks, tracking_aggregation=rounds)))
+    (x,) = paired_rows.compare([(f"{path}#m+x", f"{path}#m-agg1+x")], [""])
+    assert x["pairs"][0]["diff"]["mean"] == 1.0 and (x["pairs"][0]["better"], x["pairs"][0]["worse"]) == (2, 0)
+
+
 def test_a_missing_row_or_unequal_references_are_refused(tmp_path, capsys):
     a = _report(tmp_path / "a.json", {"r": [1, 2, 3]})
     b = _report(tmp_path / "b.json", {"r": [1, 2]})
