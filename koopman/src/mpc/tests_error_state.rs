@@ -66,7 +66,7 @@ impl Deviation<'_> {
     }
 }
 
-fn random_vec(rng: &mut Rng, n: usize, s: f64) -> Vec<f64> {
+pub(super) fn random_vec(rng: &mut Rng, n: usize, s: f64) -> Vec<f64> {
     (0..n).map(|_| rng.uniform(-s, s)).collect()
 }
 

@@ -5,6 +5,7 @@
 //! gradient, and the closed loop's deviation with and without the correction.
 #![allow(clippy::needless_range_loop)] // index loops mirror the formulas being checked
 
+use super::tests_error_state::random_vec;
 use super::*;
 use crate::model::matrix::MatrixModel;
 use crate::model::LiftedModel;
@@ -32,10 +33,6 @@ fn plant(model: &MatrixModel, x: &[f64], u: &[f64], d: &[f64]) -> Vec<f64> {
     step(model, &model.lift(x), u, d)[..x.len()].to_vec()
 }
 
-fn random_vec(rng: &mut Rng, n: usize, s: f64) -> Vec<f64> {
-    (0..n).map(|_| rng.uniform(-s, s)).collect()
-}
-
 fn disturbance(nx: usize, alpha: f64) -> OffsetFreeConfig {
     OffsetFreeConfig {
         mode: OffsetMode::Disturbance,
@@ -43,6 +40,19 @@ fn disturbance(nx: usize, alpha: f64) -> OffsetFreeConfig {
         gain: vec![alpha; nx],
         angles: Vec::new(),
     }
+}
+
+/// The error-state MPC of `model` (horizon `h`, R = `r`·I) with the disturbance estimate at α = 1.
+fn estimating(model: &MatrixModel, h: usize, r: f64) -> MpcController<'_> {
+    let cfg = MpcConfig {
+        horizon: h,
+        r: Some(vec![r; model.nu()]),
+        ..MpcConfig::default()
+    };
+    let mut c = MpcController::new(model, &cfg).unwrap();
+    c.set_offset_free(Some(disturbance(model.nx(), 1.0)))
+        .unwrap();
+    c
 }
 
 /// A plan the model reproduces: `r_{k+1} = P f(Φ(r_k), u_ff,k)` from `r_0`.
@@ -60,13 +70,7 @@ fn model_plan(model: &MatrixModel, r0: &[f64], u_ff: &[f64]) -> Vec<Vec<f64>> {
 fn about_a_plan_the_estimate_is_the_plants_constant_disturbance() {
     let (nx, nu, h) = (3, 2, 6);
     let model = MatrixModel::random_stable(nx, 14, nu, 0.95, 3).unwrap();
-    let cfg = MpcConfig {
-        horizon: h,
-        r: Some(vec![0.1; nu]),
-        ..MpcConfig::default()
-    };
-    let mut c = MpcController::new(&model, &cfg).unwrap();
-    c.set_offset_free(Some(disturbance(nx, 1.0))).unwrap();
+    let mut c = estimating(&model, h, 0.1);
     let mut rng = Rng::new(5);
     let (steps, d) = (12, vec![0.03, -0.02, 0.05]);
     let u_ff = random_vec(&mut rng, (steps + h) * nu, 0.5);
@@ -100,13 +104,7 @@ fn the_models_own_error_along_the_plan_is_not_taken_for_a_disturbance() {
     let (nx, nu, h) = (3, 2, 6);
     let model = MatrixModel::random_stable(nx, 12, nu, 0.95, 7).unwrap();
     let truth = MatrixModel::random_stable(nx, 12, nu, 0.95, 8).unwrap();
-    let cfg = MpcConfig {
-        horizon: h,
-        r: Some(vec![0.1; nu]),
-        ..MpcConfig::default()
-    };
-    let mut c = MpcController::new(&model, &cfg).unwrap();
-    c.set_offset_free(Some(disturbance(nx, 1.0))).unwrap();
+    let mut c = estimating(&model, h, 0.1);
     let mut rng = Rng::new(9);
     let steps = 10;
     let u_ff = random_vec(&mut rng, (steps + h) * nu, 0.5);
