@@ -16,7 +16,10 @@ use std::path::PathBuf;
         'koopbridge data gen'): SPEC's prediction error (discounted multi-step L_pred, every window encoded once \
         at its first state), the condition numbers κ(G) of the latent Gram matrix on the data and κ(BᵀB), and the \
         spectral radius of A. For an NNDM (kind nndm) only the prediction error, by rolling the \
-        one-step model out from every window's first state with the window's inputs (same γ and normalisation).\n\nExample: koopbridge eval --model models/damped --data data/damped/test.npz"
+        one-step model out from every window's first state with the window's inputs (same γ and normalisation). \
+        With --per-state (Koopman and EDMD models) also each state's RMS error over every window and step of the \
+        same rollout, in the data's raw units (a z-scored model's error scaled back by its σ): which states a model \
+        gets wrong.\n\nExample: koopbridge eval --model models/damped --data data/damped/test.npz --per-state"
 )]
 pub struct EvalArgs {
     /// Model folder (config.json + weights).
@@ -31,6 +34,9 @@ pub struct EvalArgs {
     /// Print one JSON object instead of text.
     #[arg(long)]
     pub json: bool,
+    /// Also each state's RMS error of the rollout (raw units, undiscounted); Koopman and EDMD.
+    #[arg(long)]
+    pub per_state: bool,
 }
 
 /// What `eval` reports; the lifted-model diagnostics are `None` for an NNDM, whose
@@ -45,6 +51,16 @@ struct EvalReport {
     bbt_condition: Option<f64>,
     spectral_radius: Option<f64>,
     latent_dim: usize,
+    /// With `--per-state`: each state's RMS error of the rollout, raw units.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    per_state: Option<Vec<StateError>>,
+}
+
+/// One state's RMS error of the multi-step rollout.
+#[derive(Serialize)]
+struct StateError {
+    name: String,
+    rms: f64,
 }
 
 /// Runs `koopbridge eval`.
@@ -52,6 +68,12 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let data = Dataset::load_npz(&args.data)
         .with_context(|| format!("loading {}", args.data.display()))?;
     let kind = store::read_kind(&args.model)?;
+    if args.per_state && (kind == "nndm" || kind == "bilinear") {
+        anyhow::bail!(
+            "--per-state is for Koopman and EDMD models; {} is a {kind} model",
+            args.model.display()
+        );
+    }
     if kind == "nndm" {
         return eval_nndm(&args, &data);
     }
@@ -74,14 +96,44 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             None => data,
         };
         let err = koopman::train::prediction_error(&km, &data, args.gamma)?;
-        return print_report(&args, &lifted_report(kind, &km, err, &data));
+        let mut rep = lifted_report(kind, &km, err, &data);
+        if args.per_state {
+            let std = km.normalisation().map(|n| n.x_std.as_slice());
+            rep.per_state = Some(state_errors(&km, &data, std)?);
+        }
+        return print_report(&args, &rep);
     }
     let model: Box<dyn LiftedModel> = load_lifted(&args.model)?;
     check_dims(&args, &data, model.nx(), model.nu())?;
     let prediction_error =
         { koopman::analysis::prediction_error(model.as_ref(), &data, args.gamma)? };
-    let rep = lifted_report(kind, model.as_ref(), prediction_error, &data);
+    let mut rep = lifted_report(kind, model.as_ref(), prediction_error, &data);
+    if args.per_state {
+        rep.per_state = Some(state_errors(model.as_ref(), &data, None)?);
+    }
     print_report(&args, &rep)
+}
+
+/// Each state's RMS rollout error, named; `x_std` scales a z-scored model's errors to raw units.
+fn state_errors(
+    model: &dyn LiftedModel,
+    data: &Dataset,
+    x_std: Option<&[f64]>,
+) -> anyhow::Result<Vec<StateError>> {
+    let rms = koopman::analysis::state_rms_errors(model, data)?;
+    Ok(rms
+        .iter()
+        .enumerate()
+        .map(|(s, r)| StateError {
+            name: data
+                .meta
+                .state_names
+                .get(s)
+                .cloned()
+                .unwrap_or_else(|| format!("x{s}")),
+            rms: r * x_std.map_or(1.0, |sd| sd[s]),
+        })
+        .collect())
 }
 
 fn check_dims(args: &EvalArgs, data: &Dataset, nx: usize, nu: usize) -> anyhow::Result<()> {
@@ -127,6 +179,7 @@ fn lifted_report(
         bbt_condition,
         spectral_radius,
         latent_dim: model.latent_dim(),
+        per_state: None,
     }
 }
 
@@ -153,6 +206,7 @@ fn eval_nndm(args: &EvalArgs, data: &Dataset) -> anyhow::Result<()> {
         bbt_condition: None,
         spectral_radius: None,
         latent_dim: nx,
+        per_state: None,
     };
     print_report(args, &rep)
 }
@@ -185,6 +239,12 @@ fn print_report(args: &EvalArgs, rep: &EvalReport) -> anyhow::Result<()> {
             rep.spectral_radius
                 .map_or("-".into(), |v| format!("{v:.6}"))
         );
+        if let Some(states) = &rep.per_state {
+            println!("RMS error per state (raw units, every window and step):");
+            for e in states {
+                println!("  {:<24} {:.6}", e.name, e.rms);
+            }
+        }
     }
     Ok(())
 }

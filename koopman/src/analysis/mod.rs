@@ -11,5 +11,5 @@ pub mod scaling;
 pub use conditioning::{bbt_condition, eigenvalues, gram_condition, spd_condition};
 pub use equilibrium::{holding_input, HoldingInput};
 pub use gain::{gain_agreement, model_input_gain, system_input_gain, GainAgreement, InputGain};
-pub use prediction::prediction_error;
+pub use prediction::{prediction_error, state_rms_errors};
 pub use scaling::{fit_scaling_law, ScalingFit};

@@ -1,5 +1,6 @@
 //! The SPEC metric for any lifted model: the discounted multi-step prediction error
-//! `L_pred = (1/W) Σ_i γ^i · mean((P ẑ_{i+1} − x_{i+1})²)`, `ẑ_0 = Φ(x_0)`, `ẑ_{i+1} = A ẑ_i + B u_i`.
+//! `L_pred = (1/W) Σ_i γ^i · mean((P ẑ_{i+1} − x_{i+1})²)`, `ẑ_0 = Φ(x_0)`, `ẑ_{i+1} = A ẑ_i + B u_i`,
+//! and the same rollout's error state by state.
 
 use crate::data::Dataset;
 use crate::model::LiftedModel;
@@ -11,37 +12,14 @@ use rayon::prelude::*;
 /// over windows and state dimensions. Uses the closed form
 /// `P ẑ_{i+1} = P A^{i+1} Φ(x_0) + Σ_{j≤i} P A^{i−j} B u_j`, which equals the step-by-step rollout.
 pub fn prediction_error(model: &dyn LiftedModel, data: &Dataset, gamma: f64) -> Result<f64> {
-    data.validate()?;
-    if model.nx() != data.nx {
-        return Err(Error::dimension(
-            "state dimension (model vs data)",
-            model.nx(),
-            data.nx,
-        ));
-    }
-    if model.nu() != data.nu {
-        return Err(Error::dimension(
-            "input dimension (model vs data)",
-            model.nu(),
-            data.nu,
-        ));
-    }
     if !(gamma > 0.0 && gamma.is_finite()) {
         return Err(Error::InvalidArgument(format!(
             "gamma must be positive (got {gamma})"
         )));
     }
-    let (nx, nu, steps) = (data.nx, data.nu, data.steps);
-    let a = model.a();
-    let b = model.b();
+    let (a, b) = checked_matrices(model, data)?;
+    let (nx, steps) = (data.nx, data.steps);
     let n_lat = model.latent_dim();
-    if a.nrows() != n_lat || a.ncols() != n_lat || b.nrows() != n_lat || b.ncols() != nu {
-        return Err(Error::dimension(
-            "model matrices A, B (latent dimension)",
-            n_lat,
-            a.nrows(),
-        ));
-    }
     // m[k] = P A^k (nx × N), h[k] = P A^k B (nx × nu), k = 0..=T.
     let mut m: Vec<Mat<f64>> = Vec::with_capacity(steps + 1);
     m.push(Mat::from_fn(
@@ -95,5 +73,151 @@ pub fn prediction_error(model: &dyn LiftedModel, data: &Dataset, gamma: f64) -> 
         Err(Error::NonFinite(
             "prediction error (the rollout diverged)".into(),
         ))
+    }
+}
+
+/// The model's `A` and `B` after checking `data` and the dimensions of model, data and matrices.
+fn checked_matrices(model: &dyn LiftedModel, data: &Dataset) -> Result<(Mat<f64>, Mat<f64>)> {
+    data.validate()?;
+    if model.nx() != data.nx {
+        return Err(Error::dimension(
+            "state dimension (model vs data)",
+            model.nx(),
+            data.nx,
+        ));
+    }
+    if model.nu() != data.nu {
+        return Err(Error::dimension(
+            "input dimension (model vs data)",
+            model.nu(),
+            data.nu,
+        ));
+    }
+    let (a, b) = (model.a(), model.b());
+    let n_lat = model.latent_dim();
+    if a.nrows() != n_lat || a.ncols() != n_lat || b.nrows() != n_lat || b.ncols() != data.nu {
+        return Err(Error::dimension(
+            "model matrices A, B (latent dimension)",
+            n_lat,
+            a.nrows(),
+        ));
+    }
+    Ok((a, b))
+}
+
+/// The root-mean-square error of each state over every window and step of the rollout that
+/// [`prediction_error`] scores (`ẑ_0 = Φ(x_0)`, `ẑ_{i+1} = A ẑ_i + B u_i`, `x̂ = P ẑ`), in the
+/// data's units: `rms_s = sqrt(Σ_w Σ_i (x̂_{i+1,s} − x_{i+1,s})² / (W·T))`, nx values. Their mean
+/// square is `prediction_error(model, data, 1.0)`. Rolled out step by step, windows in parallel.
+pub fn state_rms_errors(model: &dyn LiftedModel, data: &Dataset) -> Result<Vec<f64>> {
+    let (a, b) = checked_matrices(model, data)?;
+    let (nx, nu, steps) = (data.nx, data.nu, data.steps);
+    let n_lat = model.latent_dim();
+    const CHUNK: usize = 256;
+    let partial: Vec<Vec<f64>> = (0..data.n.div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|c| {
+            let mut sq = vec![0.0; nx];
+            let mut next = vec![0.0; n_lat];
+            for w in c * CHUNK..((c + 1) * CHUNK).min(data.n) {
+                let mut z = model.lift(data.state(w, 0));
+                for i in 0..steps {
+                    let u = data.input(w, i);
+                    for (r, zr) in next.iter_mut().enumerate() {
+                        let mut s: f64 = (0..n_lat).map(|col| a[(r, col)] * z[col]).sum();
+                        s += (0..nu).map(|q| b[(r, q)] * u[q]).sum::<f64>();
+                        *zr = s;
+                    }
+                    std::mem::swap(&mut z, &mut next);
+                    for ((acc, p), t) in sq.iter_mut().zip(&z[..nx]).zip(data.state(w, i + 1)) {
+                        *acc += (p - t) * (p - t);
+                    }
+                }
+            }
+            sq
+        })
+        .collect();
+    let count = (data.n * steps) as f64;
+    let rms: Vec<f64> = (0..nx)
+        .map(|s| (partial.iter().map(|p| p[s]).sum::<f64>() / count).sqrt())
+        .collect();
+    if rms.iter().all(|v| v.is_finite()) {
+        Ok(rms)
+    } else {
+        Err(Error::NonFinite(
+            "state errors (the rollout diverged)".into(),
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::{generate, Pairing};
+    use crate::model::edmd::{fit, EdmdConfig};
+    use crate::systems::by_name;
+
+    /// A nonlinear system's EDMD model: its per-state errors, against a rollout written out
+    /// here and against the closed form of `prediction_error` at γ = 1 (their mean square).
+    #[test]
+    fn state_errors_match_an_explicit_rollout_and_the_closed_form() {
+        let sys = by_name("damped").unwrap();
+        let data = generate(sys.as_ref(), 300, 15, 5, Pairing::Aligned).unwrap();
+        let cfg = EdmdConfig {
+            degree: Some(4),
+            ..EdmdConfig::default()
+        };
+        let m = fit(&data, &cfg).unwrap();
+        let test = generate(sys.as_ref(), 30, 15, 6, Pairing::Aligned).unwrap();
+        let rms = state_rms_errors(&m, &test).unwrap();
+        let mut sq = [0.0; 2];
+        for w in 0..test.n {
+            let mut z = m.lift(test.state(w, 0));
+            for i in 0..test.steps {
+                let u = test.input(w, i)[0];
+                z = (0..z.len())
+                    .map(|r| {
+                        (0..z.len()).map(|c| m.a[(r, c)] * z[c]).sum::<f64>() + m.b[(r, 0)] * u
+                    })
+                    .collect();
+                for (s, acc) in sq.iter_mut().enumerate() {
+                    *acc += (z[s] - test.state(w, i + 1)[s]).powi(2);
+                }
+            }
+        }
+        for s in 0..2 {
+            let explicit = (sq[s] / (test.n * test.steps) as f64).sqrt();
+            assert!(
+                (rms[s] - explicit).abs() < 1e-10 * explicit,
+                "state {s}: {} vs {explicit}",
+                rms[s]
+            );
+            assert!(explicit > 1e-6, "the test needs a model with an error");
+        }
+        let mean_sq = (rms[0] * rms[0] + rms[1] * rms[1]) / 2.0;
+        let closed = prediction_error(&m, &test, 1.0).unwrap();
+        assert!(
+            (mean_sq - closed).abs() < 1e-9 * closed,
+            "{mean_sq} vs {closed}"
+        );
+    }
+
+    #[test]
+    fn state_errors_refuse_data_of_another_system() {
+        let sys = by_name("damped").unwrap();
+        let data = generate(sys.as_ref(), 50, 5, 1, Pairing::Aligned).unwrap();
+        let m = fit(&data, &EdmdConfig::default()).unwrap();
+        let other = generate(
+            by_name("double").unwrap().as_ref(),
+            5,
+            5,
+            1,
+            Pairing::Aligned,
+        )
+        .unwrap();
+        assert!(matches!(
+            state_rms_errors(&m, &other),
+            Err(Error::Dimension { .. })
+        ));
     }
 }
