@@ -6,7 +6,10 @@ reference as the scenario engine's ``perturbation = { push, seed }`` does not: h
 the push are written as a dataset ``.npz``; with ``--push 0`` the same windows of the unpushed
 replay. ``koopbridge eval --model DIR --data FILE`` then gives any model's prediction error on
 them (EDMD and the neural Koopman model alike), so a model's error after a push can be set
-against its error on the same states unpushed:
+against its error on the same states unpushed (``--per-state``: state by state, raw units). The
+push acts while step ``--push-step`` is integrated, so the window of ``--after 0`` starts at the
+state before it and its first transition holds the push itself, which no model sees coming: the
+first window after the push is ``--after 1``.
 
     python -m koopbridge_experiments.legged_push_windows --references OUT/references/go2.npz --push 1.0 --out pushed.npz
     python -m koopbridge_experiments.legged_push_windows --references OUT/references/go2.npz --push 0 --out nominal.npz
@@ -36,7 +39,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--references", required=True, help="a references .npz (legged_references' output)")
     p.add_argument("--push", type=float, required=True, help="push size, m/s (0: no push)")
     p.add_argument("--push-step", type=int, default=40, help="the step of the push (default: %(default)s)")
-    p.add_argument("--after", type=int, nargs="+", default=[0, 5, 10, 20], help="window starts after the push, steps (default: %(default)s)")
+    p.add_argument("--after", type=int, nargs="+", default=[1, 5, 10, 20],
+                   help="window starts after the push step, steps; 0 = the window whose first transition holds the push (default: %(default)s)")
     p.add_argument("--window", type=int, default=15, help="transitions per window (default: %(default)s, the MPC's horizon)")
     p.add_argument("--seed", type=int, default=0, help="seed of the push directions (default: %(default)s)")
     p.add_argument("--out", required=True, help="the dataset .npz to write")
