@@ -431,3 +431,65 @@ fn a_given_degree_is_the_only_trial() {
     assert_eq!((sel.chosen, sel.trials.len()), (3, 1));
     assert_eq!(model.latent_dim(), dictionary::feature_count(2, 3));
 }
+
+/// A nonlinear system's EDMD model: its per-state errors, against a rollout written out
+/// here and against the closed form of `prediction_error` at γ = 1 (their mean square).
+#[test]
+fn state_errors_match_an_explicit_rollout_and_the_closed_form() {
+    let sys = by_name("damped").unwrap();
+    let data = generate(sys.as_ref(), 300, 15, 5, Pairing::Aligned).unwrap();
+    let cfg = EdmdConfig {
+        degree: Some(4),
+        ..EdmdConfig::default()
+    };
+    let m = fit(&data, &cfg).unwrap();
+    let test = generate(sys.as_ref(), 30, 15, 6, Pairing::Aligned).unwrap();
+    let rms = crate::analysis::state_rms_errors(&m, &test).unwrap();
+    let mut sq = [0.0; 2];
+    for w in 0..test.n {
+        let mut z = m.lift(test.state(w, 0));
+        for i in 0..test.steps {
+            let u = test.input(w, i)[0];
+            z = (0..z.len())
+                .map(|r| (0..z.len()).map(|c| m.a[(r, c)] * z[c]).sum::<f64>() + m.b[(r, 0)] * u)
+                .collect();
+            for (s, acc) in sq.iter_mut().enumerate() {
+                *acc += (z[s] - test.state(w, i + 1)[s]).powi(2);
+            }
+        }
+    }
+    for s in 0..2 {
+        let explicit = (sq[s] / (test.n * test.steps) as f64).sqrt();
+        assert!(
+            (rms[s] - explicit).abs() < 1e-10 * explicit,
+            "state {s}: {} vs {explicit}",
+            rms[s]
+        );
+        assert!(explicit > 1e-6, "the test needs a model with an error");
+    }
+    let mean_sq = (rms[0] * rms[0] + rms[1] * rms[1]) / 2.0;
+    let closed = crate::analysis::prediction_error(&m, &test, 1.0).unwrap();
+    assert!(
+        (mean_sq - closed).abs() < 1e-9 * closed,
+        "{mean_sq} vs {closed}"
+    );
+}
+
+#[test]
+fn state_errors_refuse_data_of_another_system() {
+    let sys = by_name("damped").unwrap();
+    let data = generate(sys.as_ref(), 50, 5, 1, Pairing::Aligned).unwrap();
+    let m = fit(&data, &EdmdConfig::default()).unwrap();
+    let other = generate(
+        by_name("double").unwrap().as_ref(),
+        5,
+        5,
+        1,
+        Pairing::Aligned,
+    )
+    .unwrap();
+    assert!(matches!(
+        crate::analysis::state_rms_errors(&m, &other),
+        Err(crate::Error::Dimension { .. })
+    ));
+}
