@@ -30,10 +30,7 @@ fn succeeded(out: Output) -> Output {
 fn per_state_errors_are_raw_units_of_the_z_scored_prediction_error() {
     let dir = common::scratch("eval-cli-per-state");
     let (data, model) = (dir.join("data"), dir.join("model"));
-    succeeded(koopbridge(
-        &["data", "gen", "--env", "damped", "--windows", "600"],
-        &[("--out", &data)],
-    ));
+    common::small_pendulum_dataset(&data, 3);
     let small = [
         "train",
         "--normalise",
@@ -49,8 +46,7 @@ fn per_state_errors_are_raw_units_of_the_z_scored_prediction_error() {
     let eval = ["eval", "--json", "--per-state", "--gamma", "1"];
     let out = succeeded(koopbridge(&eval, &[("--model", &model), ("--data", &test)]));
     let rep: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    let config: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(model.join("config.json")).unwrap()).unwrap();
+    let config = common::json_file(&model.join("config.json"));
     let std: Vec<f64> = serde_json::from_value(config["normalisation"]["x_std"].clone()).unwrap();
     let states = rep["per_state"].as_array().unwrap();
     assert_eq!(states.len(), 2);

@@ -187,16 +187,7 @@ fn lifted_report(
 fn eval_nndm(args: &EvalArgs, data: &Dataset) -> anyhow::Result<()> {
     let model = NndmModel::load(&args.model)?;
     let nx = model.arch().nx;
-    if data.nx != nx || data.nu != model.arch().nu {
-        anyhow::bail!(
-            "the model expects nx = {}, nu = {} but {} has nx = {}, nu = {}",
-            nx,
-            model.arch().nu,
-            args.data.display(),
-            data.nx,
-            data.nu
-        );
-    }
+    check_dims(args, data, nx, model.arch().nu)?;
     let rep = EvalReport {
         kind: "nndm".into(),
         windows: data.n,

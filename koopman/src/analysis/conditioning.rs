@@ -33,14 +33,7 @@ pub fn spd_condition(m: MatRef<'_, f64>) -> Result<f64> {
 /// κ(G) of the latent Gram matrix `G = (1/K) Σ z zᵀ` over the lifted states `z = Φ(x)` of every
 /// state of every window of `data` (K = n·(T+1)).
 pub fn gram_condition(model: &dyn LiftedModel, data: &Dataset) -> Result<f64> {
-    data.validate()?;
-    if model.nx() != data.nx {
-        return Err(Error::dimension(
-            "state dimension (model vs data)",
-            model.nx(),
-            data.nx,
-        ));
-    }
+    super::prediction::check_states(model, data)?;
     let n_lat = model.latent_dim();
     let states = data.x.chunks_exact(data.nx);
     let k = states.len();

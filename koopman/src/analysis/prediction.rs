@@ -76,8 +76,8 @@ pub fn prediction_error(model: &dyn LiftedModel, data: &Dataset, gamma: f64) -> 
     }
 }
 
-/// The model's `A` and `B` after checking `data` and the dimensions of model, data and matrices.
-fn checked_matrices(model: &dyn LiftedModel, data: &Dataset) -> Result<(Mat<f64>, Mat<f64>)> {
+/// Checks `data` and that its states have the model's dimension.
+pub(super) fn check_states(model: &dyn LiftedModel, data: &Dataset) -> Result<()> {
     data.validate()?;
     if model.nx() != data.nx {
         return Err(Error::dimension(
@@ -86,6 +86,12 @@ fn checked_matrices(model: &dyn LiftedModel, data: &Dataset) -> Result<(Mat<f64>
             data.nx,
         ));
     }
+    Ok(())
+}
+
+/// The model's `A` and `B` after checking `data` and the dimensions of model, data and matrices.
+fn checked_matrices(model: &dyn LiftedModel, data: &Dataset) -> Result<(Mat<f64>, Mat<f64>)> {
+    check_states(model, data)?;
     if model.nu() != data.nu {
         return Err(Error::dimension(
             "input dimension (model vs data)",
